@@ -1,0 +1,34 @@
+"""Topological transforms (paper 4.2): ``T(child) = T(parent) @ B(rim) @ Twist(k)``, composed
+one depth level at a time for every tree at once; ``T(root) = M(tree)``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from forest import rim
+from forest.expand import PieceGraph
+from forest.pieces import MAX_LEAF_RIMS, PieceArrays
+from forest.transforms import F64
+
+
+def building_twist_table(pieces: tuple[PieceArrays, ...]) -> F64:
+    """``(p, MAX_LEAF_RIMS, 6, 4, 4)``: ``B[p, r] @ Twist[k]``, identity where no rim ``r``."""
+    out = np.broadcast_to(np.eye(4), (len(pieces), MAX_LEAF_RIMS, rim.SIDES, 4, 4)).copy()
+    tw = rim.twists()
+    for i, p in enumerate(pieces):
+        out[i, : p.n_leaf_rims] = p.building[:, None] @ tw[None]
+    return out
+
+
+def topological_transforms(graph: PieceGraph, tree_transforms: F64,
+                           pieces: tuple[PieceArrays, ...]) -> F64:
+    """``(n, 4, 4)`` world transforms of every piece instance at rest."""
+    table = building_twist_table(pieces)
+    out = np.empty((len(graph), 4, 4))
+    for idx in graph.levels:
+        par = graph.parent[idx]
+        if par[0] < 0:  # level 0: tree roots
+            out[idx] = tree_transforms[graph.tree[idx]]
+            continue
+        out[idx] = out[par] @ table[graph.piece[par], graph.parent_rim[idx], graph.twist[idx]]
+    return out

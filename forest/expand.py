@@ -1,0 +1,126 @@
+"""Stochastic grammar expansion into a piece graph, one depth level at a time for all trees."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.errors import GrammarError, LimitError
+from forest.grammar import CompiledGrammar
+from forest.pieces import MAX_LEAF_RIMS
+from forest.settings import ForestSettings
+
+I32 = NDArray[np.int32]
+
+
+@dataclass(frozen=True, eq=False)
+class PieceGraph:
+    """Piece instances of a forest, tree-major, parents before children within a tree.
+
+    tree, parent (-1 for a tree's root piece), parent_rim, depth, piece, symbol, alt, twist :
+    (n,) int32. length : (n,) float64, the instance's length scale. radius : (n,) float64, the
+    scale its parent's terminal joint takes for it (1 for roots).
+    """
+
+    tree: I32
+    parent: I32
+    parent_rim: I32
+    depth: I32
+    piece: I32
+    symbol: I32
+    alt: I32
+    twist: I32
+    length: NDArray[np.float64]
+    radius: NDArray[np.float64]
+
+    def __len__(self) -> int:
+        return len(self.tree)
+
+    @property
+    def levels(self) -> list[I32]:
+        """Instance indices of each depth level, in order."""
+        order = np.argsort(self.depth, kind="stable").astype(np.int32)
+        bounds = np.searchsorted(self.depth[order], np.arange(int(self.depth.max()) + 2))
+        return [order[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+
+
+def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np.float64]:
+    u = rng.random(lo_hi.shape[:-1])
+    return lo_hi[..., 0] + u * (lo_hi[..., 1] - lo_hi[..., 0])
+
+
+def expand(cg: CompiledGrammar, n_trees: int, rng: np.random.Generator,
+           settings: ForestSettings) -> PieceGraph:
+    """Grow ``n_trees`` trees from the axiom; every draw is batched over one depth level."""
+    # the open rims of the current level
+    f_tree = np.arange(n_trees, dtype=np.int32)
+    f_parent = np.full(n_trees, -1, np.int32)
+    f_rim = np.zeros(n_trees, np.int32)
+    f_sym = np.full(n_trees, cg.axiom, np.int32)
+    f_len = np.ones(n_trees)
+    f_rad = np.ones(n_trees)
+    out: list[tuple[NDArray, ...]] = []
+    count = 0
+    per_tree = np.zeros(n_trees, np.int64)
+    for depth in range(cg.max_depth + 1):
+        cum = cg.choice_table(depth)[f_sym]
+        total = cum[:, -1]
+        u = rng.random(len(f_sym)) * total
+        alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
+        keep = total > 0  # no eligible alternative at this depth: the rim stays a tip
+        alt, f_tree, f_parent, f_rim, f_sym, f_len, f_rad = (
+            x[keep] for x in (alt, f_tree, f_parent, f_rim, f_sym, f_len, f_rad))
+        m = len(alt)
+        if m == 0:
+            break
+        twist = cg.alt_twist[alt]
+        twist = np.where(twist < 0, rng.integers(0, 6, m, dtype=np.int32), twist).astype(np.int32)
+        ids = np.arange(count, count + m, dtype=np.int32)
+        out.append((f_tree, f_parent, f_rim, np.full(m, depth, np.int32), cg.alt_piece[alt],
+                    f_sym, alt, twist, f_len, f_rad))
+        count += m
+        per_tree += np.bincount(f_tree, minlength=n_trees)
+        if count > settings.max_pieces_per_forest:
+            raise LimitError(f"the forest grew past {settings.max_pieces_per_forest} pieces; "
+                             "use fewer trees or a smaller grammar",
+                             path="max_pieces_per_forest", limit=settings.max_pieces_per_forest)
+        if per_tree.max() > settings.max_pieces_per_tree:
+            raise LimitError(f"a tree grew past {settings.max_pieces_per_tree} pieces; "
+                             "lower max_depth or the branching",
+                             path="max_pieces_per_tree", limit=settings.max_pieces_per_tree)
+        succ = cg.alt_succ[alt]
+        if depth == cg.max_depth:
+            if cg.grammar.max_depth is None and (succ >= 0).any():
+                raise GrammarError(f"the rules did not terminate within {cg.max_depth} levels; "
+                                   "set max_depth", path="max_depth")
+            break
+        grow_i, grow_r = np.nonzero(succ >= 0)
+        f_tree = f_tree[grow_i]
+        f_parent = ids[grow_i]
+        f_rim = grow_r.astype(np.int32)
+        f_sym = succ[grow_i, grow_r]
+        f_len = _uniform(rng, cg.alt_length[alt[grow_i], grow_r])
+        f_rad = _uniform(rng, cg.alt_radius[alt[grow_i], grow_r])
+    cols = [np.concatenate(c) for c in zip(*out, strict=True)]
+    tree, parent, rim, depth_a, piece, sym, alt_a, twist_a, length, radius = cols
+    # level order -> tree-major order; a stable sort keeps parents before children
+    order = np.argsort(tree, kind="stable")
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    parent = parent[order]
+    parent = np.where(parent >= 0, rank[np.maximum(parent, 0)], -1).astype(np.int32)
+    return PieceGraph(
+        tree=tree[order].astype(np.int32), parent=parent, parent_rim=rim[order],
+        depth=depth_a[order], piece=piece[order], symbol=sym[order], alt=alt_a[order],
+        twist=twist_a[order], length=length[order], radius=radius[order],
+    )
+
+
+def children_radius(graph: PieceGraph) -> NDArray[np.float64]:
+    """``(n, MAX_LEAF_RIMS)`` scale of each terminal joint: its child's radius, else 1."""
+    out = np.ones((len(graph), MAX_LEAF_RIMS))
+    has = graph.parent >= 0
+    out[graph.parent[has], graph.parent_rim[has]] = graph.radius[has]
+    return out

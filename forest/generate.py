@@ -1,0 +1,166 @@
+"""Grammar + seed -> a forest's arrays: piece graph, transforms, bones, poses, tiles, foliage."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest import __version__
+from forest.assembly import topological_transforms
+from forest.errors import LimitError
+from forest.expand import PieceGraph, expand
+from forest.grammar import CompiledGrammar, compile_grammar
+from forest.pieces import PieceArrays, piece_library
+from forest.scatter import Placement, tree_transforms
+from forest.settings import ForestSettings, get_settings
+from forest.skeleton import (
+    Bones,
+    PoseParams,
+    Wind,
+    build_bones,
+    draw_pose,
+    forward_kinematics,
+    local_transforms,
+    rest_palette,
+    skinning_palette,
+)
+from forest.tiles import draw_tile_indices
+from forest.transforms import F64
+from schemas.grammar import Grammar
+from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+
+Progress = Callable[[str, int, int], None]
+MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
+
+
+@dataclass(frozen=True)
+class ForestOptions:
+    trees: int = 1
+    area: tuple[float, float] = (20.0, 20.0)
+    frames: int = 0
+    fps: float = 24.0
+    placement: Placement = "poisson"
+    segments: int = 1
+    wind: Wind = field(default_factory=Wind)
+
+    def check(self, settings: ForestSettings) -> None:
+        if not 1 <= self.trees <= settings.max_trees:
+            raise LimitError(f"trees must be between 1 and {settings.max_trees}, got "
+                             f"{self.trees}", path="trees", limit=settings.max_trees)
+        if not 0 <= self.frames <= settings.max_frames:
+            raise LimitError(f"frames must be between 0 and {settings.max_frames}, got "
+                             f"{self.frames}", path="frames", limit=settings.max_frames)
+        for name, v in zip(("width", "depth"), self.area, strict=True):
+            if not (0 < v <= MAX_AREA) or not np.isfinite(v):
+                raise LimitError(f"area {name} must be in (0, {MAX_AREA:g}] metres, got {v}",
+                                 path=f"area.{name}", limit=MAX_AREA)
+        if not 0 < self.fps <= 1000:
+            raise LimitError(f"fps must be in (0, 1000], got {self.fps}", path="fps", limit=1000)
+        if not 1 <= self.segments <= 8:
+            raise LimitError(f"segments must be in [1, 8], got {self.segments}",
+                             path="segments", limit=8)
+
+
+@dataclass(frozen=True, eq=False)
+class Forest:
+    """Everything a scene holds, as numpy arrays (see DESIGN.md, "USD scene contract").
+
+    tree_transforms : (t, 4, 4)   transforms : (n, 4, 4) topological world transforms
+    tile_indices : (n, q_max) int32, -1 padded
+    foliage_instance : (k,) int32 instances that bear leaf clouds
+    """
+
+    grammar: Grammar
+    seed: int
+    version: str
+    options: ForestOptions
+    pieces: tuple[PieceArrays, ...]
+    graph: PieceGraph
+    tree_transforms: F64
+    transforms: F64
+    bones: Bones
+    pose: PoseParams
+    tile_indices: NDArray[np.int32]
+    manifest: TileSetManifest
+    foliage_instance: NDArray[np.int32]
+
+    @property
+    def n_instances(self) -> int:
+        return len(self.graph)
+
+    @property
+    def animated(self) -> bool:
+        return self.options.frames > 0
+
+    def frame_times(self) -> list[float | None]:
+        """Seconds of each frame, or ``[None]`` for a still (posed, windless) forest."""
+        if not self.animated:
+            return [None]
+        return [f / self.options.fps for f in range(self.options.frames)]
+
+    def local_bones(self, time: float | None = None) -> F64:
+        """``(b, 4, 4)`` local bone transforms, posed, with wind at ``time`` if given."""
+        return local_transforms(self.graph, self.bones, self.pieces, self.tree_transforms,
+                                self.transforms, self.pose,
+                                None if time is None else self.options.wind, time or 0.0)
+
+    def palette(self, time: float | None = None) -> F64:
+        """``(b, 4, 4)`` posed skinning matrices (prototype space -> world)."""
+        return skinning_palette(self.bones, forward_kinematics(self.bones, self.local_bones(time)))
+
+    def rest_palette(self) -> F64:
+        return rest_palette(self.bones, self.transforms)
+
+    def foliage_points(self) -> tuple[F64, F64]:
+        """Leaf-cloud centres ``(k, 3)`` at the hubs of foliage-bearing pieces and their
+        diameters ``(k,)`` (three piece radii: the piece's scale)."""
+        t = self.transforms[self.foliage_instance]
+        hubs = np.stack([p.joint_rest[1, :3, 3] for p in self.pieces])
+        hub = hubs[self.graph.piece[self.foliage_instance]]
+        pos = np.einsum("nij,nj->ni", t[:, :3, :3], hub) + t[:, :3, 3]
+        scale = np.cbrt(np.linalg.det(t[:, :3, :3]))
+        return pos, 3.0 * scale
+
+
+def generate_forest(grammar: Grammar, seed: int, options: ForestOptions | None = None,
+                    manifest: TileSetManifest = DEFAULT_MANIFEST,
+                    settings: ForestSettings | None = None,
+                    progress: Progress | None = None,
+                    compiled: CompiledGrammar | None = None) -> Forest:
+    """Expand, assemble, pose and tile a forest. Same inputs, same version: same arrays."""
+    settings = settings or get_settings()
+    options = options or ForestOptions()
+    options.check(settings)
+    cg = compiled or compile_grammar(grammar, settings)
+    expected = cg.expected_pieces * options.trees
+    if expected > settings.max_pieces_per_forest:
+        raise LimitError(f"{options.trees} trees of about {cg.expected_pieces:.0f} pieces each "
+                         f"exceed the cap of {settings.max_pieces_per_forest} pieces per forest",
+                         path="max_pieces_per_forest", limit=settings.max_pieces_per_forest)
+    note = progress or (lambda stage, done, total: None)
+    # independent streams per stage, so a change in one stage never reshuffles another
+    streams = np.random.SeedSequence(seed).spawn(4)
+    rng_scatter, rng_grow, rng_pose, rng_tiles = (np.random.default_rng(s) for s in streams)
+    pieces = piece_library(options.segments)
+    note("place", 0, 5)
+    trees = tree_transforms(options.trees, options.area, grammar.trunk_radius,
+                            grammar.tree_scale, rng_scatter, options.placement)
+    note("grow", 1, 5)
+    graph = expand(cg, options.trees, rng_grow, settings)
+    note("assemble", 2, 5)
+    transforms = topological_transforms(graph, trees, pieces)
+    note("bones", 3, 5)
+    bones = build_bones(graph, pieces)
+    pose = draw_pose(graph, pieces, cg.alt_bend, cg.alt_spread, rng_pose, options.trees)
+    note("tiles", 4, 5)
+    tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)
+    note("done", 5, 5)
+    return Forest(
+        grammar=grammar, seed=seed, version=__version__, options=options, pieces=pieces,
+        graph=graph, tree_transforms=trees, transforms=transforms, bones=bones, pose=pose,
+        tile_indices=tiles, manifest=manifest,
+        foliage_instance=np.nonzero(cg.foliage[graph.symbol])[0].astype(np.int32),
+    )

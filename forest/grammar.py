@@ -1,0 +1,225 @@
+"""Grammar loading, cross-checks and compilation into numpy tables for vectorised expansion."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pydantic import ValidationError
+
+from forest.errors import GrammarError, LimitError
+from forest.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
+from forest.settings import ForestSettings, get_settings
+from schemas.grammar import Grammar
+
+# A grammar file is a few KiB; anything this big is not a grammar and would only cost time.
+MAX_GRAMMAR_BYTES = 1 << 20
+
+
+def _loc_to_path(loc: tuple[int | str, ...]) -> str:
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif part in ("function-after", "tagged-union") or "[" in str(part):
+            continue  # pydantic's internal validator names, meaningless to a user
+        else:
+            out += f".{part}" if out else str(part)
+    return out
+
+
+def parse_grammar(data: Any) -> Grammar:
+    """Validate already-decoded JSON into a :class:`Grammar`, naming the first bad field."""
+    try:
+        return Grammar.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        raise GrammarError(err["msg"], path=_loc_to_path(tuple(err["loc"]))) from None
+
+
+def load_grammar(path: str | Path) -> Grammar:
+    """Read a grammar JSON file; malformed, truncated, huge or missing files get a GrammarError."""
+    p = Path(path)
+    try:
+        size = p.stat().st_size
+        if size > MAX_GRAMMAR_BYTES:
+            raise GrammarError(f"file is {size} bytes; a grammar is at most {MAX_GRAMMAR_BYTES}",
+                               path=str(p))
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise GrammarError("no such file", path=str(p)) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise GrammarError(f"cannot read: {exc}", path=str(p)) from None
+    return grammar_from_json(text, source=str(p))
+
+
+def grammar_from_json(text: str, source: str = "grammar") -> Grammar:
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        what = "truncated JSON" if exc.pos >= len(text.rstrip()) else "malformed JSON"
+        raise GrammarError(f"{what}: {exc.msg} at line {exc.lineno} column {exc.colno}",
+                           path=source) from None
+    return parse_grammar(data)
+
+
+@dataclass(frozen=True, eq=False)
+class CompiledGrammar:
+    """A grammar as tables indexed by symbol id ``s`` and alternative id ``a``.
+
+    alt_symbol : (A,) int32            alt_piece : (A,) int32 (index into PIECE_NAMES)
+    alt_weight : (A,) float64          alt_depth : (A, 2) int32 inclusive [min, max]
+    alt_twist : (A,) int32 (-1 random) alt_succ : (A, MAX_LEAF_RIMS) int32 (-1 none)
+    alt_length, alt_radius : (A, MAX_LEAF_RIMS, 2) float64 ranges
+    alt_bend, alt_spread : (A, 2) float64 ranges in radians
+    foliage : (S,) bool
+    """
+
+    grammar: Grammar
+    symbols: tuple[str, ...]
+    axiom: int
+    max_depth: int
+    alt_symbol: NDArray[np.int32]
+    alt_piece: NDArray[np.int32]
+    alt_weight: NDArray[np.float64]
+    alt_depth: NDArray[np.int32]
+    alt_twist: NDArray[np.int32]
+    alt_succ: NDArray[np.int32]
+    alt_length: NDArray[np.float64]
+    alt_radius: NDArray[np.float64]
+    alt_bend: NDArray[np.float64]
+    alt_spread: NDArray[np.float64]
+    foliage: NDArray[np.bool_]
+    expected_pieces: float
+
+    def choice_table(self, depth: int) -> NDArray[np.float64]:
+        """``(S, A)`` cumulative weights of the alternatives eligible at ``depth``."""
+        ok = (self.alt_depth[:, 0] <= depth) & (depth <= self.alt_depth[:, 1])
+        w = np.zeros((len(self.symbols), len(self.alt_symbol)))
+        w[self.alt_symbol, np.arange(len(self.alt_symbol))] = self.alt_weight * ok
+        return np.cumsum(w, axis=1)
+
+
+def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> CompiledGrammar:
+    """Cross-check ``g`` against the piece library and build its tables."""
+    settings = settings or get_settings()
+    symbols = tuple(g.rules)
+    sid = {s: i for i, s in enumerate(symbols)}
+    if g.axiom not in sid:
+        raise GrammarError(f"axiom {g.axiom!r} has no rule (rules: {', '.join(symbols)})",
+                           path="axiom")
+    for i, s in enumerate(g.foliage):
+        if s not in sid:
+            raise GrammarError(f"unknown symbol {s!r}", path=f"foliage[{i}]")
+    rims = {name: p.n_leaf_rims for name, p in zip(PIECE_NAMES, piece_library(), strict=True)}
+    rows: list[tuple[int, Any]] = []
+    for s, alts in g.rules.items():
+        for j, alt in enumerate(alts):
+            where = f"rules.{s}[{j}]"
+            if len(alt.successors) != rims[alt.piece]:
+                raise GrammarError(
+                    f"piece {alt.piece} has {rims[alt.piece]} leaf rim(s) but "
+                    f"{len(alt.successors)} successor(s) are given", path=f"{where}.successors")
+            for r, succ in enumerate(alt.successors):
+                if succ is not None and succ.symbol not in sid:
+                    raise GrammarError(f"unknown symbol {succ.symbol!r}",
+                                       path=f"{where}.successors[{r}].symbol")
+            rows.append((sid[s], alt))
+    n_alt = len(rows)
+    big = np.iinfo(np.int32).max
+    alt_succ = np.full((n_alt, MAX_LEAF_RIMS), -1, np.int32)
+    alt_length = np.ones((n_alt, MAX_LEAF_RIMS, 2))
+    alt_radius = np.ones((n_alt, MAX_LEAF_RIMS, 2))
+    for a, (_, alt) in enumerate(rows):
+        for r, succ in enumerate(alt.successors):
+            if succ is not None:
+                alt_succ[a, r] = sid[succ.symbol]
+                alt_length[a, r] = succ.length
+                alt_radius[a, r] = succ.radius
+    max_depth = g.max_depth if g.max_depth is not None else settings.depth_limit
+    cg = CompiledGrammar(
+        grammar=g,
+        symbols=symbols,
+        axiom=sid[g.axiom],
+        max_depth=max_depth,
+        alt_symbol=np.array([s for s, _ in rows], np.int32),
+        alt_piece=np.array([PIECE_NAMES.index(alt.piece) for _, alt in rows], np.int32),
+        alt_weight=np.array([alt.weight for _, alt in rows]),
+        alt_depth=np.array([[alt.min_depth, big if alt.max_depth is None else alt.max_depth]
+                            for _, alt in rows], np.int32),
+        alt_twist=np.array([-1 if alt.twist == "random" else alt.twist for _, alt in rows],
+                           np.int32),
+        alt_succ=alt_succ,
+        alt_length=alt_length,
+        alt_radius=alt_radius,
+        alt_bend=np.deg2rad([alt.pose.bend for _, alt in rows]).reshape(n_alt, 2),
+        alt_spread=np.deg2rad([alt.pose.spread for _, alt in rows]).reshape(n_alt, 2),
+        foliage=np.isin(np.arange(len(symbols)), [sid[s] for s in g.foliage]),
+        expected_pieces=0.0,
+    )
+    if g.max_depth is None:
+        _check_terminates(cg)
+    expected = _expected_pieces(cg)
+    object.__setattr__(cg, "expected_pieces", expected)
+    if expected > settings.max_pieces_per_tree:
+        raise LimitError(
+            f"the grammar grows about {expected:.3g} pieces per tree, over the cap of "
+            f"{settings.max_pieces_per_tree}; lower max_depth or the branching",
+            path="max_pieces_per_tree", limit=settings.max_pieces_per_tree)
+    return cg
+
+
+def _check_terminates(cg: CompiledGrammar) -> None:
+    """Without max_depth every reachable symbol must be able to end in a finite tree."""
+    n = len(cg.symbols)
+    ends = np.zeros(n, bool)
+    while True:
+        succ_ok = np.where(cg.alt_succ < 0, True, ends[np.maximum(cg.alt_succ, 0)])
+        alt_ok = succ_ok.all(axis=1)
+        new = np.zeros(n, bool)
+        new[cg.alt_symbol[alt_ok]] = True
+        if (new == ends).all():
+            break
+        ends = new
+    reach = np.zeros(n, bool)
+    reach[cg.axiom] = True
+    while True:
+        grow = cg.alt_succ[reach[cg.alt_symbol]]
+        new = reach.copy()
+        new[grow[grow >= 0]] = True
+        if (new == reach).all():
+            break
+        reach = new
+    stuck = [cg.symbols[i] for i in np.nonzero(reach & ~ends)[0]]
+    if stuck:
+        raise GrammarError(
+            f"the rules never terminate: every alternative of {', '.join(map(repr, stuck))} "
+            "keeps growing; add an alternative without successors or set max_depth",
+            path="max_depth")
+
+
+def _expected_pieces(cg: CompiledGrammar) -> float:
+    """Expected pieces per tree, summed level by level up to max_depth."""
+    n = len(cg.symbols)
+    level = np.zeros(n)
+    level[cg.axiom] = 1.0
+    total = 0.0
+    for d in range(cg.max_depth + 1):
+        cum = cg.choice_table(d)
+        tot = cum[:, -1]
+        p = np.diff(cum, axis=1, prepend=0.0) / np.where(tot > 0, tot, 1.0)[:, None]
+        grown = level * (tot > 0)
+        total += grown.sum()
+        if total > 1e15 or not grown.any():
+            break
+        nxt = np.zeros(n)
+        per_alt = grown[cg.alt_symbol] * p[cg.alt_symbol, np.arange(len(cg.alt_symbol))]
+        for r in range(MAX_LEAF_RIMS):
+            has = cg.alt_succ[:, r] >= 0
+            np.add.at(nxt, cg.alt_succ[has, r], per_alt[has])
+        level = nxt
+    return float(total)

@@ -1,0 +1,395 @@
+"""The piece library (paper 4.1): quad-only meshes built in code, with rims, building transforms,
+a skeleton and skin weights.
+
+Every piece shares one skeleton layout so assembly and posing vectorise across piece types:
+
+====== ======================================= ==========================================
+joint  where (model space)                      role
+====== ======================================= ==========================================
+0      root-rim centre, identity frame          rigidly attached to the parent's terminal
+1      hub: where the piece bends or forks      bend of everything above it
+2 + r  leaf rim ``r`` frame (= building B_r)   terminal; its child's root sits here
+====== ======================================= ==========================================
+
+Tubes are built ring by ring. A ring is six vertex indices ordered by increasing angle about
+the tube's local +Y, and quads are wound ``(a_i, b_i, b_i+1, a_i+1)`` so normals face outward
+(right-handed, counter-clockwise front faces, as USD expects).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cache
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest import rim
+from forest.transforms import (
+    F64,
+    axis_angle_matrix,
+    invert_similarity,
+    scaling,
+    transform_points,
+    transform_vectors,
+    translation,
+)
+
+BARK = 1
+FORK = 2
+MAX_LEAF_RIMS = 3
+MAX_JOINTS = 2 + MAX_LEAF_RIMS
+MAX_INFLUENCES = 4
+# Corner st of every quad, in the winding order (a_i, b_i, b_i+1, a_i+1): u runs around the
+# tube, v along it, so bark tiles stand upright.
+QUAD_ST = np.array([[0.0, 0.0], [0.0, 1.0], [1.0, 1.0], [1.0, 0.0]])
+
+
+@dataclass(frozen=True, eq=False)
+class PieceArrays:
+    """One piece's mesh, rims and skeleton.
+
+    positions : (v, 3) float64      normals : (v, 3) float64 (unit)
+    quads : (q, 4) int32            tile_class : (q,) int32 (BARK or FORK)
+    joint_indices : (v, 4) int32    joint_weights : (v, 4) float64 (rows sum to 1)
+    root_rim : (6,) int32           leaf_rims : (r, 6) int32, vertex ``k`` of each rim is
+                                    ``building[r] @ root vertex k``
+    building : (r, 4, 4) float64    similarity mapping the root rim onto leaf rim ``r``
+    joint_rest : (j, 4, 4) float64  joint frames in model space (j = 2 + r)
+    joint_parents : (j,) int32      -1 for the root
+    """
+
+    name: str
+    positions: F64
+    normals: F64
+    quads: NDArray[np.int32]
+    tile_class: NDArray[np.int32]
+    joint_indices: NDArray[np.int32]
+    joint_weights: F64
+    root_rim: NDArray[np.int32]
+    leaf_rims: NDArray[np.int32]
+    building: F64
+    joint_rest: F64
+    joint_parents: NDArray[np.int32]
+
+    @property
+    def n_leaf_rims(self) -> int:
+        return int(self.building.shape[0])
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.joint_rest.shape[0])
+
+    @property
+    def joint_names(self) -> tuple[str, ...]:
+        return ("root", "hub") + tuple(f"tip{r}" for r in range(self.n_leaf_rims))
+
+
+class _MeshBuilder:
+    """Accumulates vertices with dense joint weights, and quads with tile classes."""
+
+    def __init__(self, n_joints: int) -> None:
+        self.n_joints = n_joints
+        self.points: list[F64] = []
+        self.weights: list[F64] = []
+        self.quads: list[NDArray[np.int64]] = []
+        self.classes: list[NDArray[np.int64]] = []
+        self.count = 0
+
+    def add(self, pts: F64, w: F64) -> NDArray[np.int64]:
+        pts = np.atleast_2d(pts)
+        w = np.broadcast_to(w, (len(pts), self.n_joints))
+        idx = np.arange(self.count, self.count + len(pts))
+        self.points.append(pts)
+        self.weights.append(np.array(w))
+        self.count += len(pts)
+        return idx
+
+    def strip(self, a: NDArray[np.int64], b: NDArray[np.int64], cls: int,
+              skip: tuple[int, ...] = ()) -> None:
+        """Quads between consecutive rings ``a`` and ``b`` (each (6,)), except columns ``skip``."""
+        cols = np.array([i for i in range(rim.SIDES) if i not in skip])
+        nxt = (cols + 1) % rim.SIDES
+        self.quads.append(np.stack([a[cols], b[cols], b[nxt], a[nxt]], axis=-1))
+        self.classes.append(np.full(len(cols), cls))
+
+    def positions(self) -> F64:
+        return np.concatenate(self.points)
+
+    def dense_weights(self) -> F64:
+        return np.concatenate(self.weights)
+
+
+def _onehot(j: int, n: int) -> F64:
+    w = np.zeros(n)
+    w[j] = 1.0
+    return w
+
+
+def _leaf_frame(base: F64, tilt_z: float, length: float, scale: float) -> F64:
+    """Building transform of a leaf rim reached from ``base`` by leaning +Y by ``tilt_z``
+    radians about +Z (negative leans toward +X) and going ``length`` along that axis."""
+    rot = axis_angle_matrix([0.0, 0.0, 1.0], tilt_z)
+    axis = rot[:3, 1]
+    return translation(base + length * axis) @ rot @ scaling(scale)
+
+
+def _align_ring(idx: NDArray[np.int64], pts: F64, frame: F64) -> NDArray[np.int64]:
+    """Order six loop vertices ``idx`` like the canonical rim as seen from ``frame``: sort by
+    angle about the frame's +Y, then rotate the cycle onto the rim angles 30 + 60k."""
+    local = transform_points(invert_similarity(frame), pts)
+    ang = np.mod(np.arctan2(local[:, 2], local[:, 0]), 2 * np.pi)
+    order = np.argsort(ang)
+    ang = ang[order]
+    shifts = [np.abs(np.angle(np.exp(1j * (np.roll(ang, -k) - rim.ANGLES)))).sum()
+              for k in range(rim.SIDES)]
+    return np.roll(idx[order], -int(np.argmin(shifts)))
+
+
+def _hermite_rings(p0: F64, t0: F64, p1: F64, t1: F64, n: int) -> list[F64]:
+    """``n - 1`` rings strictly between ring ``p0`` and ring ``p1`` (each (6, 3)) on cubic
+    Hermite curves leaving along ``t0`` and arriving along ``t1`` (unit (3,))."""
+    out = []
+    span = np.linalg.norm(p1 - p0, axis=-1, keepdims=True)
+    for i in range(1, n):
+        u = i / n
+        h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+        h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+        out.append(h00 * p0 + h10 * span * t0 + h01 * p1 + h11 * span * t1)
+    return out
+
+
+class _PieceBuilder:
+    """Shared steps of every piece: stems on the rim cone, branches to leaf rims, normals."""
+
+    def __init__(self, name: str, hub: F64, leaves: list[F64]) -> None:
+        self.name = name
+        self.hub = np.asarray(hub, dtype=np.float64)
+        self.leaves = leaves
+        self.nj = 2 + len(leaves)
+        self.mesh = _MeshBuilder(self.nj)
+        self.root_rim: NDArray[np.int64] | None = None
+        self.leaf_rims: list[NDArray[np.int64] | None] = [None] * len(leaves)
+
+    def stem_weights(self, y: F64, top: float, tip: int | None) -> F64:
+        """Weights along a vertical stem: root -> hub below the hub, hub -> tip above it."""
+        y = np.atleast_1d(y)
+        w = np.zeros((len(y), self.nj))
+        h = self.hub[1]
+        below = y <= h
+        u = np.where(below, y / h, (y - h) / max(top - h, 1e-12))
+        w[below, 0] = 1 - u[below]
+        w[below, 1] = u[below]
+        if tip is None:
+            w[~below, 1] = 1.0
+        else:
+            w[~below, 1] = 1 - u[~below]
+            w[~below, 2 + tip] = u[~below]
+        return w
+
+    def stem(self, heights: list[float], top: float, tip: int | None,
+             leaf_frame: F64 | None) -> list[NDArray[np.int64]]:
+        """Rings on the root cone at ``heights``; if ``leaf_frame`` is given the last ring is
+        that leaf rim (the stem is then one frustum of the cone). Returns the ring indices."""
+        rings = []
+        for y in heights:
+            pts = rim.cone_ring(y)
+            rings.append(self.mesh.add(pts, self.stem_weights(np.full(6, y), top, tip)))
+        self.root_rim = rings[0]
+        if leaf_frame is not None:
+            self.leaf_rims[tip if tip is not None else 0] = rings[-1]
+        return rings
+
+    def branch(self, start: NDArray[np.int64], start_dir: F64, r: int, segments: int,
+               cls_first: NDArray[np.int64] | int) -> None:
+        """A tube from the six-vertex loop ``start`` to leaf rim ``r``; the last quad ring lies
+        on the leaf's rim cone. ``cls_first`` is the tile class of the first quad ring."""
+        frame = self.leaves[r]
+        pos = self.mesh.positions()
+        start = _align_ring(start, pos[start], frame)
+        w_start = self.mesh.dense_weights()[start]
+        # the ring one cone step below the leaf rim, in leaf space
+        k_local = rim.cone_ring(-0.6)
+        k_pts = transform_points(frame, k_local)
+        leaf_pts = transform_points(frame, rim.rim_ring())
+        axis = transform_vectors(frame, np.array([[0.0, 1.0, 0.0]]))[0]
+        mids = _hermite_rings(pos[start], start_dir, k_pts, axis, segments)
+        ring_pts = mids + [k_pts, leaf_pts]
+        n = len(ring_pts)
+        prev = start
+        tip = _onehot(2 + r, self.nj)
+        for i, pts in enumerate(ring_pts, start=1):
+            u = i / n
+            idx = self.mesh.add(pts, (1 - u) * w_start + u * tip)
+            if i == 1 and not np.isscalar(cls_first):
+                # per-column classes for the first quad ring (fork region)
+                cols = np.asarray(cls_first)
+                for c in (BARK, FORK):
+                    skip = tuple(int(k) for k in np.nonzero(cols != c)[0])
+                    if len(skip) < rim.SIDES:
+                        self.mesh.strip(prev, idx, c, skip)
+            else:
+                self.mesh.strip(prev, idx, int(cls_first) if i == 1 else BARK)
+            prev = idx
+        self.leaf_rims[r] = prev
+
+    def finish(self) -> PieceArrays:
+        pos = self.mesh.positions()
+        quads = np.concatenate(self.mesh.quads).astype(np.int32)
+        tile_class = np.concatenate(self.mesh.classes).astype(np.int32)
+        normals = _vertex_normals(pos, quads)
+        assert self.root_rim is not None
+        normals[self.root_rim] = rim.rim_normals()
+        leaf_rims = np.stack([np.asarray(lr) for lr in self.leaf_rims]).astype(np.int32)
+        building = np.stack(self.leaves)
+        for r, frame in enumerate(self.leaves):
+            # rim vertices carry the predetermined cone normals, so joints match exactly
+            normals[leaf_rims[r]] = transform_vectors(frame, rim.rim_normals())
+            pos[leaf_rims[r]] = transform_points(frame, rim.rim_ring())
+        pos[self.root_rim] = rim.rim_ring()
+        dense = self.mesh.dense_weights()
+        order = np.argsort(-dense, axis=1, kind="stable")[:, :MAX_INFLUENCES]
+        wts = np.take_along_axis(dense, order, axis=1)
+        wts /= wts.sum(axis=1, keepdims=True)
+        joint_rest = np.concatenate([np.eye(4)[None], translation(self.hub)[None], building])
+        parents = np.array([-1, 0] + [1] * len(self.leaves), dtype=np.int32)
+        return PieceArrays(
+            name=self.name,
+            positions=pos,
+            normals=normals,
+            quads=quads,
+            tile_class=tile_class,
+            joint_indices=np.where(wts > 0, order, 0).astype(np.int32),
+            joint_weights=wts,
+            root_rim=np.asarray(self.root_rim, dtype=np.int32),
+            leaf_rims=leaf_rims,
+            building=building,
+            joint_rest=joint_rest,
+            joint_parents=parents,
+        )
+
+
+def _vertex_normals(pos: F64, quads: NDArray[np.int32]) -> F64:
+    """Area-weighted vertex normals of a quad mesh (each quad as two triangles)."""
+    a, b, c, d = (pos[quads[:, i]] for i in range(4))
+    fn = np.cross(c - a, d - b)  # quad normal from its diagonals, twice its area
+    n = np.zeros_like(pos)
+    for i in range(4):
+        np.add.at(n, quads[:, i], fn)
+    return n / np.linalg.norm(n, axis=-1, keepdims=True)
+
+
+STEM_HEIGHT = 4.0
+# A full-height stem is one frustum of the rim cone, so its leaf rim scale follows from the
+# slope: 1 - 4 * 3/64 = 0.8125, exactly representable in binary16.
+STEM_SCALE = 1.0 - STEM_HEIGHT * rim.CONE_SLOPE
+
+
+def make_i_piece(segments: int = 1) -> PieceArrays:
+    """I: a slightly narrowing cylinder, one leaf rim straight above the root rim."""
+    leaf = translation([0.0, STEM_HEIGHT, 0.0]) @ scaling(STEM_SCALE)
+    pb = _PieceBuilder("I", np.array([0.0, STEM_HEIGHT / 2, 0.0]), [leaf])
+    n = 2 * segments
+    rings = pb.stem([STEM_HEIGHT * i / n for i in range(n + 1)], STEM_HEIGHT, 0, leaf)
+    for a, b in zip(rings[:-1], rings[1:], strict=True):
+        pb.mesh.strip(a, b, BARK)
+    return pb.finish()
+
+
+def make_y_piece(segments: int = 1) -> PieceArrays:
+    """Y: a symmetric fork with two co-dominant stems leaning +-30 degrees in the XY plane."""
+    y_j = 1.5  # junction height on the root cone
+    tilt, length, scale = np.deg2rad(30.0), 2.4, 0.75
+    base = np.array([0.42, y_j + 0.35, 0.0])
+    right = _leaf_frame(base, -tilt, length, scale)
+    left = _leaf_frame(base * [-1, 1, 1], tilt, length, scale)
+    pb = _PieceBuilder("Y", np.array([0.0, y_j, 0.0]), [right, left])
+    rings = pb.stem([y_j * i / segments for i in range(segments + 1)], y_j, None, None)
+    for a, b in zip(rings[:-1], rings[1:], strict=True):
+        pb.mesh.strip(a, b, BARK)
+    top = rings[-1]
+    crotch = pb.mesh.add(np.array([[0.0, y_j + 0.75, 0.4], [0.0, y_j + 0.75, -0.4]]),
+                         _onehot(1, pb.nj))
+    # top ring indices: 0:30, 1:90, 2:150, 3:210, 4:270, 5:330 degrees
+    right_loop = np.array([top[0], top[1], crotch[0], crotch[1], top[4], top[5]])
+    left_loop = np.array([top[1], top[2], top[3], top[4], crotch[1], crotch[0]])
+    up = np.array([0.0, 1.0, 0.0])
+    for r, loop in enumerate((right_loop, left_loop)):
+        frame = pb.leaves[r]
+        aligned = _align_ring(loop, pb.mesh.positions()[loop], frame)
+        # the three quads leaving the crotch are the fork region (paper Fig. 10)
+        cls = np.where(np.isin(aligned, crotch) | np.isin(np.roll(aligned, -1), crotch),
+                       FORK, BARK)
+        pb.branch(aligned, up, r, segments, cls)
+    return pb.finish()
+
+
+def _stem_with_holes(pb: _PieceBuilder, columns: tuple[int, ...], segments: int,
+                     leaf: F64) -> dict[int, NDArray[np.int64]]:
+    """A full-height stem to leaf rim 0 with a two-quad hole in each of ``columns`` between
+    rings at heights 1.0 and 2.2; returns each hole's six-vertex loop."""
+    lower = [1.0 * i / segments for i in range(segments)]
+    upper = [2.2 + (STEM_HEIGHT - 2.2) * i / segments for i in range(1, segments + 1)]
+    heights = lower + [1.0, 1.6, 2.2] + upper
+    rings = pb.stem(heights, STEM_HEIGHT, 0, leaf)
+    i1 = segments  # ring at 1.0
+    for k, (a, b) in enumerate(zip(rings[:-1], rings[1:], strict=True)):
+        hole_row = i1 <= k < i1 + 2
+        pb.mesh.strip(a, b, BARK, columns if hole_row else ())
+    r1, r2, r3 = rings[i1], rings[i1 + 1], rings[i1 + 2]
+    loops = {}
+    for c in columns:
+        d = (c + 1) % rim.SIDES
+        loops[c] = np.array([r1[c], r1[d], r2[d], r3[d], r3[c], r2[c]])
+    return loops
+
+
+def _lateral(pb: _PieceBuilder, loop: NDArray[np.int64], r: int, segments: int) -> None:
+    pos = pb.mesh.positions()[loop]
+    out = pos.mean(axis=0) * [1.0, 0.0, 1.0]
+    pb.branch(loop, out / np.linalg.norm(out), r, segments, FORK)
+
+
+def make_side_piece(segments: int = 1) -> PieceArrays:
+    """Side branch (the paper's perpendicular piece): the stem goes on to leaf rim 0 and one
+    thinner lateral leaves through a hole in the +X face to leaf rim 1."""
+    stem_leaf = translation([0.0, STEM_HEIGHT, 0.0]) @ scaling(STEM_SCALE)
+    base = np.array([rim.RADIUS - 1.6 * rim.CONE_SLOPE, 1.6, 0.0]) * [0.85, 1, 1]
+    lateral = _leaf_frame(base, np.deg2rad(-50.0), 1.7, 0.5625)
+    pb = _PieceBuilder("T", np.array([0.0, 1.6, 0.0]), [stem_leaf, lateral])
+    loops = _stem_with_holes(pb, (5,), segments, stem_leaf)
+    _lateral(pb, loops[5], 1, segments)
+    return pb.finish()
+
+
+def make_psi_piece(segments: int = 1) -> PieceArrays:
+    """Psi: a planar trifurcation; the stem goes on to leaf rim 0, two laterals leave through
+    the +X and -X faces to leaf rims 1 and 2."""
+    stem_leaf = translation([0.0, STEM_HEIGHT, 0.0]) @ scaling(STEM_SCALE)
+    x = (rim.RADIUS - 1.6 * rim.CONE_SLOPE) * 0.85
+    right = _leaf_frame(np.array([x, 1.6, 0.0]), np.deg2rad(-45.0), 1.7, 0.625)
+    left = _leaf_frame(np.array([-x, 1.6, 0.0]), np.deg2rad(45.0), 1.7, 0.625)
+    pb = _PieceBuilder("Psi", np.array([0.0, 1.6, 0.0]), [stem_leaf, right, left])
+    # columns: 5 spans 330..30 degrees (+X face), 2 spans 150..210 degrees (-X face)
+    loops = _stem_with_holes(pb, (5, 2), segments, stem_leaf)
+    _lateral(pb, loops[5], 1, segments)
+    _lateral(pb, loops[2], 2, segments)
+    return pb.finish()
+
+
+MAKERS = {"I": make_i_piece, "Y": make_y_piece, "T": make_side_piece, "Psi": make_psi_piece}
+PIECE_NAMES: tuple[str, ...] = tuple(MAKERS)
+
+
+@cache
+def piece_library(segments: int = 1) -> tuple[PieceArrays, ...]:
+    """All pieces at one resolution, in :data:`PIECE_NAMES` order (the prototype order)."""
+    return tuple(make(segments) for make in MAKERS.values())
+
+
+def skinning_rest_inverse(pieces: tuple[PieceArrays, ...]) -> F64:
+    """``(p, MAX_JOINTS, 4, 4)`` inverse rest joint frames, identity-padded."""
+    out = np.broadcast_to(np.eye(4), (len(pieces), MAX_JOINTS, 4, 4)).copy()
+    for i, p in enumerate(pieces):
+        out[i, : p.n_joints] = invert_similarity(p.joint_rest)
+    return out

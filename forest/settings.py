@@ -1,0 +1,25 @@
+"""Library settings (caps on work), read from ``FOREST_*`` environment variables."""
+
+from __future__ import annotations
+
+from functools import cache
+
+from pydantic import Field
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class ForestSettings(BaseSettings):
+    model_config = SettingsConfigDict(env_prefix="FOREST_", frozen=True)
+
+    max_pieces_per_tree: int = Field(100_000, gt=0)
+    # ~1 KiB of arrays per piece (transforms, bones, tiles): 5 M pieces stay within a few GiB
+    max_pieces_per_forest: int = Field(5_000_000, gt=0)
+    max_trees: int = Field(200_000, gt=0)
+    max_frames: int = Field(10_000, gt=0)
+    # depth at which a grammar without max_depth is declared non-terminating
+    depth_limit: int = Field(64, gt=0, le=256)
+
+
+@cache
+def get_settings() -> ForestSettings:
+    return ForestSettings()

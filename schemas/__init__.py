@@ -1,0 +1,1 @@
+"""pydantic v2 models of everything that crosses a wire; JSON Schema exports live in ``json/``."""
