@@ -22,10 +22,9 @@ from forest.skeleton import (
     Wind,
     build_bones,
     draw_pose,
-    forward_kinematics,
     local_transforms,
+    posed_palette,
     rest_palette,
-    skinning_palette,
 )
 from forest.tiles import draw_tile_indices
 from forest.transforms import F64
@@ -109,7 +108,7 @@ class Forest:
 
     def palette(self, time: float | None = None) -> F64:
         """``(b, 4, 4)`` posed skinning matrices (prototype space -> world)."""
-        return skinning_palette(self.bones, forward_kinematics(self.bones, self.local_bones(time)))
+        return posed_palette(self.graph, self.bones, self.local_bones(time))
 
     def rest_palette(self) -> F64:
         return rest_palette(self.bones, self.transforms)

@@ -61,8 +61,9 @@ def grammar_from_json(text: str, source: str = "grammar") -> Grammar:
     try:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
-        what = "truncated JSON" if exc.pos >= len(text.rstrip()) else "malformed JSON"
-        raise GrammarError(f"{what}: {exc.msg} at line {exc.lineno} column {exc.colno}",
+        at_end = exc.pos >= len(text.rstrip()) - 1 or exc.msg.startswith("Unterminated")
+        what = "truncated JSON (the file ends early)" if at_end else "malformed JSON"
+        raise GrammarError(f"{what}: {exc.msg} (line {exc.lineno}, column {exc.colno})",
                            path=source) from None
     return parse_grammar(data)
 

@@ -248,6 +248,8 @@ class _PieceBuilder:
             pos[leaf_rims[r]] = transform_points(frame, rim.rim_ring())
         pos[self.root_rim] = rim.rim_ring()
         dense = self.mesh.dense_weights()
+        if dense.shape[1] < MAX_INFLUENCES:  # pad so every piece has four influence slots
+            dense = np.pad(dense, ((0, 0), (0, MAX_INFLUENCES - dense.shape[1])))
         order = np.argsort(-dense, axis=1, kind="stable")[:, :MAX_INFLUENCES]
         wts = np.take_along_axis(dense, order, axis=1)
         wts /= wts.sum(axis=1, keepdims=True)

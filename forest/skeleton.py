@@ -41,25 +41,21 @@ class Bones:
     """Bone tables of a forest, in palette order (instance-major, joint-minor).
 
     offset : (n,) int32 first bone of each instance      instance, joint : (b,) int32
-    parent : (b,) int32 parent bone, -1 for tree roots   level : (b,) int32 FK level
-    inv_rest : (b, 4, 4) float64 inverse rest joint frame of the bone's piece
+    parent : (b,) int32 parent bone, -1 for tree roots
+    rest : (p, MAX_JOINTS, 4, 4) joint frames J per piece; inv_rest their inverses
+    piece_rims : (p,) int32 leaf rims per piece
     """
 
     offset: I32
     instance: I32
     joint: I32
     parent: I32
-    level: I32
+    rest: F64
     inv_rest: F64
+    piece_rims: I32
 
     def __len__(self) -> int:
         return len(self.instance)
-
-    @property
-    def levels(self) -> list[I32]:
-        order = np.argsort(self.level, kind="stable").astype(np.int32)
-        bounds = np.searchsorted(self.level[order], np.arange(int(self.level.max()) + 2))
-        return [order[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
 
 
 def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
@@ -75,34 +71,31 @@ def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
         np.where(par_inst >= 0, offset[np.maximum(par_inst, 0)] + TIP0 + graph.parent_rim[instance], -1),
         offset[instance] + np.where(joint == HUB, 0, HUB),
     ).astype(np.int32)
-    level = (3 * graph.depth[instance] + np.minimum(joint, TIP0)).astype(np.int32)
-    inv = skinning_rest_inverse(pieces)[graph.piece[instance], joint]
-    return Bones(offset=offset, instance=instance, joint=joint, parent=parent, level=level,
-                 inv_rest=inv)
+    inv = skinning_rest_inverse(pieces)
+    return Bones(offset=offset, instance=instance, joint=joint, parent=parent,
+                 rest=invert_similarity(inv), inv_rest=inv,
+                 piece_rims=np.array([p.n_leaf_rims for p in pieces], np.int32))
 
 
 @dataclass(frozen=True, eq=False)
 class PoseParams:
     """Per-instance pose drawn from the grammar's ranges.
 
-    bend_axis : (n, 3), bend_angle : (n,) hub rotation (radians)
-    spread_axis : (n, R, 3), spread_angle : (n, R) terminal rotations
+    bend_azimuth, bend_angle : (n,) hub rotation about the horizontal axis at that azimuth
+    spread_azimuth, spread_angle : (n, R) terminal rotations, likewise (radians)
     tip_scale : (n, R) terminal uniform scale, rounded to binary16 (USD stores SkelAnimation
     scales as half3; rounding here keeps our skinning and USD's identical)
+    length : (n,) length scale of each instance (scales its joint offsets)
     phase : (n,) wind phase (per tree, plus a little per depth)
     """
 
-    bend_axis: F64
+    bend_azimuth: F64
     bend_angle: F64
-    spread_axis: F64
+    spread_azimuth: F64
     spread_angle: F64
     tip_scale: F64
+    length: F64
     phase: F64
-
-
-def _horizontal_axes(rng: np.random.Generator, shape: tuple[int, ...]) -> F64:
-    a = rng.random(shape) * 2 * np.pi
-    return np.stack([np.cos(a), np.zeros(shape), np.sin(a)], axis=-1)
 
 
 def draw_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...], alt_bend: F64,
@@ -113,24 +106,24 @@ def draw_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...], alt_bend: F64,
     sigma = _rest_tip_scale(pieces)[graph.piece]
     tree_phase = rng.random(n_trees) * 2 * np.pi
     return PoseParams(
-        bend_axis=_horizontal_axes(rng, (n,)),
+        bend_azimuth=rng.random(n) * (2 * np.pi),
         bend_angle=bend[:, 0] + rng.random(n) * (bend[:, 1] - bend[:, 0]),
-        spread_axis=_horizontal_axes(rng, (n, MAX_LEAF_RIMS)),
+        spread_azimuth=rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi),
         spread_angle=spread[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
             spread[:, None, 1] - spread[:, None, 0]),
         tip_scale=(sigma * children_radius(graph)).astype(np.float16).astype(np.float64),
+        length=graph.length,
         phase=tree_phase[graph.tree] + 0.35 * graph.depth,
     )
 
 
-def rest_pose(n: int) -> PoseParams:
+def rest_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> PoseParams:
     """The pose with every joint at rest (palette = topological transforms)."""
-    z = np.zeros
-    axes = np.zeros((n, MAX_LEAF_RIMS, 3))
-    axes[..., 0] = 1.0
-    return PoseParams(bend_axis=axes[:, 0], bend_angle=z(n), spread_axis=axes,
-                      spread_angle=z((n, MAX_LEAF_RIMS)), tip_scale=np.ones((n, MAX_LEAF_RIMS)),
-                      phase=z(n))
+    n = len(graph)
+    return PoseParams(bend_azimuth=np.zeros(n), bend_angle=np.zeros(n),
+                      spread_azimuth=np.zeros((n, MAX_LEAF_RIMS)), spread_angle=np.zeros((n, MAX_LEAF_RIMS)),
+                      tip_scale=_rest_tip_scale(pieces)[graph.piece], length=np.ones(n),
+                      phase=np.zeros(n))
 
 
 def _rest_tip_scale(pieces: tuple[PieceArrays, ...]) -> F64:
@@ -181,18 +174,18 @@ def local_transforms(graph: PieceGraph, bones: Bones, pieces: tuple[PieceArrays,
     out[roots[is_tree_root]] = tree_transforms[graph.tree[is_tree_root]]
     out[roots[~is_tree_root]] = rim.twists()[graph.twist[~is_tree_root]]
     # hub: Tr(length * t) @ R_wind @ R_bend
-    hub_rot = axis_angle_matrix(pose.bend_axis, pose.bend_angle)[:, :3, :3]
+    hub_rot = horizontal_rotation(pose.bend_azimuth, pose.bend_angle)
     if world_axis is not None:
         frame = _inverse_rotation(transforms)
         wind_axis = np.einsum("nij,j->ni", frame, world_axis)
         hub_rot = axis_angle_matrix(wind_axis, sway)[:, :3, :3] @ hub_rot
     hubs = bones.offset + HUB
     out[hubs, :3, :3] = hub_rot
-    out[hubs, :3, 3] = graph.length[:, None] * hub_t[graph.piece]
+    out[hubs, :3, 3] = pose.length[:, None] * hub_t[graph.piece]
     # terminals: Tr(length * t) @ R_wind @ R_spread @ R_rest @ S(scale)
     n_rims = np.array([p.n_leaf_rims for p in pieces])[graph.piece]
     inst, r = np.nonzero(np.arange(MAX_LEAF_RIMS)[None] < n_rims[:, None])
-    rot = axis_angle_matrix(pose.spread_axis[inst, r], pose.spread_angle[inst, r])[:, :3, :3]
+    rot = horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
     if world_axis is not None:
         # the hub frame is the root frame turned by the hub's bend; wind sways tips half as
         # much as hubs so the motion ripples rather than swinging rigidly
@@ -201,7 +194,7 @@ def local_transforms(graph: PieceGraph, bones: Bones, pieces: tuple[PieceArrays,
     rot = rot @ tip_r[graph.piece[inst], r]
     tips = bones.offset[inst] + TIP0 + r
     out[tips, :3, :3] = rot * pose.tip_scale[inst, r][:, None, None]
-    out[tips, :3, 3] = graph.length[inst, None] * tip_t[graph.piece[inst], r]
+    out[tips, :3, 3] = pose.length[inst, None] * tip_t[graph.piece[inst], r]
     return out
 
 
@@ -218,21 +211,52 @@ def _inverse_rotation(transforms: F64) -> F64:
     return np.swapaxes(lin / scale[:, None, None], -1, -2)
 
 
-def forward_kinematics(bones: Bones, local: F64) -> F64:
-    """``(b, 4, 4)`` global bone transforms from local ones, one bone level at a time."""
+def posed_palette(graph: PieceGraph, bones: Bones, local: F64) -> F64:
+    """``(b, 4, 4)`` skinning matrices ``G @ inv(J)`` from local bone transforms.
+
+    Forward kinematics one depth level at a time (root, hub, then terminals of every piece
+    of that level at once); each global is turned into its palette entry as soon as it is
+    known, so no second pass over the bones is needed."""
     glob = np.empty_like(local)
-    for idx in bones.levels:
-        par = bones.parent[idx]
-        top = par < 0
-        glob[idx[top]] = local[idx[top]]
-        sub = idx[~top]
-        glob[sub] = glob[par[~top]] @ local[sub]
-    return glob
+    pal = np.empty_like(local)
+    n_rims = bones.piece_rims
+    for idx in graph.levels:
+        root = bones.offset[idx]
+        par = bones.parent[root]
+        g_root = local[root] if par[0] < 0 else glob[par] @ local[root]
+        glob[root] = g_root
+        pal[root] = g_root  # J_root = I
+        g_hub = g_root @ local[root + HUB]
+        glob[root + HUB] = g_hub
+        piece = graph.piece[idx]
+        pal[root + HUB] = g_hub @ bones.inv_rest[piece, HUB]
+        for r in range(MAX_LEAF_RIMS):
+            has = np.nonzero(n_rims[piece] > r)[0]
+            if not len(has):
+                break
+            tip = root[has] + TIP0 + r
+            g_tip = g_hub[has] @ local[tip]
+            glob[tip] = g_tip
+            pal[tip] = g_tip @ bones.inv_rest[piece[has], TIP0 + r]
+    return pal
 
 
-def skinning_palette(bones: Bones, glob: F64) -> F64:
-    """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``."""
-    return glob @ bones.inv_rest
+def horizontal_rotation(azimuth: F64, angle: F64) -> F64:
+    """``(..., 3, 3)`` rotations by ``angle`` about the horizontal axis (cos az, 0, sin az)."""
+    x, z = np.cos(azimuth), np.sin(azimuth)
+    c, s = np.cos(angle), np.sin(angle)
+    k = 1.0 - c
+    m = np.empty(np.shape(angle) + (3, 3))
+    m[..., 0, 0] = c + x * x * k
+    m[..., 0, 1] = -z * s
+    m[..., 0, 2] = x * z * k
+    m[..., 1, 0] = z * s
+    m[..., 1, 1] = c
+    m[..., 1, 2] = -x * s
+    m[..., 2, 0] = x * z * k
+    m[..., 2, 1] = x * s
+    m[..., 2, 2] = c + z * z * k
+    return m
 
 
 def rest_palette(bones: Bones, transforms: F64) -> F64:

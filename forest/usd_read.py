@@ -1,0 +1,185 @@
+"""Reading a forest scene back into the generator's arrays. Anything that breaks the contract
+gets a SceneError naming the prim and attribute."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from pxr import Usd, UsdGeom
+
+from forest.errors import SceneError
+from forest.pieces import PieceArrays
+from forest.transforms import F64, compose_similarity
+from forest.usd_scene import FOLIAGE, FOREST, PIECES
+from schemas.tileset import TileSetManifest
+
+I32 = NDArray[np.int32]
+
+
+@dataclass(frozen=True, eq=False)
+class SceneArrays:
+    """A scene's arrays, shaped like the generator's (see ``forest.generate.Forest``).
+
+    palettes : (f, b, 4, 4) float64, one per entry of ``times`` (``None`` for a still scene)
+    """
+
+    path: str
+    grammar_json: str
+    seed: int
+    version: str
+    options: dict[str, Any]
+    manifest: TileSetManifest
+    pieces: tuple[PieceArrays, ...]
+    proto_indices: I32
+    transforms: F64
+    tree: I32
+    bone_offset: I32
+    tile_indices: I32
+    parent: I32
+    parent_rim: I32
+    twist: I32
+    depth: I32
+    symbol: I32
+    tree_transforms: F64
+    times: list[float | None]
+    palettes: F64
+    foliage_positions: F64
+    foliage_sizes: F64
+
+    @property
+    def n_instances(self) -> int:
+        return len(self.proto_indices)
+
+
+def _get(prim: Usd.Prim, name: str, required: bool = True) -> Any:
+    attr = prim.GetAttribute(name)
+    if not attr or not attr.HasAuthoredValue():
+        if required:
+            raise SceneError("missing attribute", path=f"{prim.GetPath()}.{name}")
+        return None
+    return attr.Get()
+
+
+def _array(prim: Usd.Prim, name: str, dtype: type, shape: tuple[int, ...] = (-1,),
+           time: Usd.TimeCode | None = None) -> NDArray[Any]:
+    attr = prim.GetAttribute(name)
+    if not attr or not attr.HasAuthoredValue():
+        raise SceneError("missing attribute", path=f"{prim.GetPath()}.{name}")
+    value = attr.Get(time if time is not None else Usd.TimeCode.Default())
+    try:
+        return np.asarray(value, dtype=dtype).reshape(shape)
+    except (TypeError, ValueError) as exc:
+        raise SceneError(f"unexpected value ({exc})", path=f"{prim.GetPath()}.{name}") from None
+
+
+def _matrices(prim: Usd.Prim, name: str, time: Usd.TimeCode | None = None) -> F64:
+    return np.swapaxes(_array(prim, name, np.float64, (-1, 4, 4), time), -1, -2).copy()
+
+
+def _read_piece(prim: Usd.Prim) -> PieceArrays:
+    pts = _array(prim, "points", np.float64, (-1, 3))
+    counts = _array(prim, "faceVertexCounts", np.int32)
+    if not (counts == 4).all():
+        raise SceneError("piece prototypes must be quad-only", path=f"{prim.GetPath()}.faceVertexCounts")
+    quads = _array(prim, "faceVertexIndices", np.int32, (-1, 4))
+    if quads.size and (quads.max() >= len(pts) or quads.min() < 0):
+        raise SceneError("index out of range", path=f"{prim.GetPath()}.faceVertexIndices")
+    building = _matrices(prim, "forest:building")
+    leaf = _array(prim, "forest:leafRims", np.int32, (len(building), 6))
+    return PieceArrays(
+        name=prim.GetName(),
+        positions=pts,
+        normals=_array(prim, "normals", np.float64, (-1, 3)),
+        quads=quads,
+        tile_class=_array(prim, "primvars:forest:tileClass", np.int32),
+        joint_indices=_array(prim, "primvars:forest:jointIndices", np.int32, (-1, 4)),
+        joint_weights=_array(prim, "primvars:forest:jointWeights", np.float64, (-1, 4)),
+        root_rim=_array(prim, "forest:rootRim", np.int32),
+        leaf_rims=leaf,
+        building=building,
+        joint_rest=_matrices(prim, "forest:jointRest"),
+        joint_parents=_array(prim, "forest:jointParents", np.int32),
+    )
+
+
+def open_stage(path: str | Path) -> Usd.Stage:
+    p = Path(path)
+    if not p.is_file():
+        raise SceneError("no such file", path=str(p))
+    try:
+        stage = Usd.Stage.Open(str(p))
+    except Exception as exc:  # pxr raises Tf.ErrorException for unreadable layers
+        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        raise SceneError(f"not a readable USD file: {first}", path=str(p)) from None
+    if stage is None:
+        raise SceneError("not a readable USD file", path=str(p))
+    return stage
+
+
+def read_scene(path: str | Path) -> SceneArrays:
+    stage = open_stage(path)
+    forest = stage.GetPrimAtPath(FOREST)
+    if not forest:
+        raise SceneError("missing prim (not a forest scene)", path=FOREST)
+    inst_prim = stage.GetPrimAtPath(PIECES)
+    if not inst_prim or not inst_prim.IsA(UsdGeom.PointInstancer):
+        raise SceneError("missing PointInstancer", path=PIECES)
+    inst = UsdGeom.PointInstancer(inst_prim)
+    targets = inst.GetPrototypesRel().GetTargets()
+    if not targets:
+        raise SceneError("no prototypes", path=f"{PIECES}.prototypes")
+    pieces = []
+    for t in targets:
+        proto = stage.GetPrimAtPath(t)
+        if not proto or not proto.IsA(UsdGeom.Mesh):
+            raise SceneError("prototype is not a Mesh", path=str(t))
+        pieces.append(_read_piece(proto))
+    proto_idx = _array(inst_prim, "protoIndices", np.int32)
+    n = len(proto_idx)
+    if n and (proto_idx.min() < 0 or proto_idx.max() >= len(pieces)):
+        raise SceneError("index out of range", path=f"{PIECES}.protoIndices")
+    pos = _array(inst_prim, "positions", np.float64, (n, 3))
+    quat_name = "orientationsf" if inst.GetOrientationsfAttr().HasAuthoredValue() else "orientations"
+    quat = _array(inst_prim, quat_name, np.float64, (n, 4))
+    scale = _array(inst_prim, "scales", np.float64, (n, 3))
+    transforms = compose_similarity(pos, quat, scale[:, 0])
+
+    def pv(name: str, width: int = 1) -> I32:
+        return _array(inst_prim, f"primvars:forest:{name}", np.int32, (n, width) if width > 1 else (n,))
+
+    q_max = max(len(p.quads) for p in pieces)
+    palette_attr = inst_prim.GetAttribute("forest:bonePalette")
+    if not palette_attr or not palette_attr.HasAuthoredValue():
+        raise SceneError("missing attribute", path=f"{PIECES}.forest:bonePalette")
+    samples = palette_attr.GetTimeSamples()
+    fps = stage.GetTimeCodesPerSecond()
+    times: list[float | None] = [s / fps for s in samples] if samples else [None]
+    codes = [Usd.TimeCode(s) for s in samples] or [Usd.TimeCode.Default()]
+    palettes = np.stack([_matrices(inst_prim, "forest:bonePalette", c) for c in codes])
+    foliage = stage.GetPrimAtPath(FOLIAGE)
+    if foliage:
+        fpos = _array(foliage, "points", np.float64, (-1, 3))
+        fsize = _array(foliage, "widths", np.float64)
+    else:
+        fpos, fsize = np.zeros((0, 3)), np.zeros(0)
+    try:
+        options = json.loads(_get(forest, "forest:options"))
+        manifest = TileSetManifest.model_validate_json(_get(forest, "forest:tileManifest"))
+    except ValueError as exc:
+        raise SceneError(f"invalid JSON ({exc})", path=f"{FOREST}.forest:options") from None
+    return SceneArrays(
+        path=str(path), grammar_json=_get(forest, "forest:grammar"),
+        seed=int(_get(forest, "forest:seed")), version=_get(forest, "forest:version"),
+        options=options, manifest=manifest, pieces=tuple(pieces), proto_indices=proto_idx,
+        transforms=transforms, tree=pv("treeId"), bone_offset=pv("boneOffset"),
+        tile_indices=pv("tileIndices", q_max), parent=pv("parent"),
+        parent_rim=pv("parentRim"), twist=pv("twist"), depth=pv("depth"), symbol=pv("symbol"),
+        tree_transforms=_matrices(forest, "forest:treeTransforms"), times=times,
+        palettes=palettes, foliage_positions=fpos, foliage_sizes=fsize,
+    )
+

@@ -1,0 +1,236 @@
+"""Writing a forest as a USD scene (DESIGN.md, "USD scene contract").
+
+``/World/Forest/Pieces`` is one PointInstancer holding every piece of every tree; the piece
+meshes are its prototypes. Per instance it carries the topological transform (positions,
+orientations as quath *and* quatf, scales), ids, and primvars ``forest:treeId``,
+``forest:boneOffset``, ``forest:tileIndices`` and the piece graph. The forest's bone palette
+(skinning matrices, prototype space -> world) is ``forest:bonePalette``, time-sampled with wind.
+Gf matrices use row vectors, so every matrix is transposed on its way out.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
+
+from forest.generate import Forest
+from forest.pieces import QUAD_ST, PieceArrays
+from forest.transforms import F64, decompose_similarity
+from forest.usd_files import check_output_path, finish, new_stage_layer
+
+FOREST = "/World/Forest"
+PIECES = "/World/Forest/Pieces"
+FOLIAGE = "/World/Forest/Foliage"
+LOOKS = "/World/Looks"
+BARK_COLOR = (0.36, 0.27, 0.2)
+Progress = Callable[[str, int, int], None]
+
+
+def row_major(m: F64) -> Vt.Matrix4dArray:
+    """Column-vector ``(n, 4, 4)`` matrices -> Gf row-vector array."""
+    return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.swapaxes(m, -1, -2)))
+
+
+def _attr(prim: Usd.Prim, name: str, type_: Sdf.ValueTypeName, value: object,
+          time: Usd.TimeCode | None = None) -> Usd.Attribute:
+    attr = prim.GetAttribute(name) or prim.CreateAttribute(name, type_, custom=True)
+    attr.Set(value, time if time is not None else Usd.TimeCode.Default())
+    return attr
+
+
+def _primvar(prim: Usd.Prim, name: str, type_: Sdf.ValueTypeName, interp: str,
+             value: object, element_size: int = 1) -> None:
+    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(name, type_, interp, element_size)
+    pv.Set(value)
+
+
+def write_prototype(stage: Usd.Stage, path: str, piece: PieceArrays,
+                    material: UsdShade.Material) -> UsdGeom.Mesh:
+    """A piece as a quad Mesh with normals, faceVarying st, skin weights and rim metadata."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    pts = piece.positions.astype(np.float32)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(piece.quads), 4, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(piece.quads.ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(piece.normals.astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    prim = mesh.GetPrim()
+    st = np.broadcast_to(QUAD_ST, (len(piece.quads), 4, 2)).reshape(-1, 2).astype(np.float32)
+    _primvar(prim, "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying,
+             Vt.Vec2fArray.FromNumpy(st))
+    _primvar(prim, "forest:tileClass", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform,
+             Vt.IntArray.FromNumpy(piece.tile_class))
+    _primvar(prim, "forest:jointIndices", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex,
+             Vt.IntArray.FromNumpy(piece.joint_indices.ravel()), 4)
+    _primvar(prim, "forest:jointWeights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex,
+             Vt.FloatArray.FromNumpy(piece.joint_weights.astype(np.float32).ravel()), 4)
+    _attr(prim, "forest:rootRim", Sdf.ValueTypeNames.IntArray, Vt.IntArray.FromNumpy(piece.root_rim))
+    _attr(prim, "forest:leafRims", Sdf.ValueTypeNames.IntArray,
+          Vt.IntArray.FromNumpy(piece.leaf_rims.ravel()))
+    _attr(prim, "forest:building", Sdf.ValueTypeNames.Matrix4dArray, row_major(piece.building))
+    _attr(prim, "forest:jointRest", Sdf.ValueTypeNames.Matrix4dArray, row_major(piece.joint_rest))
+    _attr(prim, "forest:jointParents", Sdf.ValueTypeNames.IntArray,
+          Vt.IntArray.FromNumpy(piece.joint_parents))
+    _attr(prim, "forest:jointNames", Sdf.ValueTypeNames.TokenArray, list(piece.joint_names))
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
+    return mesh
+
+
+def bark_material(stage: Usd.Stage, tiles: str | None = None) -> UsdShade.Material:
+    """UsdPreviewSurface bark. With ``tiles`` (a folder of ``bark.<UDIM>.png``, relative to
+    the scene) the colour comes from the UDIM tiles through ``st``; without, a flat colour,
+    so no scene references textures that do not exist."""
+    UsdGeom.Scope.Define(stage, LOOKS)
+    mat = UsdShade.Material.Define(stage, f"{LOOKS}/Bark")
+    pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/Surface")
+    pbr.CreateIdAttr("UsdPreviewSurface")
+    pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.9)
+    if tiles is None:
+        pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*BARK_COLOR))
+    else:
+        reader = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/StReader")
+        reader.CreateIdAttr("UsdPrimvarReader_float2")
+        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+        reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+        tex = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/Tiles")
+        tex.CreateIdAttr("UsdUVTexture")
+        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
+            Sdf.AssetPath(f"{tiles.rstrip('/')}/bark.<UDIM>.png"))
+        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+            reader.ConnectableAPI(), "result")
+        tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+        pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
+            tex.ConnectableAPI(), "rgb")
+    mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+    return mat
+
+
+def _time_code(t: float | None, fps: float) -> Usd.TimeCode:
+    return Usd.TimeCode.Default() if t is None else Usd.TimeCode(round(t * fps, 9))
+
+
+def write_instancer(stage: Usd.Stage, forest: Forest, material: UsdShade.Material,
+                    progress: Progress | None = None) -> UsdGeom.PointInstancer:
+    g = forest.graph
+    inst = UsdGeom.PointInstancer.Define(stage, PIECES)
+    prim = inst.GetPrim()
+    protos = UsdGeom.Scope.Define(stage, f"{PIECES}/Prototypes")
+    paths = [write_prototype(stage, f"{protos.GetPath()}/{p.name}", p, material).GetPath()
+             for p in forest.pieces]
+    inst.CreatePrototypesRel().SetTargets(paths)
+    t, q, s = decompose_similarity(forest.transforms)
+    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(g.piece))
+    inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)))
+    inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))
+    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
+    inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(
+        np.repeat(s[:, None], 3, axis=1).astype(np.float32)))
+    inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(len(g), dtype=np.int64)))
+    q_max = forest.tile_indices.shape[1]
+    vertex = UsdGeom.Tokens.vertex
+    ints = Sdf.ValueTypeNames.IntArray
+    for name, arr, size in (
+        ("forest:treeId", g.tree, 1),
+        ("forest:boneOffset", forest.bones.offset, 1),
+        ("forest:tileIndices", forest.tile_indices.ravel(), q_max),
+        ("forest:parent", g.parent, 1),
+        ("forest:parentRim", g.parent_rim, 1),
+        ("forest:twist", g.twist, 1),
+        ("forest:depth", g.depth, 1),
+        ("forest:symbol", g.symbol, 1),
+    ):
+        _primvar(prim, name, ints, vertex, Vt.IntArray.FromNumpy(np.ascontiguousarray(arr)), size)
+    _attr(prim, "forest:symbols", Sdf.ValueTypeNames.TokenArray,
+          list(forest.grammar.rules))
+    times = forest.frame_times()
+    for i, time in enumerate(times):
+        _attr(prim, "forest:bonePalette", Sdf.ValueTypeNames.Matrix4dArray,
+              row_major(forest.palette(time)), _time_code(time, forest.options.fps))
+        if progress:
+            progress("palette", i + 1, len(times))
+    inst.CreateExtentAttr(inst.ComputeExtentAtTime(Usd.TimeCode.Default(),
+                                                   Usd.TimeCode.Default()))
+    return inst
+
+
+def write_foliage(stage: Usd.Stage, forest: Forest) -> None:
+    """Leaf-cloud anchors as Points (centre, diameter) with the piece each sits on."""
+    pos, size = forest.foliage_points()
+    pts = UsdGeom.Points.Define(stage, FOLIAGE)
+    pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pos.astype(np.float32)))
+    pts.CreateWidthsAttr(Vt.FloatArray.FromNumpy(size.astype(np.float32)))
+    pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
+    pts.CreateDisplayColorAttr([Gf.Vec3f(0.25, 0.45, 0.18)])
+    _primvar(pts.GetPrim(), "forest:instance", Sdf.ValueTypeNames.IntArray,
+             UsdGeom.Tokens.vertex, Vt.IntArray.FromNumpy(forest.foliage_instance))
+    pts.CreateExtentAttr(UsdGeom.Points.ComputeExtent(pts.GetPointsAttr().Get(),
+                                                      pts.GetWidthsAttr().Get()))
+
+
+def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
+    UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
+    UsdGeom.SetStageMetersPerUnit(stage, 1.0)
+    world = UsdGeom.Xform.Define(stage, "/World")
+    Usd.ModelAPI(world).SetKind(Kind.Tokens.assembly)
+    stage.SetDefaultPrim(world.GetPrim())
+    group = UsdGeom.Xform.Define(stage, FOREST)
+    Usd.ModelAPI(group).SetKind(Kind.Tokens.group)
+    prim = group.GetPrim()
+    # everything needed to make the scene again
+    grammar_json = json.dumps(forest.grammar.model_dump(mode="json"), sort_keys=True)
+    _attr(prim, "forest:grammar", Sdf.ValueTypeNames.String, grammar_json)
+    _attr(prim, "forest:seed", Sdf.ValueTypeNames.Int64, int(forest.seed))
+    _attr(prim, "forest:version", Sdf.ValueTypeNames.String, forest.version)
+    opts = forest.options
+    _attr(prim, "forest:options", Sdf.ValueTypeNames.String, json.dumps({
+        "trees": opts.trees, "area": list(opts.area), "frames": opts.frames, "fps": opts.fps,
+        "placement": opts.placement, "segments": opts.segments,
+        "wind": vars(opts.wind)}, sort_keys=True))
+    _attr(prim, "forest:tileManifest", Sdf.ValueTypeNames.String,
+          forest.manifest.model_dump_json())
+    _attr(prim, "forest:treeTransforms", Sdf.ValueTypeNames.Matrix4dArray,
+          row_major(forest.tree_transforms))
+    if forest.animated:
+        stage.SetTimeCodesPerSecond(opts.fps)
+        stage.SetFramesPerSecond(opts.fps)
+        stage.SetStartTimeCode(0)
+        stage.SetEndTimeCode(opts.frames - 1)
+
+
+def write_scene(forest: Forest, path: str | Path, *, skinned: bool = False,
+                tiles: str | None = None, progress: Progress | None = None) -> Path:
+    """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path."""
+    out = check_output_path(path)
+    stage, tmp = new_stage_layer(out)
+    try:
+        setup_stage(stage, forest)
+        material = bark_material(stage, tiles)
+        write_instancer(stage, forest, material, progress)
+        if len(forest.foliage_instance):
+            write_foliage(stage, forest)
+        if skinned:
+            from forest.usd_skinned import write_skinned_trees
+
+            write_skinned_trees(stage, forest, material, progress)
+        finish(stage, tmp, out)
+    finally:
+        del stage
+        if tmp.exists():
+            tmp.unlink()
+    return out
+
+
+def tile_udim_st(tile_indices: NDArray[np.int32]) -> F64:
+    """``(q, 4, 2)`` faceVarying st placing each quad's corners in the UDIM tile of its
+    slice: tile ``1001 + k`` spans u in [k % 10, k % 10 + 1], v in [k // 10, k // 10 + 1]."""
+    k = np.maximum(tile_indices, 0)
+    offset = np.stack([k % 10, k // 10], axis=-1).astype(np.float64)
+    return QUAD_ST[None] + offset[:, None]

@@ -1,0 +1,173 @@
+"""Each tree baked for DCC tools: SkelRoot + Skeleton + SkelAnimation (pose and wind) + one
+skinned quad Mesh with UDIM st, and a decimated proxy Mesh (``purpose = "proxy"``).
+
+PointInstancer prototypes cannot be skinned per instance in USD, hence this second form. The
+skeleton lives in the tree's model space (the SkelRoot carries the tree transform), so the
+tree's root joint is the identity and every other local transform is the generator's own.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import fast_simplification
+import numpy as np
+from numpy.typing import NDArray
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from scipy.spatial import cKDTree
+
+from forest.generate import Forest
+from forest.pieces import MAX_INFLUENCES
+from forest.skeleton import local_trs
+from forest.transforms import F64, invert_similarity, transform_points, transform_vectors
+from forest.usd_scene import FOREST, _primvar, _time_code, row_major, tile_udim_st
+
+TREES = f"{FOREST}/Trees"
+PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
+Progress = Callable[[str, int, int], None]
+
+
+def tree_slices(forest: Forest) -> list[tuple[slice, slice]]:
+    """Per tree: its instance range and its bone range (both contiguous, tree-major)."""
+    tree = forest.graph.tree
+    starts = np.searchsorted(tree, np.arange(forest.options.trees + 1))
+    b = forest.bones.offset
+    n_bones = len(forest.bones)
+    out = []
+    for i in range(forest.options.trees):
+        a, z = int(starts[i]), int(starts[i + 1])
+        out.append((slice(a, z), slice(int(b[a]), int(b[z]) if z < len(b) else n_bones)))
+    return out
+
+
+def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
+    """UsdSkel joint paths (parent-first) of one tree's bones."""
+    names = forest.bones
+    parent = names.parent[bones] - bones.start
+    joint = names.joint[bones]
+    local_inst = names.instance[bones] - inst.start
+    out: list[str] = []
+    for i in range(bones.stop - bones.start):
+        if joint[i] == 0:
+            leaf = f"p{local_inst[i]}"
+        elif joint[i] == 1:
+            leaf = "hub"
+        else:
+            leaf = f"tip{joint[i] - 2}"
+        out.append(leaf if parent[i] < 0 else f"{out[parent[i]]}/{leaf}")
+    return out
+
+
+def tree_mesh(forest: Forest, inst: slice, bones: slice, to_tree: F64
+              ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64,
+                         NDArray[np.int32]]:
+    """One tree's pieces in tree space at rest: points, normals, quads, joint indices (into
+    the tree's bones), joint weights, faceVarying UDIM st, and each point's instance."""
+    pts, nrm, quads, jidx, jw, st, owner = [], [], [], [], [], [], []
+    base = 0
+    for i in range(inst.start, inst.stop):
+        p = forest.pieces[forest.graph.piece[i]]
+        m = to_tree @ forest.transforms[i]
+        pts.append(transform_points(m, p.positions))
+        nrm.append(transform_vectors(m, p.normals))
+        quads.append(p.quads + base)
+        jidx.append(p.joint_indices + (forest.bones.offset[i] - bones.start))
+        jw.append(p.joint_weights)
+        st.append(tile_udim_st(forest.tile_indices[i, : len(p.quads)]))
+        owner.append(np.full(len(p.positions), i - inst.start, np.int32))
+        base += len(p.positions)
+    return (np.concatenate(pts), np.concatenate(nrm), np.concatenate(quads).astype(np.int32),
+            np.concatenate(jidx).astype(np.int32), np.concatenate(jw), np.concatenate(st),
+            np.concatenate(owner))
+
+
+def _bind(prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64) -> None:
+    api = UsdSkel.BindingAPI.Apply(prim)
+    api.CreateSkeletonRel().SetTargets([skel.GetPath()])
+    api.CreateJointIndicesPrimvar(False, MAX_INFLUENCES).Set(Vt.IntArray.FromNumpy(jidx.ravel()))
+    api.CreateJointWeightsPrimvar(False, MAX_INFLUENCES).Set(
+        Vt.FloatArray.FromNumpy(jw.astype(np.float32).ravel()))
+    api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+
+
+def _proxy(stage: Usd.Stage, path: str, pts: F64, quads: NDArray[np.int32],
+           skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64) -> UsdGeom.Mesh:
+    """Decimated triangle mesh; each vertex takes the skin of the nearest full-mesh vertex."""
+    tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
+    p2, f2 = fast_simplification.simplify(pts.astype(np.float32), tris, 1.0 - PROXY_KEEP)
+    near = cKDTree(pts).query(p2)[1]
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(p2, np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(f2), 3, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(f2, np.int32).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    mesh.CreatePurposeAttr(UsdGeom.Tokens.proxy)
+    _bind(mesh.GetPrim(), skel, jidx[near], jw[near])
+    return mesh
+
+
+def write_skinned_trees(stage: Usd.Stage, forest: Forest, material: UsdShade.Material,
+                        progress: Progress | None = None) -> None:
+    UsdGeom.Scope.Define(stage, TREES)
+    times = forest.frame_times()
+    # local bone transforms per frame, the tree root joint replaced by identity below
+    trs = [local_trs(forest.local_bones(t)) for t in times]
+    rest = _rest_locals(forest)
+    slices = tree_slices(forest)
+    for k, (inst, bones) in enumerate(slices):
+        path = f"{TREES}/Tree_{k:05d}"
+        root = UsdSkel.Root.Define(stage, path)
+        m_tree = forest.tree_transforms[k]
+        root.AddTransformOp().Set(Gf.Matrix4d(m_tree.T.tolist()))
+        to_tree = invert_similarity(m_tree)
+        skel = UsdSkel.Skeleton.Define(stage, f"{path}/Skeleton")
+        joints = joint_paths(forest, inst, bones)
+        skel.CreateJointsAttr(joints)
+        b = forest.bones
+        bind = to_tree @ forest.transforms[b.instance[bones]] @ b.rest[
+            forest.graph.piece[b.instance[bones]], b.joint[bones]]
+        skel.CreateBindTransformsAttr(row_major(bind))
+        skel.CreateRestTransformsAttr(row_major(rest[bones]))
+        anim = UsdSkel.Animation.Define(stage, f"{path}/Skeleton/Wind")
+        anim.CreateJointsAttr(joints)
+        for time, (tr, rot, sc) in zip(times, trs, strict=True):
+            tc = _time_code(time, forest.options.fps)
+            t, q, s = tr[bones].copy(), rot[bones].copy(), sc[bones].copy()
+            t[0], q[0], s[0] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
+            anim.CreateTranslationsAttr().Set(Vt.Vec3fArray.FromNumpy(t), tc)
+            anim.CreateRotationsAttr().Set(Vt.QuatfArray.FromNumpy(q), tc)
+            anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(s), tc)
+        UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
+            [anim.GetPath()])
+        pts, nrm, quads, jidx, jw, st, _ = tree_mesh(forest, inst, bones, to_tree)
+        mesh = UsdGeom.Mesh.Define(stage, f"{path}/Bark")
+        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
+        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(nrm.astype(np.float32)))
+        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
+        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(quads.ravel()))
+        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+        mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+        mesh.CreatePurposeAttr(UsdGeom.Tokens.render)
+        _primvar(mesh.GetPrim(), "st", Sdf.ValueTypeNames.TexCoord2fArray,
+                 UsdGeom.Tokens.faceVarying, Vt.Vec2fArray.FromNumpy(
+                     st.reshape(-1, 2).astype(np.float32)))
+        _bind(mesh.GetPrim(), skel, jidx, jw)
+        UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+        proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
+        mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
+        root.CreateExtentAttr(UsdGeom.Boundable.ComputeExtentFromPlugins(
+            root, Usd.TimeCode.Default()))
+        if progress:
+            progress("skinned trees", k + 1, len(slices))
+
+
+def _rest_locals(forest: Forest) -> F64:
+    """``(b, 4, 4)`` rest local transforms (no pose, no wind) with tree roots at identity."""
+    from forest.skeleton import local_transforms, rest_pose
+
+    local = local_transforms(forest.graph, forest.bones, forest.pieces, forest.tree_transforms,
+                             forest.transforms, rest_pose(forest.graph, forest.pieces))
+    local[forest.bones.offset[forest.graph.parent < 0]] = np.eye(4)
+    return local

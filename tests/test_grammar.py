@@ -1,0 +1,371 @@
+"""Grammar loading and compilation: bad input gets a typed error naming the field."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from forest.errors import ForestError, GrammarError, LimitError
+from forest.generate import ForestOptions, generate_forest
+from forest.grammar import (
+    MAX_GRAMMAR_BYTES,
+    compile_grammar,
+    grammar_from_json,
+    load_grammar,
+    parse_grammar,
+)
+from forest.presets import load_preset, preset_names
+from forest.settings import ForestSettings
+from schemas.grammar import Grammar
+
+GOOD: dict[str, Any] = {
+    "axiom": "A",
+    "max_depth": 4,
+    "rules": {
+        "A": [{"piece": "I", "successors": [{"symbol": "B"}]}],
+        "B": [
+            {"piece": "Y", "weight": 2, "successors": [{"symbol": "A"}, None]},
+            {"piece": "I", "successors": [None]},
+        ],
+    },
+    "foliage": ["B"],
+}
+
+
+LINE_COLUMN = re.compile(r"line (\d+),? column (\d+)")
+
+
+def line_column(msg: str) -> tuple[int, int]:
+    """The (line, column) a JSON error message points at."""
+    m = LINE_COLUMN.search(msg)
+    assert m, f"no line and column in {msg!r}"
+    return int(m.group(1)), int(m.group(2))
+
+
+def grammar(**changes: Any) -> dict[str, Any]:
+    g = copy.deepcopy(GOOD)
+    g.update(changes)
+    return g
+
+
+def compile_dict(data: dict[str, Any], settings: ForestSettings | None = None) -> Any:
+    return compile_grammar(parse_grammar(data), settings)
+
+
+def test_good_grammar_compiles() -> None:
+    cg = compile_dict(GOOD)
+    assert cg.symbols == ("A", "B")
+    assert cg.max_depth == 4
+    assert cg.expected_pieces > 0
+
+
+def test_unknown_successor_symbol() -> None:
+    g = grammar()
+    g["rules"]["A"][0]["successors"][0]["symbol"] = "Nope"
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(g)
+    assert exc.value.path == "rules.A[0].successors[0].symbol"
+    assert "Nope" in str(exc.value)
+
+
+def test_unknown_successor_symbol_in_later_alternative_and_rim() -> None:
+    g = grammar()
+    g["rules"]["B"][0]["successors"][1] = {"symbol": "Ghost"}
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(g)
+    assert exc.value.path == "rules.B[0].successors[1].symbol"
+
+
+def test_unknown_axiom() -> None:
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(grammar(axiom="Z"))
+    assert exc.value.path == "axiom"
+    assert "Z" in exc.value.message
+
+
+def test_unknown_foliage_symbol() -> None:
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(grammar(foliage=["A", "Leaf"]))
+    assert exc.value.path == "foliage[1]"
+    assert "Leaf" in exc.value.message
+
+
+@pytest.mark.parametrize("weight", [-1.0, 0.0, -1e-9])
+def test_non_positive_weight(weight: float) -> None:
+    g = grammar()
+    g["rules"]["A"][0]["weight"] = weight
+    with pytest.raises(GrammarError) as exc:
+        parse_grammar(g)
+    assert exc.value.path == "rules.A[0].weight"
+
+
+@pytest.mark.parametrize("weight", ["NaN", "Infinity"])
+def test_non_finite_weight_from_json(weight: str) -> None:
+    text = json.dumps(GOOD).replace('"weight": 2', f'"weight": {weight}')
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(text)
+    assert exc.value.path == "rules.B[0].weight"
+
+
+def test_huge_weights_are_rejected_or_work() -> None:
+    """Weights are finite but unbounded above; two of 1e308 overflow the cumulative choice
+    table to inf. Either the grammar is rejected with a GrammarError, or it must grow."""
+    g = grammar()
+    g["rules"]["B"][0]["weight"] = 1e308
+    g["rules"]["B"][1]["weight"] = 1e308
+    try:
+        grammar_obj = parse_grammar(g)
+        cg = compile_grammar(grammar_obj)
+    except GrammarError as exc:
+        assert exc.path.startswith("rules.B")
+        return
+    assert np.isfinite(cg.expected_pieces)
+    f = generate_forest(grammar_obj, 0, ForestOptions(trees=4))
+    assert set(f.graph.alt[f.graph.symbol == 1].tolist()) <= {1, 2}
+
+
+@pytest.mark.parametrize(("piece", "n"), [("I", 2), ("I", 0), ("Y", 1), ("T", 3), ("Psi", 2)])
+def test_wrong_successor_count(piece: str, n: int) -> None:
+    g = grammar()
+    g["rules"]["A"][0] = {"piece": piece, "successors": [None] * n}
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(g)
+    assert exc.value.path == "rules.A[0].successors"
+    assert piece in exc.value.message
+
+
+def test_rules_that_never_terminate_without_max_depth() -> None:
+    g = grammar()
+    del g["max_depth"]
+    # A -> B, and B's alternatives both keep growing
+    g["rules"]["B"] = [{"piece": "Y", "successors": [{"symbol": "A"}, None]}]
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(g)
+    assert exc.value.path == "max_depth"
+    assert "terminate" in exc.value.message
+
+
+def test_rules_that_terminate_need_no_max_depth() -> None:
+    g = grammar()
+    del g["max_depth"]
+    cg = compile_dict(g)
+    f = generate_forest(cg.grammar, 3, ForestOptions(trees=5), compiled=cg)
+    assert f.n_instances >= 5
+
+
+def test_growth_past_piece_cap_is_a_limit_error() -> None:
+    g = {"axiom": "S", "max_depth": 10,
+         "rules": {"S": [{"piece": "Y", "successors": [{"symbol": "S"}, {"symbol": "S"}]}]}}
+    with pytest.raises(LimitError) as exc:
+        compile_dict(g, ForestSettings(max_pieces_per_tree=100))
+    assert exc.value.path == "max_pieces_per_tree"
+    assert exc.value.limit == 100
+    # the same grammar is fine under the default cap
+    assert compile_dict(g).expected_pieces == 2**11 - 1
+
+
+def test_axiom_without_an_alternative_at_depth_zero() -> None:
+    """The axiom's only alternative starts at depth 1: no tree can grow. The library should
+    say so with a GrammarError (at compile or at generation), not crash."""
+    g = {"axiom": "A", "max_depth": 3,
+         "rules": {"A": [{"piece": "I", "min_depth": 1, "successors": [None]}]}}
+    with pytest.raises(GrammarError):
+        cg = compile_dict(g)
+        generate_forest(cg.grammar, 1, ForestOptions(trees=2), compiled=cg)
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "column"),
+    [('{"axiom": "A",, "rules": {}}', 1, 15),
+     ('{\n  "axiom": "A"\n  "rules": {}\n}', 3, 3),
+     ('{"axiom": "A"} trailing', 1, 16),
+     ('{"axiom": "A"}}', 1, 15),                 # one brace too many
+     ('{"axiom": "A",}', 1, 15),                 # trailing comma
+     ('{"axiom": "A", "rules": {}]', 1, 27)])    # wrong closing bracket
+def test_malformed_json(text: str, line: int, column: int) -> None:
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(text, source="my.json")
+    msg = exc.value.message
+    assert msg.startswith("malformed JSON"), msg
+    assert line_column(msg) == (line, column)
+    assert exc.value.path == "my.json"
+
+
+GOOD_TEXT = json.dumps(GOOD, indent=2)
+
+
+@pytest.mark.parametrize("cut", [
+    "{",                                            # just opened
+    '"axiom": ',                                    # after a key
+    '"max_depth": 4,',                              # after a value and comma
+    '"successors": [',                              # inside a list
+    '"weight": 2',                                  # inside a number's object
+])
+def test_truncated_json(cut: str) -> None:
+    text = GOOD_TEXT[: GOOD_TEXT.index(cut) + len(cut)]
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(text)
+    msg = exc.value.message
+    assert msg.startswith("truncated JSON"), msg
+    assert line_column(msg)[0] == text.count("\n") + 1
+
+
+def test_truncated_json_drops_the_closing_brace() -> None:
+    text = GOOD_TEXT.rstrip()[:-1]  # ends with a newline: the error is on the next line
+    line = text.count("\n") + 1
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(text)
+    assert exc.value.message.startswith("truncated JSON"), exc.value.message
+    assert line_column(exc.value.message) == (line, 1)
+
+
+def test_truncated_inside_a_string_is_truncated() -> None:
+    """A file cut off inside a string is truncated too: json reports the string's start,
+    not the end of the text, so the message must not call it malformed."""
+    text = GOOD_TEXT[: GOOD_TEXT.index('"rules"') + 4]
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(text)
+    msg = exc.value.message
+    assert msg.startswith("truncated JSON"), msg
+    assert " at at " not in msg
+    assert line_column(msg) == (4, 3)  # where the cut string starts
+
+
+def test_empty_text_is_truncated() -> None:
+    with pytest.raises(GrammarError, match="truncated JSON"):
+        grammar_from_json("  \n")
+
+
+def test_deeply_nested_json_is_a_grammar_error() -> None:
+    """Well under MAX_GRAMMAR_BYTES, but nested past Python's recursion limit."""
+    text = "[" * 100_000 + "]" * 100_000
+    assert len(text) < MAX_GRAMMAR_BYTES
+    with pytest.raises(GrammarError):
+        grammar_from_json(text)
+
+
+def test_json_of_wrong_shape() -> None:
+    with pytest.raises(GrammarError):
+        grammar_from_json("[1, 2, 3]")
+    with pytest.raises(GrammarError) as exc:
+        grammar_from_json(json.dumps(grammar(colour="green")))
+    assert exc.value.path == "colour"
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    missing = tmp_path / "nope.json"
+    with pytest.raises(GrammarError) as exc:
+        load_grammar(missing)
+    assert exc.value.path == str(missing)
+    assert "no such file" in exc.value.message
+
+
+def test_huge_file(tmp_path: Path) -> None:
+    big = tmp_path / "big.json"
+    big.write_text('{"axiom": "A", "description": "' + "x" * MAX_GRAMMAR_BYTES + '"}')
+    assert big.stat().st_size > MAX_GRAMMAR_BYTES
+    with pytest.raises(GrammarError) as exc:
+        load_grammar(big)
+    assert exc.value.path == str(big)
+    assert str(MAX_GRAMMAR_BYTES) in exc.value.message
+
+
+def test_file_that_is_not_utf8(tmp_path: Path) -> None:
+    bad = tmp_path / "latin1.json"
+    bad.write_bytes(b'{"axiom": "\xe9"}')
+    with pytest.raises(GrammarError) as exc:
+        load_grammar(bad)
+    assert exc.value.path == str(bad)
+
+
+def test_malformed_file_names_the_file(tmp_path: Path) -> None:
+    p = tmp_path / "g.json"
+    p.write_text('{"axiom": ')
+    with pytest.raises(GrammarError) as exc:
+        load_grammar(p)
+    assert exc.value.path == str(p)
+    assert "truncated JSON" in exc.value.message
+
+
+def test_good_file_loads(tmp_path: Path) -> None:
+    p = tmp_path / "g.json"
+    p.write_text(json.dumps(GOOD))
+    assert load_grammar(p) == parse_grammar(GOOD)
+
+
+def test_errors_are_forest_errors_with_useful_repr() -> None:
+    with pytest.raises(ForestError) as exc:
+        compile_dict(grammar(axiom="Z"))
+    assert "GrammarError" in repr(exc.value) and "axiom" in repr(exc.value)
+    assert str(exc.value).startswith("axiom: ")
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_presets_compile(name: str) -> None:
+    g = load_preset(name)
+    assert isinstance(g, Grammar)
+    cg = compile_grammar(g)
+    assert 1 <= cg.expected_pieces <= ForestSettings().max_pieces_per_tree
+    # the shipped file loads the same through load_grammar
+    path = resources.files("forest.presets").joinpath(f"{name}.json")
+    with resources.as_file(path) as p:
+        assert load_grammar(p) == g
+
+
+def test_unknown_preset() -> None:
+    with pytest.raises(GrammarError) as exc:
+        load_preset("baobab")
+    assert exc.value.path == "preset"
+
+
+def test_presets_include_the_papers_algorithms() -> None:
+    assert {"alternating", "uniform"} <= set(preset_names())
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(min_value=0, max_value=2**63 - 1),
+       trees=st.integers(min_value=1, max_value=6))
+def test_alternating_expected_count_is_exact(seed: int, trees: int) -> None:
+    g = load_preset("alternating")
+    cg = compile_grammar(g)
+    # I and Y alternate to depth 9: 1, 1, 2, 2, 4, 4, 8, 8, 16, 16
+    assert cg.expected_pieces == 62
+    f = generate_forest(g, seed, ForestOptions(trees=trees), compiled=cg)
+    np.testing.assert_array_equal(np.bincount(f.graph.tree, minlength=trees),
+                                  int(cg.expected_pieces))
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(min_value=0, max_value=2**32))
+def test_uniform_expected_count_is_the_mean(seed: int) -> None:
+    """The paper's second algorithm: I or Y with probability 1/2 at each rim; a level's
+    expected size grows by 3/2, so 9 levels hold sum(1.5**d) pieces on average."""
+    cg = compile_grammar(load_preset("uniform"))
+    assert cg.expected_pieces == pytest.approx(sum(1.5**d for d in range(9)))
+    f = generate_forest(cg.grammar, seed, ForestOptions(trees=400, placement="grid"),
+                        compiled=cg)
+    mean = f.n_instances / 400
+    assert abs(mean - cg.expected_pieces) < 0.25 * cg.expected_pieces
+
+
+def test_a_billion_trees_is_a_limit_error() -> None:
+    with pytest.raises(LimitError) as exc:
+        generate_forest(load_preset("alternating"), 1, ForestOptions(trees=10**9))
+    assert exc.value.path == "trees"
+
+
+def test_forest_piece_cap() -> None:
+    settings = ForestSettings(max_pieces_per_forest=1000)
+    with pytest.raises(LimitError) as exc:
+        generate_forest(load_preset("alternating"), 1, ForestOptions(trees=100),
+                        settings=settings)
+    assert exc.value.path == "max_pieces_per_forest"

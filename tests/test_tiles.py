@@ -1,0 +1,130 @@
+"""Per-instance, per-quad tile indices (paper 5.1)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from forest.errors import ForestError
+from forest.generate import Forest, ForestOptions, generate_forest
+from forest.pieces import piece_library
+from forest.presets import load_preset, preset_names
+from forest.tiles import class_tables, draw_tile_indices
+from schemas.tileset import DEFAULT_MANIFEST, TileClass, TileSetManifest
+
+SEEDS = st.integers(min_value=0, max_value=2**63 - 1)
+
+
+def check_tiles(f: Forest) -> None:
+    tiles = f.tile_indices
+    n_quads = np.array([len(p.quads) for p in f.pieces])
+    assert tiles.dtype == np.int32
+    assert tiles.shape == (f.n_instances, n_quads.max())
+    by_id = {c.id: c for c in f.manifest.classes}
+    for pid, piece in enumerate(f.pieces):
+        inst = np.nonzero(f.graph.piece == pid)[0]
+        if len(inst) == 0:
+            continue
+        nq = n_quads[pid]
+        block = tiles[inst]
+        assert (block[:, nq:] == -1).all(), piece.name  # padding
+        real = block[:, :nq]
+        assert (real >= 0).all(), piece.name  # no -1 inside the piece's quads
+        lo = np.array([by_id[int(c)].first for c in piece.tile_class])
+        hi = lo + np.array([by_id[int(c)].count for c in piece.tile_class])
+        assert ((real >= lo) & (real < hi)).all(), piece.name
+
+
+@pytest.mark.parametrize("name", preset_names())
+@settings(max_examples=5, deadline=None)
+@given(seed=SEEDS, segments=st.sampled_from([1, 2]))
+def test_tile_indices_shape_padding_and_class_ranges(name: str, seed: int,
+                                                     segments: int) -> None:
+    f = generate_forest(load_preset(name), seed, ForestOptions(trees=2, segments=segments))
+    assert f.manifest == DEFAULT_MANIFEST
+    check_tiles(f)
+
+
+def test_every_slice_of_every_class_is_used() -> None:
+    f = generate_forest(load_preset("uniform"), 5, ForestOptions(trees=30))
+    check_tiles(f)
+    tiles, pieces = f.tile_indices, f.pieces
+    for cls in DEFAULT_MANIFEST.classes:
+        used = set()
+        for pid, piece in enumerate(pieces):
+            inst = np.nonzero(f.graph.piece == pid)[0]
+            cols = np.nonzero(piece.tile_class == cls.id)[0]
+            used |= set(np.unique(tiles[np.ix_(inst, cols)]).tolist())
+        assert used == set(range(cls.first, cls.first + cls.count)), cls.name
+
+
+def test_tiles_are_spread_evenly() -> None:
+    """Multiply-shift of uint16 draws: every slice of a class comes up about equally often."""
+    f = generate_forest(load_preset("uniform"), 9, ForestOptions(trees=60))
+    for cls in DEFAULT_MANIFEST.classes:
+        counts = np.array([(f.tile_indices == s).sum()
+                           for s in range(cls.first, cls.first + cls.count)])
+        assert counts.min() > 0.8 * counts.mean(), (cls.name, counts)
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=SEEDS)
+def test_tiles_are_deterministic_per_seed(seed: int) -> None:
+    opts = ForestOptions(trees=3)
+    a = generate_forest(load_preset("shrub"), seed, opts)
+    b = generate_forest(load_preset("shrub"), seed, opts)
+    np.testing.assert_array_equal(a.tile_indices, b.tile_indices)
+    c = generate_forest(load_preset("shrub"), seed + 1, opts)
+    assert a.tile_indices.shape != c.tile_indices.shape or not np.array_equal(
+        a.tile_indices, c.tile_indices)
+
+
+def test_draw_is_deterministic_per_generator() -> None:
+    pieces = piece_library(1)
+    piece = np.array([0, 1, 2, 3, 1, 0], np.int32)
+    a = draw_tile_indices(piece, pieces, DEFAULT_MANIFEST, np.random.default_rng(4))
+    b = draw_tile_indices(piece, pieces, DEFAULT_MANIFEST, np.random.default_rng(4))
+    c = draw_tile_indices(piece, pieces, DEFAULT_MANIFEST, np.random.default_rng(5))
+    np.testing.assert_array_equal(a, b)
+    assert not np.array_equal(a, c)
+    assert a.shape == (6, max(len(p.quads) for p in pieces))
+
+
+def test_instances_of_one_piece_differ() -> None:
+    f = generate_forest(load_preset("alternating"), 2, ForestOptions(trees=2))
+    rows = f.tile_indices[f.graph.piece == 0]
+    assert len(np.unique(rows, axis=0)) == len(rows)
+
+
+def test_class_tables() -> None:
+    pieces = piece_library(2)
+    first, count, n_quads = class_tables(pieces, DEFAULT_MANIFEST)
+    np.testing.assert_array_equal(n_quads, [len(p.quads) for p in pieces])
+    assert first.shape == count.shape == (len(pieces), n_quads.max())
+    for i, p in enumerate(pieces):
+        assert (count[i, n_quads[i]:] == 0).all()
+        bark = p.tile_class == 1
+        assert (first[i, : n_quads[i]][bark] == 0).all()
+        assert (count[i, : n_quads[i]][bark] == 8).all()
+        assert (first[i, : n_quads[i]][~bark] == 8).all()
+        assert (count[i, : n_quads[i]][~bark] == 4).all()
+
+
+def test_custom_manifest() -> None:
+    manifest = TileSetManifest(classes=[TileClass(name="fork", id=2, first=0, count=1),
+                                        TileClass(name="bark", id=1, first=1, count=100)])
+    f = generate_forest(load_preset("almond"), 1, ForestOptions(trees=2), manifest=manifest)
+    assert f.manifest is manifest
+    check_tiles(f)
+    fork = np.concatenate([f.tile_indices[i, : len(f.pieces[p].quads)][f.pieces[p].tile_class == 2]
+                           for i, p in enumerate(f.graph.piece)])
+    assert (fork == 0).all()
+
+
+def test_manifest_without_a_needed_class() -> None:
+    manifest = TileSetManifest(classes=[TileClass(name="bark", id=1, first=0, count=8)])
+    with pytest.raises(ForestError) as exc:
+        generate_forest(load_preset("alternating"), 1, ForestOptions(trees=1), manifest=manifest)
+    assert exc.value.path == "tileset.classes"

@@ -1,0 +1,205 @@
+"""USD scenes: contract, validity, round trip, USD's own skinning, determinism."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
+
+from forest.errors import OutputError, SceneError
+from forest.generate import Forest, ForestOptions, generate_forest
+from forest.presets import load_preset, preset_names
+from forest.tolerances import INSTANCE_TRANSFORM_REL
+from forest.usd_read import read_scene
+from forest.usd_scene import PIECES, write_scene
+from forest.usd_skinned import tree_slices
+
+
+def validation_errors(stage: Usd.Stage) -> list[str]:
+    registry = UsdValidation.ValidationRegistry()
+    ctx = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
+    return [f"{e.GetIdentifier()}: {e.GetMessage()}" for e in ctx.Validate(stage)
+            if not e.HasNoError()]
+
+
+def test_skinned_scene_passes_usd_validation(skinned_scene: Path) -> None:
+    stage = Usd.Stage.Open(str(skinned_scene))
+    assert validation_errors(stage) == []
+    assert UsdGeom.GetStageUpAxis(stage) == UsdGeom.Tokens.y
+    assert UsdGeom.GetStageMetersPerUnit(stage) == 1.0
+    assert stage.GetDefaultPrim().GetPath() == "/World"
+    assert stage.GetTimeCodesPerSecond() == 24.0
+    for prim in stage.Traverse():
+        assert prim.GetTypeName(), f"typeless prim {prim.GetPath()}"
+
+
+@pytest.mark.parametrize("name", preset_names())
+def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> None:
+    forest = generate_forest(load_preset(name), 2, ForestOptions(trees=2))
+    stage = Usd.Stage.Open(str(write_scene(forest, tmp_path / "f.usdc", skinned=True)))
+    meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
+    assert len(meshes) == 4 + 2 * 2  # prototypes + (bark, proxy) per tree
+    for mesh in meshes:
+        ok, why = UsdGeom.Mesh.ValidateTopology(
+            mesh.GetFaceVertexIndicesAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(),
+            len(mesh.GetPointsAttr().Get()))
+        assert ok, f"{mesh.GetPath()}: {why}"
+        assert mesh.GetExtentAttr().HasAuthoredValue()
+    assert validation_errors(stage) == []
+
+
+def test_point_instancer_reproduces_generator_transforms(skinned_scene: Path,
+                                                         windy_forest: Forest) -> None:
+    stage = Usd.Stage.Open(str(skinned_scene))
+    inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(PIECES))
+    t = Usd.TimeCode.Default()
+    usd = np.swapaxes(np.asarray(inst.ComputeInstanceTransformsAtTime(t, t)), -1, -2)
+    ours = windy_forest.transforms
+    scale = np.abs(ours).max(axis=(1, 2), keepdims=True)
+    assert np.abs(usd - ours).max() / scale.max() < INSTANCE_TRANSFORM_REL
+    assert (np.abs(usd - ours) <= INSTANCE_TRANSFORM_REL * scale).all()
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdc", ".usdz"])
+def test_reader_returns_generator_arrays(windy_forest: Forest, tmp_path: Path,
+                                         suffix: str) -> None:
+    f = windy_forest
+    scene = read_scene(write_scene(f, tmp_path / f"f{suffix}"))
+    g = f.graph
+    for ours, theirs in [(g.piece, scene.proto_indices), (g.tree, scene.tree),
+                         (f.bones.offset, scene.bone_offset), (f.tile_indices, scene.tile_indices),
+                         (g.parent, scene.parent), (g.parent_rim, scene.parent_rim),
+                         (g.twist, scene.twist), (g.depth, scene.depth), (g.symbol, scene.symbol)]:
+        assert theirs.dtype == np.int32
+        np.testing.assert_array_equal(theirs, ours)
+    assert scene.seed == 11 and scene.version == f.version
+    assert scene.times == f.frame_times()
+    for time, pal in zip(scene.times, scene.palettes, strict=True):
+        np.testing.assert_array_equal(pal, f.palette(time))
+    np.testing.assert_array_equal(scene.tree_transforms, f.tree_transforms)
+    assert np.abs(scene.transforms - f.transforms).max() < 1e-5 * np.abs(f.transforms).max()
+    for ours_p, theirs_p in zip(f.pieces, scene.pieces, strict=True):
+        np.testing.assert_array_equal(theirs_p.quads, ours_p.quads)
+        np.testing.assert_array_equal(theirs_p.leaf_rims, ours_p.leaf_rims)
+        np.testing.assert_array_equal(theirs_p.building, ours_p.building)
+
+
+def _our_skinned_points(f: Forest, inst: slice, time: float) -> np.ndarray:
+    pal = f.palette(time)
+    out = []
+    for i in range(inst.start, inst.stop):
+        p = f.pieces[f.graph.piece[i]]
+        m = pal[f.bones.offset[i] + p.joint_indices]
+        v = np.einsum("kjab,kb->kja", m[..., :3, :3], p.positions) + m[..., :3, 3]
+        out.append((p.joint_weights[..., None] * v).sum(axis=1))
+    return np.concatenate(out)
+
+
+def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path,
+                                                 windy_forest: Forest) -> None:
+    f = windy_forest
+    stage = Usd.Stage.Open(str(skinned_scene))
+    for k, (inst, _) in enumerate(tree_slices(f)):
+        root = stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}")
+        cache = UsdSkel.Cache()
+        cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
+        skel = cache.GetSkelQuery(UsdSkel.Skeleton(root.GetChild("Skeleton")))
+        mesh = root.GetChild("Bark")
+        skin = cache.GetSkinningQuery(mesh)
+        world = UsdGeom.Xformable(root).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
+        m = np.asarray(world).T
+        for frame in (0, 3):
+            tc = Usd.TimeCode(frame)
+            points = UsdGeom.Mesh(mesh).GetPointsAttr().Get(tc)
+            assert skin.ComputeSkinnedPoints(skel.ComputeSkinningTransforms(tc), points, tc)
+            usd = np.asarray(points, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+            ours = _our_skinned_points(f, inst, frame / f.options.fps)
+            size = np.ptp(ours, axis=0).max()
+            assert np.abs(usd - ours).max() < 1e-5 * size
+        # the wind really moves the tree between the two frames
+        assert np.abs(_our_skinned_points(f, inst, 0.0)
+                      - _our_skinned_points(f, inst, 3 / 24)).max() > 1e-4 * size
+
+
+def test_proxy_is_decimated_and_bound(skinned_scene: Path) -> None:
+    stage = Usd.Stage.Open(str(skinned_scene))
+    root = stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000")
+    bark, proxy = UsdGeom.Mesh(root.GetChild("Bark")), UsdGeom.Mesh(root.GetChild("Proxy"))
+    assert proxy.GetPurposeAttr().Get() == UsdGeom.Tokens.proxy
+    assert bark.GetPurposeAttr().Get() == UsdGeom.Tokens.render
+    n_tris_full = 2 * len(bark.GetFaceVertexCountsAttr().Get())
+    assert 0 < len(proxy.GetFaceVertexCountsAttr().Get()) < 0.5 * n_tris_full
+    assert UsdSkel.BindingAPI(proxy.GetPrim()).GetSkeletonRel().GetTargets()
+
+
+def test_udim_st_follows_tile_indices(skinned_scene: Path, windy_forest: Forest) -> None:
+    stage = Usd.Stage.Open(str(skinned_scene))
+    mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000/Bark"))
+    st = np.asarray(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get()).reshape(-1, 4, 2)
+    inst, _ = tree_slices(windy_forest)[0]
+    tiles = np.concatenate([windy_forest.tile_indices[i, : len(
+        windy_forest.pieces[windy_forest.graph.piece[i]].quads)] for i in range(inst.start, inst.stop)])
+    udim_u, udim_v = np.floor(st.min(axis=1)).T
+    np.testing.assert_array_equal(udim_u + 10 * udim_v, tiles)
+
+
+_WRITE = """
+import sys
+from forest.generate import ForestOptions, generate_forest
+from forest.presets import load_preset
+from forest.usd_scene import write_scene
+f = generate_forest(load_preset("uniform"), 5, ForestOptions(trees=2, frames=2))
+write_scene(f, sys.argv[1], skinned=True)
+"""
+
+
+@pytest.mark.parametrize("suffix", [".usda", ".usdc", ".usdz"])
+def test_same_grammar_and_seed_give_byte_identical_files(tmp_path: Path, suffix: str) -> None:
+    paths = []
+    for i, tz in enumerate(("UTC", "Asia/Tokyo")):  # usdz zip headers once held local mtimes
+        out = tmp_path / f"run{i}" / f"forest{suffix}"
+        out.parent.mkdir()
+        subprocess.run([sys.executable, "-c", _WRITE, str(out)], check=True,
+                       env={"TZ": tz, "PATH": "/usr/bin:/bin"}, cwd=Path(__file__).parents[1])
+        paths.append(out)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_unwritable_and_unknown_outputs_fail_before_work(windy_forest: Forest,
+                                                         tmp_path: Path) -> None:
+    with pytest.raises(OutputError, match="unknown format"):
+        write_scene(windy_forest, tmp_path / "x.obj")
+    with pytest.raises(OutputError, match="does not exist"):
+        write_scene(windy_forest, tmp_path / "missing" / "x.usda")
+    with pytest.raises(OutputError, match="not writable"):
+        write_scene(windy_forest, "/proc/x.usda")
+    assert list(tmp_path.iterdir()) == []  # no temporary files left behind
+
+
+def test_reader_names_what_is_wrong(tmp_path: Path, skinned_scene: Path) -> None:
+    with pytest.raises(SceneError, match="no such file"):
+        read_scene(tmp_path / "none.usda")
+    junk = tmp_path / "junk.usda"
+    junk.write_text("#usda 1.0\n( this is not usd")
+    with pytest.raises(SceneError, match="not a readable USD file"):
+        read_scene(junk)
+    truncated = tmp_path / "cut.usdc"
+    data = write_scene(generate_forest(load_preset("shrub"), 1), tmp_path / "ok.usdc").read_bytes()
+    truncated.write_bytes(data[: len(data) // 2])
+    with pytest.raises(SceneError):
+        read_scene(truncated)
+    empty = Usd.Stage.CreateNew(str(tmp_path / "empty.usda"))
+    UsdGeom.Xform.Define(empty, "/World")
+    empty.Save()
+    with pytest.raises(SceneError, match="/World/Forest"):
+        read_scene(tmp_path / "empty.usda")
+    stage = Usd.Stage.Open(str(skinned_scene))
+    stage.GetPrimAtPath(PIECES).GetAttribute("forest:bonePalette").Clear()
+    broken = tmp_path / "broken.usda"
+    stage.GetRootLayer().Export(str(broken))
+    with pytest.raises(SceneError, match=r"/World/Forest/Pieces\.forest:bonePalette"):
+        read_scene(broken)
