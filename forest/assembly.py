@@ -20,8 +20,9 @@ def building_twist_table(pieces: tuple[PieceArrays, ...]) -> F64:
     return out
 
 
-def topological_transforms(graph: PieceGraph, tree_transforms: F64,
-                           pieces: tuple[PieceArrays, ...]) -> F64:
+def topological_transforms(
+    graph: PieceGraph, tree_transforms: F64, pieces: tuple[PieceArrays, ...]
+) -> F64:
     """``(n, 4, 4)`` world transforms of every piece instance at rest."""
     table = building_twist_table(pieces)
     out = np.empty((len(graph), 4, 4))

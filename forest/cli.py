@@ -46,8 +46,9 @@ def stage_progress(enabled: bool, label: str) -> Iterator[Callable[[str, int, in
         if bar is None:
             for old in bars.values():
                 old.render_finish()
-            bar = bars[stage] = click.progressbar(length=total, label=f"{label}: {stage:<14}",
-                                                  file=sys.stderr)
+            bar = bars[stage] = click.progressbar(
+                length=total, label=f"{label}: {stage:<14}", file=sys.stderr
+            )
             bar.__enter__()
         bar.update(done - bar.pos)
 
@@ -91,27 +92,70 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 @click.option("--grammar", type=click.Path(path_type=Path), help="A grammar JSON file.")
 @click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
 @click.option("--trees", type=int, default=1, show_default=True)
-@click.option("--area", type=(float, float), default=(20.0, 20.0), show_default=True,
-              metavar="W D", help="Width and depth in metres of the area the trees stand in.")
-@click.option("--placement", type=click.Choice(["poisson", "grid"]), default="poisson",
-              show_default=True)
-@click.option("--frames", type=int, default=0, show_default=True,
-              help="Wind frames to sample (0: a still, posed forest).")
+@click.option(
+    "--area",
+    type=(float, float),
+    default=(20.0, 20.0),
+    show_default=True,
+    metavar="W D",
+    help="Width and depth in metres of the area the trees stand in.",
+)
+@click.option(
+    "--placement", type=click.Choice(["poisson", "grid"]), default="poisson", show_default=True
+)
+@click.option(
+    "--frames",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Wind frames to sample (0: a still, posed forest).",
+)
 @click.option("--fps", type=float, default=24.0, show_default=True)
-@click.option("--wind", "wind_deg", type=float, default=4.0, show_default=True,
-              help="Wind sway at the tips, degrees.")
-@click.option("--segments", type=int, default=1, show_default=True,
-              help="Piece resolution: quad rings per tube section.")
+@click.option(
+    "--wind",
+    "wind_deg",
+    type=float,
+    default=4.0,
+    show_default=True,
+    help="Wind sway at the tips, degrees.",
+)
+@click.option(
+    "--segments",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Piece resolution: quad rings per tube section.",
+)
 @click.option("--skinned", is_flag=True, help="Also bake each tree as SkelRoot + skinned Mesh.")
-@click.option("--tiles", "tiles_dir", metavar="DIR",
-              help="Folder (relative to the scene) of bark.<UDIM>.png tiles for the material.")
-@click.option("-o", "--output", type=click.Path(path_type=Path), required=True,
-              help="OUT.usda, OUT.usdc or OUT.usdz")
+@click.option(
+    "--tiles",
+    "tiles_dir",
+    metavar="DIR",
+    help="Folder (relative to the scene) of bark.<UDIM>.png tiles for the material.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="OUT.usda, OUT.usdc or OUT.usdz",
+)
 @input_errors
-def generate(preset: str | None, grammar: Path | None, seed: int, trees: int,
-             area: tuple[float, float], placement: str, frames: int, fps: float,
-             wind_deg: float, segments: int, skinned: bool, tiles_dir: str | None,
-             output: Path) -> None:
+def generate(
+    preset: str | None,
+    grammar: Path | None,
+    seed: int,
+    trees: int,
+    area: tuple[float, float],
+    placement: str,
+    frames: int,
+    fps: float,
+    wind_deg: float,
+    segments: int,
+    skinned: bool,
+    tiles_dir: str | None,
+    output: Path,
+) -> None:
     """Generate a forest from a grammar and a seed and write it as USD."""
     from forest.generate import ForestOptions, generate_forest
     from forest.skeleton import Wind
@@ -120,20 +164,33 @@ def generate(preset: str | None, grammar: Path | None, seed: int, trees: int,
 
     check_output_path(output)
     g = _load_grammar(preset, grammar)
-    options = ForestOptions(trees=trees, area=area, frames=frames, fps=fps,
-                            placement=placement,  # type: ignore[arg-type]
-                            segments=segments, wind=Wind(strength_deg=wind_deg))
+    options = ForestOptions(
+        trees=trees,
+        area=area,
+        frames=frames,
+        fps=fps,
+        placement=placement,  # type: ignore[arg-type]
+        segments=segments,
+        wind=Wind(strength_deg=wind_deg),
+    )
     with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
         forest = generate_forest(g, seed, options, progress=bar)
         write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
-    click.echo(f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
-               f"{len(forest.bones)} bones, {frames} frame(s)"
-               + (", skinned" if skinned else ""))
+    click.echo(
+        f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
+        f"{len(forest.bones)} bones, {frames} frame(s)" + (", skinned" if skinned else "")
+    )
 
 
 @main.command()
-@click.option("-o", "--output", type=click.Path(path_type=Path), default=Path("demo"),
-              show_default=True, help="Folder to write into.")
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    default=Path("demo"),
+    show_default=True,
+    help="Folder to write into.",
+)
 @input_errors
 def demo(output: Path) -> None:
     """Write a small forest (and one skinned, animated tree) into a folder."""
@@ -154,8 +211,10 @@ def demo(output: Path) -> None:
         forest = generate_forest(load_preset(preset), 1, options)
         path = write_scene(forest, output / name, skinned=skinned)
         kind = "skinned + instanced" if skinned else "instanced"
-        click.echo(f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
-                   f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}")
+        click.echo(
+            f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
+            f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
+        )
     click.echo("open them in usdview, Blender (File > Import > USD) or any USD tool")
 
 

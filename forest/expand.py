@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,7 +44,7 @@ class PieceGraph:
         """Instance indices of each depth level, in order."""
         order = np.argsort(self.depth, kind="stable").astype(np.int32)
         bounds = np.searchsorted(self.depth[order], np.arange(int(self.depth.max()) + 2))
-        return [order[a:b] for a, b in zip(bounds[:-1], bounds[1:], strict=True)]
+        return [order[a:b] for a, b in itertools.pairwise(bounds)]
 
 
 def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -51,8 +52,9 @@ def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np
     return lo_hi[..., 0] + u * (lo_hi[..., 1] - lo_hi[..., 0])
 
 
-def expand(cg: CompiledGrammar, n_trees: int, rng: np.random.Generator,
-           settings: ForestSettings) -> PieceGraph:
+def expand(
+    cg: CompiledGrammar, n_trees: int, rng: np.random.Generator, settings: ForestSettings
+) -> PieceGraph:
     """Grow ``n_trees`` trees from the axiom; every draw is batched over one depth level."""
     # the open rims of the current level
     f_tree = np.arange(n_trees, dtype=np.int32)
@@ -70,31 +72,52 @@ def expand(cg: CompiledGrammar, n_trees: int, rng: np.random.Generator,
         u = rng.random(len(f_sym)) * total
         alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
         keep = total > 0  # no eligible alternative at this depth: the rim stays a tip
-        alt, f_tree, f_parent, f_rim, f_sym, f_len, f_rad = (
-            x[keep] for x in (alt, f_tree, f_parent, f_rim, f_sym, f_len, f_rad))
+        alt, f_tree, f_parent, f_rim, f_sym = (
+            alt[keep], f_tree[keep], f_parent[keep], f_rim[keep], f_sym[keep])
+        f_len, f_rad = f_len[keep], f_rad[keep]
         m = len(alt)
         if m == 0:
             break
         twist = cg.alt_twist[alt]
         twist = np.where(twist < 0, rng.integers(0, 6, m, dtype=np.int32), twist).astype(np.int32)
         ids = np.arange(count, count + m, dtype=np.int32)
-        out.append((f_tree, f_parent, f_rim, np.full(m, depth, np.int32), cg.alt_piece[alt],
-                    f_sym, alt, twist, f_len, f_rad))
+        out.append(
+            (
+                f_tree,
+                f_parent,
+                f_rim,
+                np.full(m, depth, np.int32),
+                cg.alt_piece[alt],
+                f_sym,
+                alt,
+                twist,
+                f_len,
+                f_rad,
+            )
+        )
         count += m
         per_tree += np.bincount(f_tree, minlength=n_trees)
         if count > settings.max_pieces_per_forest:
-            raise LimitError(f"the forest grew past {settings.max_pieces_per_forest} pieces; "
-                             "use fewer trees or a smaller grammar",
-                             path="max_pieces_per_forest", limit=settings.max_pieces_per_forest)
+            raise LimitError(
+                f"the forest grew past {settings.max_pieces_per_forest} pieces; "
+                "use fewer trees or a smaller grammar",
+                path="max_pieces_per_forest",
+                limit=settings.max_pieces_per_forest,
+            )
         if per_tree.max() > settings.max_pieces_per_tree:
-            raise LimitError(f"a tree grew past {settings.max_pieces_per_tree} pieces; "
-                             "lower max_depth or the branching",
-                             path="max_pieces_per_tree", limit=settings.max_pieces_per_tree)
+            raise LimitError(
+                f"a tree grew past {settings.max_pieces_per_tree} pieces; "
+                "lower max_depth or the branching",
+                path="max_pieces_per_tree",
+                limit=settings.max_pieces_per_tree,
+            )
         succ = cg.alt_succ[alt]
         if depth == cg.max_depth:
             if cg.grammar.max_depth is None and (succ >= 0).any():
-                raise GrammarError(f"the rules did not terminate within {cg.max_depth} levels; "
-                                   "set max_depth", path="max_depth")
+                raise GrammarError(
+                    f"the rules did not terminate within {cg.max_depth} levels; set max_depth",
+                    path="max_depth",
+                )
             break
         grow_i, grow_r = np.nonzero(succ >= 0)
         f_tree = f_tree[grow_i]
@@ -112,9 +135,16 @@ def expand(cg: CompiledGrammar, n_trees: int, rng: np.random.Generator,
     parent = parent[order]
     parent = np.where(parent >= 0, rank[np.maximum(parent, 0)], -1).astype(np.int32)
     return PieceGraph(
-        tree=tree[order].astype(np.int32), parent=parent, parent_rim=rim[order],
-        depth=depth_a[order], piece=piece[order], symbol=sym[order], alt=alt_a[order],
-        twist=twist_a[order], length=length[order], radius=radius[order],
+        tree=tree[order].astype(np.int32),
+        parent=parent,
+        parent_rim=rim[order],
+        depth=depth_a[order],
+        piece=piece[order],
+        symbol=sym[order],
+        alt=alt_a[order],
+        twist=twist_a[order],
+        length=length[order],
+        radius=radius[order],
     )
 
 

@@ -47,20 +47,30 @@ class ForestOptions:
 
     def check(self, settings: ForestSettings) -> None:
         if not 1 <= self.trees <= settings.max_trees:
-            raise LimitError(f"trees must be between 1 and {settings.max_trees}, got "
-                             f"{self.trees}", path="trees", limit=settings.max_trees)
+            raise LimitError(
+                f"trees must be between 1 and {settings.max_trees}, got {self.trees}",
+                path="trees",
+                limit=settings.max_trees,
+            )
         if not 0 <= self.frames <= settings.max_frames:
-            raise LimitError(f"frames must be between 0 and {settings.max_frames}, got "
-                             f"{self.frames}", path="frames", limit=settings.max_frames)
+            raise LimitError(
+                f"frames must be between 0 and {settings.max_frames}, got {self.frames}",
+                path="frames",
+                limit=settings.max_frames,
+            )
         for name, v in zip(("width", "depth"), self.area, strict=True):
             if not (0 < v <= MAX_AREA) or not np.isfinite(v):
-                raise LimitError(f"area {name} must be in (0, {MAX_AREA:g}] metres, got {v}",
-                                 path=f"area.{name}", limit=MAX_AREA)
+                raise LimitError(
+                    f"area {name} must be in (0, {MAX_AREA:g}] metres, got {v}",
+                    path=f"area.{name}",
+                    limit=MAX_AREA,
+                )
         if not 0 < self.fps <= 1000:
             raise LimitError(f"fps must be in (0, 1000], got {self.fps}", path="fps", limit=1000)
         if not 1 <= self.segments <= 8:
-            raise LimitError(f"segments must be in [1, 8], got {self.segments}",
-                             path="segments", limit=8)
+            raise LimitError(
+                f"segments must be in [1, 8], got {self.segments}", path="segments", limit=8
+            )
 
 
 @dataclass(frozen=True, eq=False)
@@ -102,9 +112,16 @@ class Forest:
 
     def local_bones(self, time: float | None = None) -> F64:
         """``(b, 4, 4)`` local bone transforms, posed, with wind at ``time`` if given."""
-        return local_transforms(self.graph, self.bones, self.pieces, self.tree_transforms,
-                                self.transforms, self.pose,
-                                None if time is None else self.options.wind, time or 0.0)
+        return local_transforms(
+            self.graph,
+            self.bones,
+            self.pieces,
+            self.tree_transforms,
+            self.transforms,
+            self.pose,
+            None if time is None else self.options.wind,
+            time or 0.0,
+        )
 
     def palette(self, time: float | None = None) -> F64:
         """``(b, 4, 4)`` posed skinning matrices (prototype space -> world)."""
@@ -124,11 +141,15 @@ class Forest:
         return pos, 3.0 * scale
 
 
-def generate_forest(grammar: Grammar, seed: int, options: ForestOptions | None = None,
-                    manifest: TileSetManifest = DEFAULT_MANIFEST,
-                    settings: ForestSettings | None = None,
-                    progress: Progress | None = None,
-                    compiled: CompiledGrammar | None = None) -> Forest:
+def generate_forest(
+    grammar: Grammar,
+    seed: int,
+    options: ForestOptions | None = None,
+    manifest: TileSetManifest = DEFAULT_MANIFEST,
+    settings: ForestSettings | None = None,
+    progress: Progress | None = None,
+    compiled: CompiledGrammar | None = None,
+) -> Forest:
     """Expand, assemble, pose and tile a forest. Same inputs, same version: same arrays."""
     settings = settings or get_settings()
     options = options or ForestOptions()
@@ -136,17 +157,26 @@ def generate_forest(grammar: Grammar, seed: int, options: ForestOptions | None =
     cg = compiled or compile_grammar(grammar, settings)
     expected = cg.expected_pieces * options.trees
     if expected > settings.max_pieces_per_forest:
-        raise LimitError(f"{options.trees} trees of about {cg.expected_pieces:.0f} pieces each "
-                         f"exceed the cap of {settings.max_pieces_per_forest} pieces per forest",
-                         path="max_pieces_per_forest", limit=settings.max_pieces_per_forest)
+        raise LimitError(
+            f"{options.trees} trees of about {cg.expected_pieces:.0f} pieces each "
+            f"exceed the cap of {settings.max_pieces_per_forest} pieces per forest",
+            path="max_pieces_per_forest",
+            limit=settings.max_pieces_per_forest,
+        )
     note = progress or (lambda stage, done, total: None)
     # independent streams per stage, so a change in one stage never reshuffles another
     streams = np.random.SeedSequence(seed).spawn(4)
     rng_scatter, rng_grow, rng_pose, rng_tiles = (np.random.default_rng(s) for s in streams)
     pieces = piece_library(options.segments)
     note("place", 0, 5)
-    trees = tree_transforms(options.trees, options.area, grammar.trunk_radius,
-                            grammar.tree_scale, rng_scatter, options.placement)
+    trees = tree_transforms(
+        options.trees,
+        options.area,
+        grammar.trunk_radius,
+        grammar.tree_scale,
+        rng_scatter,
+        options.placement,
+    )
     note("grow", 1, 5)
     graph = expand(cg, options.trees, rng_grow, settings)
     note("assemble", 2, 5)
@@ -158,8 +188,17 @@ def generate_forest(grammar: Grammar, seed: int, options: ForestOptions | None =
     tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)
     note("done", 5, 5)
     return Forest(
-        grammar=grammar, seed=seed, version=__version__, options=options, pieces=pieces,
-        graph=graph, tree_transforms=trees, transforms=transforms, bones=bones, pose=pose,
-        tile_indices=tiles, manifest=manifest,
+        grammar=grammar,
+        seed=seed,
+        version=__version__,
+        options=options,
+        pieces=pieces,
+        graph=graph,
+        tree_transforms=trees,
+        transforms=transforms,
+        bones=bones,
+        pose=pose,
+        tile_indices=tiles,
+        manifest=manifest,
         foliage_instance=np.nonzero(cg.foliage[graph.symbol])[0].astype(np.int32),
     )

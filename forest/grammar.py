@@ -47,8 +47,9 @@ def load_grammar(path: str | Path) -> Grammar:
     try:
         size = p.stat().st_size
         if size > MAX_GRAMMAR_BYTES:
-            raise GrammarError(f"file is {size} bytes; a grammar is at most {MAX_GRAMMAR_BYTES}",
-                               path=str(p))
+            raise GrammarError(
+                f"file is {size} bytes; a grammar is at most {MAX_GRAMMAR_BYTES}", path=str(p)
+            )
         text = p.read_text(encoding="utf-8")
     except FileNotFoundError:
         raise GrammarError("no such file", path=str(p)) from None
@@ -60,11 +61,14 @@ def load_grammar(path: str | Path) -> Grammar:
 def grammar_from_json(text: str, source: str = "grammar") -> Grammar:
     try:
         data = json.loads(text)
+    except RecursionError:
+        raise GrammarError("JSON nested too deeply to be a grammar", path=source) from None
     except json.JSONDecodeError as exc:
-        at_end = exc.pos >= len(text.rstrip()) - 1 or exc.msg.startswith("Unterminated")
+        at_end = exc.pos >= len(text.rstrip()) or exc.msg.startswith("Unterminated string")
         what = "truncated JSON (the file ends early)" if at_end else "malformed JSON"
-        raise GrammarError(f"{what}: {exc.msg} (line {exc.lineno}, column {exc.colno})",
-                           path=source) from None
+        raise GrammarError(
+            f"{what}: {exc.msg} (line {exc.lineno}, column {exc.colno})", path=source
+        ) from None
     return parse_grammar(data)
 
 
@@ -111,8 +115,9 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
     symbols = tuple(g.rules)
     sid = {s: i for i, s in enumerate(symbols)}
     if g.axiom not in sid:
-        raise GrammarError(f"axiom {g.axiom!r} has no rule (rules: {', '.join(symbols)})",
-                           path="axiom")
+        raise GrammarError(
+            f"axiom {g.axiom!r} has no rule (rules: {', '.join(symbols)})", path="axiom"
+        )
     for i, s in enumerate(g.foliage):
         if s not in sid:
             raise GrammarError(f"unknown symbol {s!r}", path=f"foliage[{i}]")
@@ -124,11 +129,14 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
             if len(alt.successors) != rims[alt.piece]:
                 raise GrammarError(
                     f"piece {alt.piece} has {rims[alt.piece]} leaf rim(s) but "
-                    f"{len(alt.successors)} successor(s) are given", path=f"{where}.successors")
+                    f"{len(alt.successors)} successor(s) are given",
+                    path=f"{where}.successors",
+                )
             for r, succ in enumerate(alt.successors):
                 if succ is not None and succ.symbol not in sid:
-                    raise GrammarError(f"unknown symbol {succ.symbol!r}",
-                                       path=f"{where}.successors[{r}].symbol")
+                    raise GrammarError(
+                        f"unknown symbol {succ.symbol!r}", path=f"{where}.successors[{r}].symbol"
+                    )
             rows.append((sid[s], alt))
     n_alt = len(rows)
     big = np.iinfo(np.int32).max
@@ -150,10 +158,13 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         alt_symbol=np.array([s for s, _ in rows], np.int32),
         alt_piece=np.array([PIECE_NAMES.index(alt.piece) for _, alt in rows], np.int32),
         alt_weight=np.array([alt.weight for _, alt in rows]),
-        alt_depth=np.array([[alt.min_depth, big if alt.max_depth is None else alt.max_depth]
-                            for _, alt in rows], np.int32),
-        alt_twist=np.array([-1 if alt.twist == "random" else alt.twist for _, alt in rows],
-                           np.int32),
+        alt_depth=np.array(
+            [[alt.min_depth, big if alt.max_depth is None else alt.max_depth] for _, alt in rows],
+            np.int32,
+        ),
+        alt_twist=np.array(
+            [-1 if alt.twist == "random" else alt.twist for _, alt in rows], np.int32
+        ),
         alt_succ=alt_succ,
         alt_length=alt_length,
         alt_radius=alt_radius,
@@ -162,6 +173,11 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         foliage=np.isin(np.arange(len(symbols)), [sid[s] for s in g.foliage]),
         expected_pieces=0.0,
     )
+    if cg.choice_table(0)[cg.axiom, -1] <= 0:
+        raise GrammarError(
+            f"axiom {g.axiom!r} has no alternative allowed at depth 0 (check min_depth)",
+            path=f"rules.{g.axiom}",
+        )
     if g.max_depth is None:
         _check_terminates(cg)
     expected = _expected_pieces(cg)
@@ -170,7 +186,9 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         raise LimitError(
             f"the grammar grows about {expected:.3g} pieces per tree, over the cap of "
             f"{settings.max_pieces_per_tree}; lower max_depth or the branching",
-            path="max_pieces_per_tree", limit=settings.max_pieces_per_tree)
+            path="max_pieces_per_tree",
+            limit=settings.max_pieces_per_tree,
+        )
     return cg
 
 
@@ -200,7 +218,8 @@ def _check_terminates(cg: CompiledGrammar) -> None:
         raise GrammarError(
             f"the rules never terminate: every alternative of {', '.join(map(repr, stuck))} "
             "keeps growing; add an alternative without successors or set max_depth",
-            path="max_depth")
+            path="max_depth",
+        )
 
 
 def _expected_pieces(cg: CompiledGrammar) -> float:

@@ -18,6 +18,7 @@ the tube's local +Y, and quads are wound ``(a_i, b_i, b_i+1, a_i+1)`` so normals
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 from functools import cache
 
@@ -82,7 +83,7 @@ class PieceArrays:
 
     @property
     def joint_names(self) -> tuple[str, ...]:
-        return ("root", "hub") + tuple(f"tip{r}" for r in range(self.n_leaf_rims))
+        return ("root", "hub", *tuple(f"tip{r}" for r in range(self.n_leaf_rims)))
 
 
 class _MeshBuilder:
@@ -105,8 +106,9 @@ class _MeshBuilder:
         self.count += len(pts)
         return idx
 
-    def strip(self, a: NDArray[np.int64], b: NDArray[np.int64], cls: int,
-              skip: tuple[int, ...] = ()) -> None:
+    def strip(
+        self, a: NDArray[np.int64], b: NDArray[np.int64], cls: int, skip: tuple[int, ...] = ()
+    ) -> None:
         """Quads between consecutive rings ``a`` and ``b`` (each (6,)), except columns ``skip``."""
         cols = np.array([i for i in range(rim.SIDES) if i not in skip])
         nxt = (cols + 1) % rim.SIDES
@@ -141,8 +143,10 @@ def _align_ring(idx: NDArray[np.int64], pts: F64, frame: F64) -> NDArray[np.int6
     ang = np.mod(np.arctan2(local[:, 2], local[:, 0]), 2 * np.pi)
     order = np.argsort(ang)
     ang = ang[order]
-    shifts = [np.abs(np.angle(np.exp(1j * (np.roll(ang, -k) - rim.ANGLES)))).sum()
-              for k in range(rim.SIDES)]
+    shifts = [
+        np.abs(np.angle(np.exp(1j * (np.roll(ang, -k) - rim.ANGLES)))).sum()
+        for k in range(rim.SIDES)
+    ]
     return np.roll(idx[order], -int(np.argmin(shifts)))
 
 
@@ -187,8 +191,9 @@ class _PieceBuilder:
             w[~below, 2 + tip] = u[~below]
         return w
 
-    def stem(self, heights: list[float], top: float, tip: int | None,
-             leaf_frame: F64 | None) -> list[NDArray[np.int64]]:
+    def stem(
+        self, heights: list[float], top: float, tip: int | None, leaf_frame: F64 | None
+    ) -> list[NDArray[np.int64]]:
         """Rings on the root cone at ``heights``; if ``leaf_frame`` is given the last ring is
         that leaf rim (the stem is then one frustum of the cone). Returns the ring indices."""
         rings = []
@@ -200,8 +205,14 @@ class _PieceBuilder:
             self.leaf_rims[tip if tip is not None else 0] = rings[-1]
         return rings
 
-    def branch(self, start: NDArray[np.int64], start_dir: F64, r: int, segments: int,
-               cls_first: NDArray[np.int64] | int) -> None:
+    def branch(
+        self,
+        start: NDArray[np.int64],
+        start_dir: F64,
+        r: int,
+        segments: int,
+        cls_first: NDArray[np.int64] | int,
+    ) -> None:
         """A tube from the six-vertex loop ``start`` to leaf rim ``r``; the last quad ring lies
         on the leaf's rim cone. ``cls_first`` is the tile class of the first quad ring."""
         frame = self.leaves[r]
@@ -214,7 +225,7 @@ class _PieceBuilder:
         leaf_pts = transform_points(frame, rim.rim_ring())
         axis = transform_vectors(frame, np.array([[0.0, 1.0, 0.0]]))[0]
         mids = _hermite_rings(pos[start], start_dir, k_pts, axis, segments)
-        ring_pts = mids + [k_pts, leaf_pts]
+        ring_pts = [*mids, k_pts, leaf_pts]
         n = len(ring_pts)
         prev = start
         tip = _onehot(2 + r, self.nj)
@@ -293,7 +304,7 @@ def make_i_piece(segments: int = 1) -> PieceArrays:
     pb = _PieceBuilder("I", np.array([0.0, STEM_HEIGHT / 2, 0.0]), [leaf])
     n = 2 * segments
     rings = pb.stem([STEM_HEIGHT * i / n for i in range(n + 1)], STEM_HEIGHT, 0, leaf)
-    for a, b in zip(rings[:-1], rings[1:], strict=True):
+    for a, b in itertools.pairwise(rings):
         pb.mesh.strip(a, b, BARK)
     return pb.finish()
 
@@ -307,11 +318,12 @@ def make_y_piece(segments: int = 1) -> PieceArrays:
     left = _leaf_frame(base * [-1, 1, 1], tilt, length, scale)
     pb = _PieceBuilder("Y", np.array([0.0, y_j, 0.0]), [right, left])
     rings = pb.stem([y_j * i / segments for i in range(segments + 1)], y_j, None, None)
-    for a, b in zip(rings[:-1], rings[1:], strict=True):
+    for a, b in itertools.pairwise(rings):
         pb.mesh.strip(a, b, BARK)
     top = rings[-1]
-    crotch = pb.mesh.add(np.array([[0.0, y_j + 0.75, 0.4], [0.0, y_j + 0.75, -0.4]]),
-                         _onehot(1, pb.nj))
+    crotch = pb.mesh.add(
+        np.array([[0.0, y_j + 0.75, 0.4], [0.0, y_j + 0.75, -0.4]]), _onehot(1, pb.nj)
+    )
     # top ring indices: 0:30, 1:90, 2:150, 3:210, 4:270, 5:330 degrees
     right_loop = np.array([top[0], top[1], crotch[0], crotch[1], top[4], top[5]])
     left_loop = np.array([top[1], top[2], top[3], top[4], crotch[1], crotch[0]])
@@ -320,22 +332,22 @@ def make_y_piece(segments: int = 1) -> PieceArrays:
         frame = pb.leaves[r]
         aligned = _align_ring(loop, pb.mesh.positions()[loop], frame)
         # the three quads leaving the crotch are the fork region (paper Fig. 10)
-        cls = np.where(np.isin(aligned, crotch) | np.isin(np.roll(aligned, -1), crotch),
-                       FORK, BARK)
+        cls = np.where(np.isin(aligned, crotch) | np.isin(np.roll(aligned, -1), crotch), FORK, BARK)
         pb.branch(aligned, up, r, segments, cls)
     return pb.finish()
 
 
-def _stem_with_holes(pb: _PieceBuilder, columns: tuple[int, ...], segments: int,
-                     leaf: F64) -> dict[int, NDArray[np.int64]]:
+def _stem_with_holes(
+    pb: _PieceBuilder, columns: tuple[int, ...], segments: int, leaf: F64
+) -> dict[int, NDArray[np.int64]]:
     """A full-height stem to leaf rim 0 with a two-quad hole in each of ``columns`` between
     rings at heights 1.0 and 2.2; returns each hole's six-vertex loop."""
     lower = [1.0 * i / segments for i in range(segments)]
     upper = [2.2 + (STEM_HEIGHT - 2.2) * i / segments for i in range(1, segments + 1)]
-    heights = lower + [1.0, 1.6, 2.2] + upper
+    heights = [*lower, 1.0, 1.6, 2.2, *upper]
     rings = pb.stem(heights, STEM_HEIGHT, 0, leaf)
     i1 = segments  # ring at 1.0
-    for k, (a, b) in enumerate(zip(rings[:-1], rings[1:], strict=True)):
+    for k, (a, b) in enumerate(itertools.pairwise(rings)):
         hole_row = i1 <= k < i1 + 2
         pb.mesh.strip(a, b, BARK, columns if hole_row else ())
     r1, r2, r3 = rings[i1], rings[i1 + 1], rings[i1 + 2]

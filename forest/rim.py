@@ -1,4 +1,4 @@
-"""The universal rim: a regular hexagon, and the cone every rim's quad ring lies on (paper 4.2, 4.4).
+"""The universal rim: a regular hexagon, and the cone its quad ring lies on (paper 4.2, 4.4).
 
 In every piece's model space the root rim is this hexagon in the XZ plane at ``y = 0``, centred
 on the origin, circumradius 1, its axis +Y. A leaf rim is the same hexagon moved by the leaf's

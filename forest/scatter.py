@@ -22,8 +22,10 @@ def jittered_grid(n: int, width: float, depth: float, rng: np.random.Generator) 
     rows = int(np.ceil(n / cols))
     cell = rng.permutation(rows * cols)[:n]
     jitter = rng.random((n, 2))
-    return np.stack([(cell % cols + jitter[:, 0]) * width / cols,
-                     (cell // cols + jitter[:, 1]) * depth / rows], axis=-1)
+    return np.stack(
+        [(cell % cols + jitter[:, 0]) * width / cols, (cell // cols + jitter[:, 1]) * depth / rows],
+        axis=-1,
+    )
 
 
 def poisson_disk(n: int, width: float, depth: float, rng: np.random.Generator) -> F64:
@@ -41,9 +43,14 @@ def poisson_disk(n: int, width: float, depth: float, rng: np.random.Generator) -
     return pts
 
 
-def tree_transforms(n: int, area: tuple[float, float], base_scale: float,
-                    scale_range: tuple[float, float], rng: np.random.Generator,
-                    placement: Placement = "poisson") -> F64:
+def tree_transforms(
+    n: int,
+    area: tuple[float, float],
+    base_scale: float,
+    scale_range: tuple[float, float],
+    rng: np.random.Generator,
+    placement: Placement = "poisson",
+) -> F64:
     """``(n, 4, 4)`` model transforms of ``n`` trees centred on the origin of the XZ plane."""
     width, depth = area
     if n == 1:

@@ -68,13 +68,21 @@ def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
     # root bone -> the parent's terminal for this rim; hub -> own root; terminal -> own hub
     parent = np.where(
         joint == 0,
-        np.where(par_inst >= 0, offset[np.maximum(par_inst, 0)] + TIP0 + graph.parent_rim[instance], -1),
+        np.where(
+            par_inst >= 0, offset[np.maximum(par_inst, 0)] + TIP0 + graph.parent_rim[instance], -1
+        ),
         offset[instance] + np.where(joint == HUB, 0, HUB),
     ).astype(np.int32)
     inv = skinning_rest_inverse(pieces)
-    return Bones(offset=offset, instance=instance, joint=joint, parent=parent,
-                 rest=invert_similarity(inv), inv_rest=inv,
-                 piece_rims=np.array([p.n_leaf_rims for p in pieces], np.int32))
+    return Bones(
+        offset=offset,
+        instance=instance,
+        joint=joint,
+        parent=parent,
+        rest=invert_similarity(inv),
+        inv_rest=inv,
+        piece_rims=np.array([p.n_leaf_rims for p in pieces], np.int32),
+    )
 
 
 @dataclass(frozen=True, eq=False)
@@ -98,8 +106,14 @@ class PoseParams:
     phase: F64
 
 
-def draw_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...], alt_bend: F64,
-              alt_spread: F64, rng: np.random.Generator, n_trees: int) -> PoseParams:
+def draw_pose(
+    graph: PieceGraph,
+    pieces: tuple[PieceArrays, ...],
+    alt_bend: F64,
+    alt_spread: F64,
+    rng: np.random.Generator,
+    n_trees: int,
+) -> PoseParams:
     n = len(graph)
     bend = alt_bend[graph.alt]
     spread = alt_spread[graph.alt]
@@ -109,8 +123,8 @@ def draw_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...], alt_bend: F64,
         bend_azimuth=rng.random(n) * (2 * np.pi),
         bend_angle=bend[:, 0] + rng.random(n) * (bend[:, 1] - bend[:, 0]),
         spread_azimuth=rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi),
-        spread_angle=spread[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
-            spread[:, None, 1] - spread[:, None, 0]),
+        spread_angle=spread[:, None, 0]
+        + rng.random((n, MAX_LEAF_RIMS)) * (spread[:, None, 1] - spread[:, None, 0]),
         tip_scale=(sigma * children_radius(graph)).astype(np.float16).astype(np.float64),
         length=graph.length,
         phase=tree_phase[graph.tree] + 0.35 * graph.depth,
@@ -120,10 +134,15 @@ def draw_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...], alt_bend: F64,
 def rest_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> PoseParams:
     """The pose with every joint at rest (palette = topological transforms)."""
     n = len(graph)
-    return PoseParams(bend_azimuth=np.zeros(n), bend_angle=np.zeros(n),
-                      spread_azimuth=np.zeros((n, MAX_LEAF_RIMS)), spread_angle=np.zeros((n, MAX_LEAF_RIMS)),
-                      tip_scale=_rest_tip_scale(pieces)[graph.piece], length=np.ones(n),
-                      phase=np.zeros(n))
+    return PoseParams(
+        bend_azimuth=np.zeros(n),
+        bend_angle=np.zeros(n),
+        spread_azimuth=np.zeros((n, MAX_LEAF_RIMS)),
+        spread_angle=np.zeros((n, MAX_LEAF_RIMS)),
+        tip_scale=_rest_tip_scale(pieces)[graph.piece],
+        length=np.ones(n),
+        phase=np.zeros(n),
+    )
 
 
 def _rest_tip_scale(pieces: tuple[PieceArrays, ...]) -> F64:
@@ -148,9 +167,16 @@ def _local_tables(pieces: tuple[PieceArrays, ...]) -> tuple[F64, F64, F64]:
     return hub_t, tip_t, tip_r
 
 
-def local_transforms(graph: PieceGraph, bones: Bones, pieces: tuple[PieceArrays, ...],
-                     tree_transforms: F64, transforms: F64, pose: PoseParams,
-                     wind: Wind | None = None, time: float = 0.0) -> F64:
+def local_transforms(
+    graph: PieceGraph,
+    bones: Bones,
+    pieces: tuple[PieceArrays, ...],
+    tree_transforms: F64,
+    transforms: F64,
+    pose: PoseParams,
+    wind: Wind | None = None,
+    time: float = 0.0,
+) -> F64:
     """``(b, 4, 4)`` local bone transforms at ``time`` seconds (no wind if None).
     ``transforms`` are the instances' topological transforms (wind axes follow them)."""
     hub_t, tip_t, tip_r = _local_tables(pieces)
@@ -163,7 +189,8 @@ def local_transforms(graph: PieceGraph, bones: Bones, pieces: tuple[PieceArrays,
         world_axis = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
         depth_max = np.maximum(_tree_max(graph), 1)
         amp = np.deg2rad(wind.strength_deg) * (
-            wind.base + (1 - wind.base) * graph.depth / depth_max)
+            wind.base + (1 - wind.base) * graph.depth / depth_max
+        )
         sway = amp * np.sin(2 * np.pi * wind.frequency_hz * time + pose.phase)
     else:
         world_axis = None
@@ -246,7 +273,7 @@ def horizontal_rotation(azimuth: F64, angle: F64) -> F64:
     x, z = np.cos(azimuth), np.sin(azimuth)
     c, s = np.cos(angle), np.sin(angle)
     k = 1.0 - c
-    m = np.empty(np.shape(angle) + (3, 3))
+    m = np.empty((*np.shape(angle), 3, 3))
     m[..., 0, 0] = c + x * x * k
     m[..., 0, 1] = -z * s
     m[..., 0, 2] = x * z * k
@@ -270,5 +297,8 @@ def local_trs(local: F64) -> tuple[NDArray[np.float32], NDArray[np.float32], NDA
     lin = local[:, :3, :3]
     s = np.cbrt(np.linalg.det(lin))
     q = matrix_to_quat(lin / s[:, None, None])
-    return (local[:, :3, 3].astype(np.float32), q.astype(np.float32),
-            np.repeat(s[:, None], 3, axis=1).astype(np.float16))
+    return (
+        local[:, :3, 3].astype(np.float32),
+        q.astype(np.float32),
+        np.repeat(s[:, None], 3, axis=1).astype(np.float16),
+    )

@@ -11,8 +11,9 @@ from forest.pieces import PieceArrays
 from schemas.tileset import TileSetManifest
 
 
-def class_tables(pieces: tuple[PieceArrays, ...], manifest: TileSetManifest
-                 ) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int32]]:
+def class_tables(
+    pieces: tuple[PieceArrays, ...], manifest: TileSetManifest
+) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int32]]:
     """Per piece and padded quad: first slice ``(p, q)``, tile count ``(p, q)`` (0 marks
     padding), and the quad counts ``(p,)``."""
     by_id = {c.id: c for c in manifest.classes}
@@ -22,16 +23,22 @@ def class_tables(pieces: tuple[PieceArrays, ...], manifest: TileSetManifest
     for i, p in enumerate(pieces):
         for cid in np.unique(p.tile_class):
             if int(cid) not in by_id:
-                raise ForestError(f"piece {p.name} has quads of tile class {cid} but the "
-                                  "manifest has none", path="tileset.classes")
+                raise ForestError(
+                    f"piece {p.name} has quads of tile class {cid} but the manifest has none",
+                    path="tileset.classes",
+                )
             sel = np.nonzero(p.tile_class == cid)[0]
             first[i, sel] = by_id[int(cid)].first
             count[i, sel] = by_id[int(cid)].count
     return first, count, n_quads
 
 
-def draw_tile_indices(piece: NDArray[np.int32], pieces: tuple[PieceArrays, ...],
-                      manifest: TileSetManifest, rng: np.random.Generator) -> NDArray[np.int32]:
+def draw_tile_indices(
+    piece: NDArray[np.int32],
+    pieces: tuple[PieceArrays, ...],
+    manifest: TileSetManifest,
+    rng: np.random.Generator,
+) -> NDArray[np.int32]:
     """``(n, q_max)`` int32 slice per instance and quad, ``-1`` past the piece's last quad.
 
     One uint16 per quad from raw random bytes, mapped by multiply-shift: for ``c`` tiles the

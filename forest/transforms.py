@@ -19,34 +19,34 @@ def identity(n: int | None = None) -> F64:
     return np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
 
 
-def translation(t: ArrayLike) -> F64:
+def translation(t_in: ArrayLike) -> F64:
     """``t : (..., 3)`` -> ``(..., 4, 4)`` translation matrices."""
-    t = np.asarray(t, dtype=np.float64)
-    m = np.zeros(t.shape[:-1] + (4, 4))
+    t = np.asarray(t_in, dtype=np.float64)
+    m = np.zeros((*t.shape[:-1], 4, 4))
     m[..., 0, 0] = m[..., 1, 1] = m[..., 2, 2] = m[..., 3, 3] = 1.0
     m[..., :3, 3] = t
     return m
 
 
-def scaling(s: ArrayLike) -> F64:
+def scaling(s_in: ArrayLike) -> F64:
     """Uniform scale ``s : (...)`` -> ``(..., 4, 4)``."""
-    s = np.asarray(s, dtype=np.float64)
-    m = np.zeros(s.shape + (4, 4))
+    s = np.asarray(s_in, dtype=np.float64)
+    m = np.zeros((*s.shape, 4, 4))
     m[..., 0, 0] = m[..., 1, 1] = m[..., 2, 2] = s
     m[..., 3, 3] = 1.0
     return m
 
 
-def axis_angle_matrix(axis: ArrayLike, angle: ArrayLike) -> F64:
+def axis_angle_matrix(axis_in: ArrayLike, angle_in: ArrayLike) -> F64:
     """Rotation about unit ``axis : (..., 3)`` by ``angle : (...)`` radians -> ``(..., 4, 4)``."""
-    axis = np.asarray(axis, dtype=np.float64)
-    angle = np.asarray(angle, dtype=np.float64)
+    axis = np.asarray(axis_in, dtype=np.float64)
+    angle = np.asarray(angle_in, dtype=np.float64)
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     x, y, z = axis[..., 0], axis[..., 1], axis[..., 2]
     c, s = np.cos(angle), np.sin(angle)
     k = 1.0 - c
     shape = np.broadcast_shapes(x.shape, c.shape)
-    m = np.zeros(shape + (4, 4))
+    m = np.zeros((*shape, 4, 4))
     m[..., 0, 0] = c + x * x * k
     m[..., 0, 1] = x * y * k - z * s
     m[..., 0, 2] = x * z * k + y * s
@@ -65,15 +65,15 @@ def rotation_y(angle: ArrayLike) -> F64:
     return axis_angle_matrix([0.0, 1.0, 0.0], angle)
 
 
-def transform_points(m: F64, p: ArrayLike) -> F64:
+def transform_points(m: F64, p_in: ArrayLike) -> F64:
     """``m : (..., 4, 4)``, ``p : (..., k, 3)`` -> ``(..., k, 3)``."""
-    p = np.asarray(p, dtype=np.float64)
+    p = np.asarray(p_in, dtype=np.float64)
     return np.einsum("...ij,...kj->...ki", m[..., :3, :3], p) + m[..., None, :3, 3]
 
 
-def transform_vectors(m: F64, v: ArrayLike) -> F64:
+def transform_vectors(m: F64, v_in: ArrayLike) -> F64:
     """Directions through the linear part, renormalised (valid for similarities)."""
-    v = np.asarray(v, dtype=np.float64)
+    v = np.asarray(v_in, dtype=np.float64)
     out = np.einsum("...ij,...kj->...ki", m[..., :3, :3], v)
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
 
@@ -107,12 +107,12 @@ def compose_similarity(t: ArrayLike, q: ArrayLike, s: ArrayLike) -> F64:
     return m
 
 
-def quat_to_matrix(q: ArrayLike) -> F64:
+def quat_to_matrix(q_in: ArrayLike) -> F64:
     """Unit quaternions ``(..., 4)`` xyzw -> ``(..., 4, 4)`` rotations."""
-    q = np.asarray(q, dtype=np.float64)
+    q = np.asarray(q_in, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     x, y, z, w = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    m = np.zeros(q.shape[:-1] + (4, 4))
+    m = np.zeros((*q.shape[:-1], 4, 4))
     m[..., 0, 0] = 1 - 2 * (y * y + z * z)
     m[..., 0, 1] = 2 * (x * y - z * w)
     m[..., 0, 2] = 2 * (x * z + y * w)
@@ -126,29 +126,57 @@ def quat_to_matrix(q: ArrayLike) -> F64:
     return m
 
 
-def matrix_to_quat(r: ArrayLike) -> F64:
+def matrix_to_quat(r_in: ArrayLike) -> F64:
     """Rotation matrices ``(..., 3+, 3+)`` -> unit quaternions xyzw with ``w >= 0``.
 
     Shepperd's method: pick the largest of the four candidates per matrix so no branch
     divides by a small number.
     """
-    r = np.asarray(r, dtype=np.float64)[..., :3, :3]
+    r = np.asarray(r_in, dtype=np.float64)[..., :3, :3]
     m00, m11, m22 = r[..., 0, 0], r[..., 1, 1], r[..., 2, 2]
     cand = np.stack(
         [1 + m00 - m11 - m22, 1 - m00 + m11 - m22, 1 - m00 - m11 + m22, 1 + m00 + m11 + m22],
         axis=-1,
     )
     pick = np.argmax(cand, axis=-1)
-    q = np.empty(r.shape[:-2] + (4,))
+    q = np.empty((*r.shape[:-2], 4))
     # each candidate column gives the full quaternion up to a common factor
-    qx = np.stack([cand[..., 0], r[..., 1, 0] + r[..., 0, 1], r[..., 0, 2] + r[..., 2, 0],
-                   r[..., 2, 1] - r[..., 1, 2]], axis=-1)
-    qy = np.stack([r[..., 1, 0] + r[..., 0, 1], cand[..., 1], r[..., 2, 1] + r[..., 1, 2],
-                   r[..., 0, 2] - r[..., 2, 0]], axis=-1)
-    qz = np.stack([r[..., 0, 2] + r[..., 2, 0], r[..., 2, 1] + r[..., 1, 2], cand[..., 2],
-                   r[..., 1, 0] - r[..., 0, 1]], axis=-1)
-    qw = np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
-                   r[..., 1, 0] - r[..., 0, 1], cand[..., 3]], axis=-1)
+    qx = np.stack(
+        [
+            cand[..., 0],
+            r[..., 1, 0] + r[..., 0, 1],
+            r[..., 0, 2] + r[..., 2, 0],
+            r[..., 2, 1] - r[..., 1, 2],
+        ],
+        axis=-1,
+    )
+    qy = np.stack(
+        [
+            r[..., 1, 0] + r[..., 0, 1],
+            cand[..., 1],
+            r[..., 2, 1] + r[..., 1, 2],
+            r[..., 0, 2] - r[..., 2, 0],
+        ],
+        axis=-1,
+    )
+    qz = np.stack(
+        [
+            r[..., 0, 2] + r[..., 2, 0],
+            r[..., 2, 1] + r[..., 1, 2],
+            cand[..., 2],
+            r[..., 1, 0] - r[..., 0, 1],
+        ],
+        axis=-1,
+    )
+    qw = np.stack(
+        [
+            r[..., 2, 1] - r[..., 1, 2],
+            r[..., 0, 2] - r[..., 2, 0],
+            r[..., 1, 0] - r[..., 0, 1],
+            cand[..., 3],
+        ],
+        axis=-1,
+    )
     allq = np.stack([qx, qy, qz, qw], axis=-2)
     q = np.take_along_axis(allq, pick[..., None, None], axis=-2)[..., 0, :]
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
@@ -156,10 +184,10 @@ def matrix_to_quat(r: ArrayLike) -> F64:
     return q
 
 
-def quat_axis_angle(axis: ArrayLike, angle: ArrayLike) -> F64:
+def quat_axis_angle(axis_in: ArrayLike, angle_in: ArrayLike) -> F64:
     """Quaternion xyzw for a rotation about unit ``axis`` by ``angle`` radians."""
-    axis = np.asarray(axis, dtype=np.float64)
-    angle = np.asarray(angle, dtype=np.float64)
+    axis = np.asarray(axis_in, dtype=np.float64)
+    angle = np.asarray(angle_in, dtype=np.float64)
     axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
     h = 0.5 * angle
     return np.concatenate([axis * np.sin(h)[..., None], np.cos(h)[..., None]], axis=-1)

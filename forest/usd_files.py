@@ -21,8 +21,9 @@ def check_output_path(path: str | Path) -> Path:
     """The output's suffix must be a USD format and its folder writable; fail before work."""
     p = Path(path)
     if p.suffix.lower() not in FORMATS:
-        raise OutputError(f"unknown format {p.suffix or '(none)'!r}; use one of "
-                          f"{', '.join(FORMATS)}", path=str(p))
+        raise OutputError(
+            f"unknown format {p.suffix or '(none)'!r}; use one of {', '.join(FORMATS)}", path=str(p)
+        )
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
         raise OutputError("folder does not exist", path=str(folder))
@@ -77,8 +78,7 @@ def _package_usdz(usdc: Path, path: Path) -> None:
     os.replace(usdc, inner)
     try:
         layer = Sdf.Layer.FindOrOpen(str(inner))
-        if layer is None or not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)),
-                                                                str(tmpz)):
+        if layer is None or not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)), str(tmpz)):
             raise OutputError("usdz packaging failed", path=str(path))
         _zero_zip_times(tmpz)
         os.replace(tmpz, path)
@@ -94,12 +94,12 @@ def _zero_zip_times(path: Path) -> None:
     pack: Callable[..., bytes] = struct.pack
     i = 0
     while (i := data.find(b"PK\x03\x04", i)) >= 0:
-        data[i + 10:i + 14] = pack("<HH", _DOS_TIME, _DOS_DATE)
+        data[i + 10 : i + 14] = pack("<HH", _DOS_TIME, _DOS_DATE)
         name_len, extra_len = struct.unpack_from("<HH", data, i + 26)
         comp = struct.unpack_from("<I", data, i + 18)[0]
         i += 30 + name_len + extra_len + comp
     i = 0
     while (i := data.find(b"PK\x01\x02", i)) >= 0:
-        data[i + 12:i + 16] = pack("<HH", _DOS_TIME, _DOS_DATE)
+        data[i + 12 : i + 16] = pack("<HH", _DOS_TIME, _DOS_DATE)
         i += 46
     path.write_bytes(bytes(data))

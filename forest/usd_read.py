@@ -65,8 +65,13 @@ def _get(prim: Usd.Prim, name: str, required: bool = True) -> Any:
     return attr.Get()
 
 
-def _array(prim: Usd.Prim, name: str, dtype: type, shape: tuple[int, ...] = (-1,),
-           time: Usd.TimeCode | None = None) -> NDArray[Any]:
+def _array(
+    prim: Usd.Prim,
+    name: str,
+    dtype: type,
+    shape: tuple[int, ...] = (-1,),
+    time: Usd.TimeCode | None = None,
+) -> NDArray[Any]:
     attr = prim.GetAttribute(name)
     if not attr or not attr.HasAuthoredValue():
         raise SceneError("missing attribute", path=f"{prim.GetPath()}.{name}")
@@ -85,7 +90,9 @@ def _read_piece(prim: Usd.Prim) -> PieceArrays:
     pts = _array(prim, "points", np.float64, (-1, 3))
     counts = _array(prim, "faceVertexCounts", np.int32)
     if not (counts == 4).all():
-        raise SceneError("piece prototypes must be quad-only", path=f"{prim.GetPath()}.faceVertexCounts")
+        raise SceneError(
+            "piece prototypes must be quad-only", path=f"{prim.GetPath()}.faceVertexCounts"
+        )
     quads = _array(prim, "faceVertexIndices", np.int32, (-1, 4))
     if quads.size and (quads.max() >= len(pts) or quads.min() < 0):
         raise SceneError("index out of range", path=f"{prim.GetPath()}.faceVertexIndices")
@@ -144,13 +151,17 @@ def read_scene(path: str | Path) -> SceneArrays:
     if n and (proto_idx.min() < 0 or proto_idx.max() >= len(pieces)):
         raise SceneError("index out of range", path=f"{PIECES}.protoIndices")
     pos = _array(inst_prim, "positions", np.float64, (n, 3))
-    quat_name = "orientationsf" if inst.GetOrientationsfAttr().HasAuthoredValue() else "orientations"
+    quat_name = (
+        "orientationsf" if inst.GetOrientationsfAttr().HasAuthoredValue() else "orientations"
+    )
     quat = _array(inst_prim, quat_name, np.float64, (n, 4))
     scale = _array(inst_prim, "scales", np.float64, (n, 3))
     transforms = compose_similarity(pos, quat, scale[:, 0])
 
     def pv(name: str, width: int = 1) -> I32:
-        return _array(inst_prim, f"primvars:forest:{name}", np.int32, (n, width) if width > 1 else (n,))
+        return _array(
+            inst_prim, f"primvars:forest:{name}", np.int32, (n, width) if width > 1 else (n,)
+        )
 
     q_max = max(len(p.quads) for p in pieces)
     palette_attr = inst_prim.GetAttribute("forest:bonePalette")
@@ -173,13 +184,26 @@ def read_scene(path: str | Path) -> SceneArrays:
     except ValueError as exc:
         raise SceneError(f"invalid JSON ({exc})", path=f"{FOREST}.forest:options") from None
     return SceneArrays(
-        path=str(path), grammar_json=_get(forest, "forest:grammar"),
-        seed=int(_get(forest, "forest:seed")), version=_get(forest, "forest:version"),
-        options=options, manifest=manifest, pieces=tuple(pieces), proto_indices=proto_idx,
-        transforms=transforms, tree=pv("treeId"), bone_offset=pv("boneOffset"),
-        tile_indices=pv("tileIndices", q_max), parent=pv("parent"),
-        parent_rim=pv("parentRim"), twist=pv("twist"), depth=pv("depth"), symbol=pv("symbol"),
-        tree_transforms=_matrices(forest, "forest:treeTransforms"), times=times,
-        palettes=palettes, foliage_positions=fpos, foliage_sizes=fsize,
+        path=str(path),
+        grammar_json=_get(forest, "forest:grammar"),
+        seed=int(_get(forest, "forest:seed")),
+        version=_get(forest, "forest:version"),
+        options=options,
+        manifest=manifest,
+        pieces=tuple(pieces),
+        proto_indices=proto_idx,
+        transforms=transforms,
+        tree=pv("treeId"),
+        bone_offset=pv("boneOffset"),
+        tile_indices=pv("tileIndices", q_max),
+        parent=pv("parent"),
+        parent_rim=pv("parentRim"),
+        twist=pv("twist"),
+        depth=pv("depth"),
+        symbol=pv("symbol"),
+        tree_transforms=_matrices(forest, "forest:treeTransforms"),
+        times=times,
+        palettes=palettes,
+        foliage_positions=fpos,
+        foliage_sizes=fsize,
     )
-

@@ -36,21 +36,33 @@ def row_major(m: F64) -> Vt.Matrix4dArray:
     return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.swapaxes(m, -1, -2)))
 
 
-def _attr(prim: Usd.Prim, name: str, type_: Sdf.ValueTypeName, value: object,
-          time: Usd.TimeCode | None = None) -> Usd.Attribute:
+def _attr(
+    prim: Usd.Prim,
+    name: str,
+    type_: Sdf.ValueTypeName,
+    value: object,
+    time: Usd.TimeCode | None = None,
+) -> Usd.Attribute:
     attr = prim.GetAttribute(name) or prim.CreateAttribute(name, type_, custom=True)
     attr.Set(value, time if time is not None else Usd.TimeCode.Default())
     return attr
 
 
-def _primvar(prim: Usd.Prim, name: str, type_: Sdf.ValueTypeName, interp: str,
-             value: object, element_size: int = 1) -> None:
+def _primvar(
+    prim: Usd.Prim,
+    name: str,
+    type_: Sdf.ValueTypeName,
+    interp: str,
+    value: object,
+    element_size: int = 1,
+) -> None:
     pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar(name, type_, interp, element_size)
     pv.Set(value)
 
 
-def write_prototype(stage: Usd.Stage, path: str, piece: PieceArrays,
-                    material: UsdShade.Material) -> UsdGeom.Mesh:
+def write_prototype(
+    stage: Usd.Stage, path: str, piece: PieceArrays, material: UsdShade.Material
+) -> UsdGeom.Mesh:
     """A piece as a quad Mesh with normals, faceVarying st, skin weights and rim metadata."""
     mesh = UsdGeom.Mesh.Define(stage, path)
     pts = piece.positions.astype(np.float32)
@@ -63,21 +75,53 @@ def write_prototype(stage: Usd.Stage, path: str, piece: PieceArrays,
     mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
     prim = mesh.GetPrim()
     st = np.broadcast_to(QUAD_ST, (len(piece.quads), 4, 2)).reshape(-1, 2).astype(np.float32)
-    _primvar(prim, "st", Sdf.ValueTypeNames.TexCoord2fArray, UsdGeom.Tokens.faceVarying,
-             Vt.Vec2fArray.FromNumpy(st))
-    _primvar(prim, "forest:tileClass", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.uniform,
-             Vt.IntArray.FromNumpy(piece.tile_class))
-    _primvar(prim, "forest:jointIndices", Sdf.ValueTypeNames.IntArray, UsdGeom.Tokens.vertex,
-             Vt.IntArray.FromNumpy(piece.joint_indices.ravel()), 4)
-    _primvar(prim, "forest:jointWeights", Sdf.ValueTypeNames.FloatArray, UsdGeom.Tokens.vertex,
-             Vt.FloatArray.FromNumpy(piece.joint_weights.astype(np.float32).ravel()), 4)
-    _attr(prim, "forest:rootRim", Sdf.ValueTypeNames.IntArray, Vt.IntArray.FromNumpy(piece.root_rim))
-    _attr(prim, "forest:leafRims", Sdf.ValueTypeNames.IntArray,
-          Vt.IntArray.FromNumpy(piece.leaf_rims.ravel()))
+    _primvar(
+        prim,
+        "st",
+        Sdf.ValueTypeNames.TexCoord2fArray,
+        UsdGeom.Tokens.faceVarying,
+        Vt.Vec2fArray.FromNumpy(st),
+    )
+    _primvar(
+        prim,
+        "forest:tileClass",
+        Sdf.ValueTypeNames.IntArray,
+        UsdGeom.Tokens.uniform,
+        Vt.IntArray.FromNumpy(piece.tile_class),
+    )
+    _primvar(
+        prim,
+        "forest:jointIndices",
+        Sdf.ValueTypeNames.IntArray,
+        UsdGeom.Tokens.vertex,
+        Vt.IntArray.FromNumpy(piece.joint_indices.ravel()),
+        4,
+    )
+    _primvar(
+        prim,
+        "forest:jointWeights",
+        Sdf.ValueTypeNames.FloatArray,
+        UsdGeom.Tokens.vertex,
+        Vt.FloatArray.FromNumpy(piece.joint_weights.astype(np.float32).ravel()),
+        4,
+    )
+    _attr(
+        prim, "forest:rootRim", Sdf.ValueTypeNames.IntArray, Vt.IntArray.FromNumpy(piece.root_rim)
+    )
+    _attr(
+        prim,
+        "forest:leafRims",
+        Sdf.ValueTypeNames.IntArray,
+        Vt.IntArray.FromNumpy(piece.leaf_rims.ravel()),
+    )
     _attr(prim, "forest:building", Sdf.ValueTypeNames.Matrix4dArray, row_major(piece.building))
     _attr(prim, "forest:jointRest", Sdf.ValueTypeNames.Matrix4dArray, row_major(piece.joint_rest))
-    _attr(prim, "forest:jointParents", Sdf.ValueTypeNames.IntArray,
-          Vt.IntArray.FromNumpy(piece.joint_parents))
+    _attr(
+        prim,
+        "forest:jointParents",
+        Sdf.ValueTypeNames.IntArray,
+        Vt.IntArray.FromNumpy(piece.joint_parents),
+    )
     _attr(prim, "forest:jointNames", Sdf.ValueTypeNames.TokenArray, list(piece.joint_names))
     UsdShade.MaterialBindingAPI.Apply(prim).Bind(material)
     return mesh
@@ -102,13 +146,16 @@ def bark_material(stage: Usd.Stage, tiles: str | None = None) -> UsdShade.Materi
         tex = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/Tiles")
         tex.CreateIdAttr("UsdUVTexture")
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
-            Sdf.AssetPath(f"{tiles.rstrip('/')}/bark.<UDIM>.png"))
+            Sdf.AssetPath(f"{tiles.rstrip('/')}/bark.<UDIM>.png")
+        )
         tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
         tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-            reader.ConnectableAPI(), "result")
+            reader.ConnectableAPI(), "result"
+        )
         tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
-            tex.ConnectableAPI(), "rgb")
+            tex.ConnectableAPI(), "rgb"
+        )
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
     return mat
 
@@ -117,22 +164,26 @@ def _time_code(t: float | None, fps: float) -> Usd.TimeCode:
     return Usd.TimeCode.Default() if t is None else Usd.TimeCode(round(t * fps, 9))
 
 
-def write_instancer(stage: Usd.Stage, forest: Forest, material: UsdShade.Material,
-                    progress: Progress | None = None) -> UsdGeom.PointInstancer:
+def write_instancer(
+    stage: Usd.Stage, forest: Forest, material: UsdShade.Material, progress: Progress | None = None
+) -> UsdGeom.PointInstancer:
     g = forest.graph
     inst = UsdGeom.PointInstancer.Define(stage, PIECES)
     prim = inst.GetPrim()
     protos = UsdGeom.Scope.Define(stage, f"{PIECES}/Prototypes")
-    paths = [write_prototype(stage, f"{protos.GetPath()}/{p.name}", p, material).GetPath()
-             for p in forest.pieces]
+    paths = [
+        write_prototype(stage, f"{protos.GetPath()}/{p.name}", p, material).GetPath()
+        for p in forest.pieces
+    ]
     inst.CreatePrototypesRel().SetTargets(paths)
     t, q, s = decompose_similarity(forest.transforms)
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(g.piece))
     inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)))
     inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))
     inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
-    inst.CreateScalesAttr(Vt.Vec3fArray.FromNumpy(
-        np.repeat(s[:, None], 3, axis=1).astype(np.float32)))
+    inst.CreateScalesAttr(
+        Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
+    )
     inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(len(g), dtype=np.int64)))
     q_max = forest.tile_indices.shape[1]
     vertex = UsdGeom.Tokens.vertex
@@ -148,16 +199,19 @@ def write_instancer(stage: Usd.Stage, forest: Forest, material: UsdShade.Materia
         ("forest:symbol", g.symbol, 1),
     ):
         _primvar(prim, name, ints, vertex, Vt.IntArray.FromNumpy(np.ascontiguousarray(arr)), size)
-    _attr(prim, "forest:symbols", Sdf.ValueTypeNames.TokenArray,
-          list(forest.grammar.rules))
+    _attr(prim, "forest:symbols", Sdf.ValueTypeNames.TokenArray, list(forest.grammar.rules))
     times = forest.frame_times()
     for i, time in enumerate(times):
-        _attr(prim, "forest:bonePalette", Sdf.ValueTypeNames.Matrix4dArray,
-              row_major(forest.palette(time)), _time_code(time, forest.options.fps))
+        _attr(
+            prim,
+            "forest:bonePalette",
+            Sdf.ValueTypeNames.Matrix4dArray,
+            row_major(forest.palette(time)),
+            _time_code(time, forest.options.fps),
+        )
         if progress:
             progress("palette", i + 1, len(times))
-    inst.CreateExtentAttr(inst.ComputeExtentAtTime(Usd.TimeCode.Default(),
-                                                   Usd.TimeCode.Default()))
+    inst.CreateExtentAttr(inst.ComputeExtentAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
     return inst
 
 
@@ -169,10 +223,16 @@ def write_foliage(stage: Usd.Stage, forest: Forest) -> None:
     pts.CreateWidthsAttr(Vt.FloatArray.FromNumpy(size.astype(np.float32)))
     pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
     pts.CreateDisplayColorAttr([Gf.Vec3f(0.25, 0.45, 0.18)])
-    _primvar(pts.GetPrim(), "forest:instance", Sdf.ValueTypeNames.IntArray,
-             UsdGeom.Tokens.vertex, Vt.IntArray.FromNumpy(forest.foliage_instance))
-    pts.CreateExtentAttr(UsdGeom.Points.ComputeExtent(pts.GetPointsAttr().Get(),
-                                                      pts.GetWidthsAttr().Get()))
+    _primvar(
+        pts.GetPrim(),
+        "forest:instance",
+        Sdf.ValueTypeNames.IntArray,
+        UsdGeom.Tokens.vertex,
+        Vt.IntArray.FromNumpy(forest.foliage_instance),
+    )
+    pts.CreateExtentAttr(
+        UsdGeom.Points.ComputeExtent(pts.GetPointsAttr().Get(), pts.GetWidthsAttr().Get())
+    )
 
 
 def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
@@ -190,14 +250,30 @@ def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
     _attr(prim, "forest:seed", Sdf.ValueTypeNames.Int64, int(forest.seed))
     _attr(prim, "forest:version", Sdf.ValueTypeNames.String, forest.version)
     opts = forest.options
-    _attr(prim, "forest:options", Sdf.ValueTypeNames.String, json.dumps({
-        "trees": opts.trees, "area": list(opts.area), "frames": opts.frames, "fps": opts.fps,
-        "placement": opts.placement, "segments": opts.segments,
-        "wind": vars(opts.wind)}, sort_keys=True))
-    _attr(prim, "forest:tileManifest", Sdf.ValueTypeNames.String,
-          forest.manifest.model_dump_json())
-    _attr(prim, "forest:treeTransforms", Sdf.ValueTypeNames.Matrix4dArray,
-          row_major(forest.tree_transforms))
+    _attr(
+        prim,
+        "forest:options",
+        Sdf.ValueTypeNames.String,
+        json.dumps(
+            {
+                "trees": opts.trees,
+                "area": list(opts.area),
+                "frames": opts.frames,
+                "fps": opts.fps,
+                "placement": opts.placement,
+                "segments": opts.segments,
+                "wind": vars(opts.wind),
+            },
+            sort_keys=True,
+        ),
+    )
+    _attr(prim, "forest:tileManifest", Sdf.ValueTypeNames.String, forest.manifest.model_dump_json())
+    _attr(
+        prim,
+        "forest:treeTransforms",
+        Sdf.ValueTypeNames.Matrix4dArray,
+        row_major(forest.tree_transforms),
+    )
     if forest.animated:
         stage.SetTimeCodesPerSecond(opts.fps)
         stage.SetFramesPerSecond(opts.fps)
@@ -205,8 +281,14 @@ def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
         stage.SetEndTimeCode(opts.frames - 1)
 
 
-def write_scene(forest: Forest, path: str | Path, *, skinned: bool = False,
-                tiles: str | None = None, progress: Progress | None = None) -> Path:
+def write_scene(
+    forest: Forest,
+    path: str | Path,
+    *,
+    skinned: bool = False,
+    tiles: str | None = None,
+    progress: Progress | None = None,
+) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path."""
     out = check_output_path(path)
     stage, tmp = new_stage_layer(out)

@@ -58,9 +58,9 @@ def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
     return out
 
 
-def tree_mesh(forest: Forest, inst: slice, bones: slice, to_tree: F64
-              ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64,
-                         NDArray[np.int32]]:
+def tree_mesh(
+    forest: Forest, inst: slice, bones: slice, to_tree: F64
+) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64, NDArray[np.int32]]:
     """One tree's pieces in tree space at rest: points, normals, quads, joint indices (into
     the tree's bones), joint weights, faceVarying UDIM st, and each point's instance."""
     pts, nrm, quads, jidx, jw, st, owner = [], [], [], [], [], [], []
@@ -76,9 +76,15 @@ def tree_mesh(forest: Forest, inst: slice, bones: slice, to_tree: F64
         st.append(tile_udim_st(forest.tile_indices[i, : len(p.quads)]))
         owner.append(np.full(len(p.positions), i - inst.start, np.int32))
         base += len(p.positions)
-    return (np.concatenate(pts), np.concatenate(nrm), np.concatenate(quads).astype(np.int32),
-            np.concatenate(jidx).astype(np.int32), np.concatenate(jw), np.concatenate(st),
-            np.concatenate(owner))
+    return (
+        np.concatenate(pts),
+        np.concatenate(nrm),
+        np.concatenate(quads).astype(np.int32),
+        np.concatenate(jidx).astype(np.int32),
+        np.concatenate(jw),
+        np.concatenate(st),
+        np.concatenate(owner),
+    )
 
 
 def _bind(prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64) -> None:
@@ -86,12 +92,20 @@ def _bind(prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F
     api.CreateSkeletonRel().SetTargets([skel.GetPath()])
     api.CreateJointIndicesPrimvar(False, MAX_INFLUENCES).Set(Vt.IntArray.FromNumpy(jidx.ravel()))
     api.CreateJointWeightsPrimvar(False, MAX_INFLUENCES).Set(
-        Vt.FloatArray.FromNumpy(jw.astype(np.float32).ravel()))
+        Vt.FloatArray.FromNumpy(jw.astype(np.float32).ravel())
+    )
     api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
 
 
-def _proxy(stage: Usd.Stage, path: str, pts: F64, quads: NDArray[np.int32],
-           skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64) -> UsdGeom.Mesh:
+def _proxy(
+    stage: Usd.Stage,
+    path: str,
+    pts: F64,
+    quads: NDArray[np.int32],
+    skel: UsdSkel.Skeleton,
+    jidx: NDArray[np.int32],
+    jw: F64,
+) -> UsdGeom.Mesh:
     """Decimated triangle mesh; each vertex takes the skin of the nearest full-mesh vertex."""
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     p2, f2 = fast_simplification.simplify(pts.astype(np.float32), tris, 1.0 - PROXY_KEEP)
@@ -107,8 +121,9 @@ def _proxy(stage: Usd.Stage, path: str, pts: F64, quads: NDArray[np.int32],
     return mesh
 
 
-def write_skinned_trees(stage: Usd.Stage, forest: Forest, material: UsdShade.Material,
-                        progress: Progress | None = None) -> None:
+def write_skinned_trees(
+    stage: Usd.Stage, forest: Forest, material: UsdShade.Material, progress: Progress | None = None
+) -> None:
     UsdGeom.Scope.Define(stage, TREES)
     times = forest.frame_times()
     # local bone transforms per frame, the tree root joint replaced by identity below
@@ -125,8 +140,11 @@ def write_skinned_trees(stage: Usd.Stage, forest: Forest, material: UsdShade.Mat
         joints = joint_paths(forest, inst, bones)
         skel.CreateJointsAttr(joints)
         b = forest.bones
-        bind = to_tree @ forest.transforms[b.instance[bones]] @ b.rest[
-            forest.graph.piece[b.instance[bones]], b.joint[bones]]
+        bind = (
+            to_tree
+            @ forest.transforms[b.instance[bones]]
+            @ b.rest[forest.graph.piece[b.instance[bones]], b.joint[bones]]
+        )
         skel.CreateBindTransformsAttr(row_major(bind))
         skel.CreateRestTransformsAttr(row_major(rest[bones]))
         anim = UsdSkel.Animation.Define(stage, f"{path}/Skeleton/Wind")
@@ -139,7 +157,8 @@ def write_skinned_trees(stage: Usd.Stage, forest: Forest, material: UsdShade.Mat
             anim.CreateRotationsAttr().Set(Vt.QuatfArray.FromNumpy(q), tc)
             anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(s), tc)
         UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
-            [anim.GetPath()])
+            [anim.GetPath()]
+        )
         pts, nrm, quads, jidx, jw, st, _ = tree_mesh(forest, inst, bones, to_tree)
         mesh = UsdGeom.Mesh.Define(stage, f"{path}/Bark")
         mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
@@ -150,15 +169,20 @@ def write_skinned_trees(stage: Usd.Stage, forest: Forest, material: UsdShade.Mat
         mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
         mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
         mesh.CreatePurposeAttr(UsdGeom.Tokens.render)
-        _primvar(mesh.GetPrim(), "st", Sdf.ValueTypeNames.TexCoord2fArray,
-                 UsdGeom.Tokens.faceVarying, Vt.Vec2fArray.FromNumpy(
-                     st.reshape(-1, 2).astype(np.float32)))
+        _primvar(
+            mesh.GetPrim(),
+            "st",
+            Sdf.ValueTypeNames.TexCoord2fArray,
+            UsdGeom.Tokens.faceVarying,
+            Vt.Vec2fArray.FromNumpy(st.reshape(-1, 2).astype(np.float32)),
+        )
         _bind(mesh.GetPrim(), skel, jidx, jw)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
-        root.CreateExtentAttr(UsdGeom.Boundable.ComputeExtentFromPlugins(
-            root, Usd.TimeCode.Default()))
+        root.CreateExtentAttr(
+            UsdGeom.Boundable.ComputeExtentFromPlugins(root, Usd.TimeCode.Default())
+        )
         if progress:
             progress("skinned trees", k + 1, len(slices))
 
@@ -167,7 +191,13 @@ def _rest_locals(forest: Forest) -> F64:
     """``(b, 4, 4)`` rest local transforms (no pose, no wind) with tree roots at identity."""
     from forest.skeleton import local_transforms, rest_pose
 
-    local = local_transforms(forest.graph, forest.bones, forest.pieces, forest.tree_transforms,
-                             forest.transforms, rest_pose(forest.graph, forest.pieces))
+    local = local_transforms(
+        forest.graph,
+        forest.bones,
+        forest.pieces,
+        forest.tree_transforms,
+        forest.transforms,
+        rest_pose(forest.graph, forest.pieces),
+    )
     local[forest.bones.offset[forest.graph.parent < 0]] = np.eye(4)
     return local

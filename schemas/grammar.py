@@ -69,7 +69,8 @@ class Pose(_Strict):
 
 class Alternative(_Strict):
     piece: PieceName
-    weight: Annotated[float, Field(gt=0, allow_inf_nan=False)] = 1.0
+    # bounded so the cumulative weights of any rule stay far from float overflow
+    weight: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 1.0
     successors: list[Successor | None]
     """One entry per leaf rim of ``piece`` (I: 1, Y: 2, T: 2, Psi: 3)."""
     twist: Literal["random"] | Annotated[int, Field(ge=0, le=5)] = "random"
@@ -92,8 +93,9 @@ class Grammar(_Strict):
     name: Annotated[str, Field(min_length=1, max_length=64)] = "custom"
     description: Annotated[str, Field(max_length=2000)] = ""
     axiom: Symbol
-    rules: Annotated[dict[Symbol, Annotated[list[Alternative], Field(min_length=1)]],
-                     Field(min_length=1)]
+    rules: Annotated[
+        dict[Symbol, Annotated[list[Alternative], Field(min_length=1)]], Field(min_length=1)
+    ]
     max_depth: Annotated[int, Field(ge=0, le=64)] | None = None
     """Pieces deeper than this are not grown (their rims stay open tips). Without it the rules
     must terminate on their own."""
@@ -101,7 +103,9 @@ class Grammar(_Strict):
     """Symbols whose pieces bear leaf clouds."""
     trunk_radius: Annotated[float, Field(gt=0, le=100)] = 0.15
     """Root-rim circumradius of a tree in metres (the tree's base scale)."""
-    tree_scale: tuple[Annotated[float, Field(gt=0, le=10)], Annotated[float, Field(gt=0, le=10)]] = (
+    tree_scale: tuple[
+        Annotated[float, Field(gt=0, le=10)], Annotated[float, Field(gt=0, le=10)]
+    ] = (
         0.85,
         1.15,
     )

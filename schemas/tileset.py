@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
@@ -29,7 +30,7 @@ class TileSetManifest(BaseModel):
         if len(set(ids)) != len(ids):
             raise ValueError(f"tile class ids repeat: {ids}")
         spans = sorted((c.first, c.first + c.count) for c in self.classes)
-        for (_, end), (start, _) in zip(spans[:-1], spans[1:], strict=True):
+        for (_, end), (start, _) in itertools.pairwise(spans):
             if start < end:
                 raise ValueError("tile class slice ranges overlap")
         return self
@@ -39,7 +40,9 @@ class TileSetManifest(BaseModel):
         return max(c.first + c.count for c in self.classes)
 
 
-DEFAULT_MANIFEST = TileSetManifest(classes=[
-    TileClass(name="bark", id=1, first=0, count=8),
-    TileClass(name="fork", id=2, first=8, count=4),
-])
+DEFAULT_MANIFEST = TileSetManifest(
+    classes=[
+        TileClass(name="bark", id=1, first=0, count=8),
+        TileClass(name="fork", id=2, first=8, count=4),
+    ]
+)

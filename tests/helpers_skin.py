@@ -16,8 +16,12 @@ from forest.pieces import PieceArrays
 F64 = NDArray[np.float64]
 
 
-def blend_matrices(palette: F64, offsets: NDArray[np.integer], piece: PieceArrays,
-                   verts: NDArray[np.integer] | None = None) -> F64:
+def blend_matrices(
+    palette: F64,
+    offsets: NDArray[np.integer],
+    piece: PieceArrays,
+    verts: NDArray[np.integer] | None = None,
+) -> F64:
     """``(m, v, 4, 4)`` weighted blend matrix of every vertex ``verts`` (all if None) of ``m``
     instances of ``piece`` whose first bones are ``offsets : (m,)``."""
     idx = np.arange(len(piece.positions)) if verts is None else np.asarray(verts)
@@ -27,8 +31,12 @@ def blend_matrices(palette: F64, offsets: NDArray[np.integer], piece: PieceArray
     return np.einsum("vk,mvkab->mvab", jw, mats)
 
 
-def skin(palette: F64, offsets: NDArray[np.integer], piece: PieceArrays,
-         verts: NDArray[np.integer] | None = None) -> tuple[F64, F64]:
+def skin(
+    palette: F64,
+    offsets: NDArray[np.integer],
+    piece: PieceArrays,
+    verts: NDArray[np.integer] | None = None,
+) -> tuple[F64, F64]:
     """Skinned positions and unit normals ``(m, v, 3)`` of ``verts`` of ``m`` instances."""
     idx = np.arange(len(piece.positions)) if verts is None else np.asarray(verts)
     blend = blend_matrices(palette, offsets, piece, idx)

@@ -163,8 +163,11 @@ def test_rules_that_terminate_need_no_max_depth() -> None:
 
 
 def test_growth_past_piece_cap_is_a_limit_error() -> None:
-    g = {"axiom": "S", "max_depth": 10,
-         "rules": {"S": [{"piece": "Y", "successors": [{"symbol": "S"}, {"symbol": "S"}]}]}}
+    g = {
+        "axiom": "S",
+        "max_depth": 10,
+        "rules": {"S": [{"piece": "Y", "successors": [{"symbol": "S"}, {"symbol": "S"}]}]},
+    }
     with pytest.raises(LimitError) as exc:
         compile_dict(g, ForestSettings(max_pieces_per_tree=100))
     assert exc.value.path == "max_pieces_per_tree"
@@ -176,8 +179,11 @@ def test_growth_past_piece_cap_is_a_limit_error() -> None:
 def test_axiom_without_an_alternative_at_depth_zero() -> None:
     """The axiom's only alternative starts at depth 1: no tree can grow. The library should
     say so with a GrammarError (at compile or at generation), not crash."""
-    g = {"axiom": "A", "max_depth": 3,
-         "rules": {"A": [{"piece": "I", "min_depth": 1, "successors": [None]}]}}
+    g = {
+        "axiom": "A",
+        "max_depth": 3,
+        "rules": {"A": [{"piece": "I", "min_depth": 1, "successors": [None]}]},
+    }
     with pytest.raises(GrammarError):
         cg = compile_dict(g)
         generate_forest(cg.grammar, 1, ForestOptions(trees=2), compiled=cg)
@@ -185,12 +191,15 @@ def test_axiom_without_an_alternative_at_depth_zero() -> None:
 
 @pytest.mark.parametrize(
     ("text", "line", "column"),
-    [('{"axiom": "A",, "rules": {}}', 1, 15),
-     ('{\n  "axiom": "A"\n  "rules": {}\n}', 3, 3),
-     ('{"axiom": "A"} trailing', 1, 16),
-     ('{"axiom": "A"}}', 1, 15),                 # one brace too many
-     ('{"axiom": "A",}', 1, 15),                 # trailing comma
-     ('{"axiom": "A", "rules": {}]', 1, 27)])    # wrong closing bracket
+    [
+        ('{"axiom": "A",, "rules": {}}', 1, 15),
+        ('{\n  "axiom": "A"\n  "rules": {}\n}', 3, 3),
+        ('{"axiom": "A"} trailing', 1, 16),
+        ('{"axiom": "A"}}', 1, 15),  # one brace too many
+        ('{"axiom": "A",}', 1, 15),  # trailing comma
+        ('{"axiom": "A", "rules": {}]', 1, 27),
+    ],
+)  # wrong closing bracket
 def test_malformed_json(text: str, line: int, column: int) -> None:
     with pytest.raises(GrammarError) as exc:
         grammar_from_json(text, source="my.json")
@@ -203,13 +212,16 @@ def test_malformed_json(text: str, line: int, column: int) -> None:
 GOOD_TEXT = json.dumps(GOOD, indent=2)
 
 
-@pytest.mark.parametrize("cut", [
-    "{",                                            # just opened
-    '"axiom": ',                                    # after a key
-    '"max_depth": 4,',                              # after a value and comma
-    '"successors": [',                              # inside a list
-    '"weight": 2',                                  # inside a number's object
-])
+@pytest.mark.parametrize(
+    "cut",
+    [
+        "{",  # just opened
+        '"axiom": ',  # after a key
+        '"max_depth": 4,',  # after a value and comma
+        '"successors": [',  # inside a list
+        '"weight": 2',  # inside a number's object
+    ],
+)
 def test_truncated_json(cut: str) -> None:
     text = GOOD_TEXT[: GOOD_TEXT.index(cut) + len(cut)]
     with pytest.raises(GrammarError) as exc:
@@ -332,16 +344,18 @@ def test_presets_include_the_papers_algorithms() -> None:
 
 
 @settings(max_examples=10, deadline=None)
-@given(seed=st.integers(min_value=0, max_value=2**63 - 1),
-       trees=st.integers(min_value=1, max_value=6))
+@given(
+    seed=st.integers(min_value=0, max_value=2**63 - 1), trees=st.integers(min_value=1, max_value=6)
+)
 def test_alternating_expected_count_is_exact(seed: int, trees: int) -> None:
     g = load_preset("alternating")
     cg = compile_grammar(g)
     # I and Y alternate to depth 9: 1, 1, 2, 2, 4, 4, 8, 8, 16, 16
     assert cg.expected_pieces == 62
     f = generate_forest(g, seed, ForestOptions(trees=trees), compiled=cg)
-    np.testing.assert_array_equal(np.bincount(f.graph.tree, minlength=trees),
-                                  int(cg.expected_pieces))
+    np.testing.assert_array_equal(
+        np.bincount(f.graph.tree, minlength=trees), int(cg.expected_pieces)
+    )
 
 
 @settings(max_examples=10, deadline=None)
@@ -351,8 +365,7 @@ def test_uniform_expected_count_is_the_mean(seed: int) -> None:
     expected size grows by 3/2, so 9 levels hold sum(1.5**d) pieces on average."""
     cg = compile_grammar(load_preset("uniform"))
     assert cg.expected_pieces == pytest.approx(sum(1.5**d for d in range(9)))
-    f = generate_forest(cg.grammar, seed, ForestOptions(trees=400, placement="grid"),
-                        compiled=cg)
+    f = generate_forest(cg.grammar, seed, ForestOptions(trees=400, placement="grid"), compiled=cg)
     mean = f.n_instances / 400
     assert abs(mean - cg.expected_pieces) < 0.25 * cg.expected_pieces
 
@@ -366,6 +379,5 @@ def test_a_billion_trees_is_a_limit_error() -> None:
 def test_forest_piece_cap() -> None:
     settings = ForestSettings(max_pieces_per_forest=1000)
     with pytest.raises(LimitError) as exc:
-        generate_forest(load_preset("alternating"), 1, ForestOptions(trees=100),
-                        settings=settings)
+        generate_forest(load_preset("alternating"), 1, ForestOptions(trees=100), settings=settings)
     assert exc.value.path == "max_pieces_per_forest"

@@ -27,8 +27,7 @@ def piece(request: pytest.FixtureRequest) -> PieceArrays:
 def rim_edges(ring: np.ndarray) -> set[tuple[int, int]]:
     """Undirected edges of a closed six-vertex loop, as sorted index pairs."""
     v = [int(x) for x in ring]
-    return {(min(v[k], v[(k + 1) % len(v)]), max(v[k], v[(k + 1) % len(v)]))
-            for k in range(len(v))}
+    return {(min(v[k], v[(k + 1) % len(v)]), max(v[k], v[(k + 1) % len(v)])) for k in range(len(v))}
 
 
 def all_rims(p: PieceArrays) -> list[np.ndarray]:
@@ -94,8 +93,9 @@ def test_leaf_rims_are_building_images_of_root_rim(piece: PieceArrays) -> None:
     for r in range(piece.n_leaf_rims):
         b = piece.building[r]
         leaf = piece.leaf_rims[r]
-        np.testing.assert_allclose(piece.positions[leaf], transform_points(b, root_pos),
-                                   rtol=0, atol=TOL)
+        np.testing.assert_allclose(
+            piece.positions[leaf], transform_points(b, root_pos), rtol=0, atol=TOL
+        )
         lin = b[:3, :3] / np.cbrt(np.linalg.det(b[:3, :3]))
         np.testing.assert_allclose(piece.normals[leaf], root_nrm @ lin.T, rtol=0, atol=TOL)
 
@@ -160,8 +160,9 @@ def test_twists_map_rim_onto_itself(k: int) -> None:
     # order (the rim is ordered by increasing atan2(z, x))
     assert np.array_equal(match, (np.arange(rim.SIDES) - k) % rim.SIDES)
     # twisted rim normals are rim normals too
-    np.testing.assert_allclose(transform_vectors(tw[k], rim.rim_normals()),
-                               rim.rim_normals()[match], atol=1e-12)
+    np.testing.assert_allclose(
+        transform_vectors(tw[k], rim.rim_normals()), rim.rim_normals()[match], atol=1e-12
+    )
 
 
 def test_skin_arrays_have_four_influences(piece: PieceArrays) -> None:
@@ -242,8 +243,9 @@ def test_capped_piece_is_watertight_with_outward_normals(piece: PieceArrays) -> 
         assert len(rim_dir) == rim.SIDES
         caps += [(b, a, centre) for a, b in rim_dir]
         pos.append(piece.positions[ring].mean(axis=0, keepdims=True))
-    capped = trimesh.Trimesh(np.concatenate(pos), np.concatenate([mesh.faces, caps]),
-                             process=False, validate=False)
+    capped = trimesh.Trimesh(
+        np.concatenate(pos), np.concatenate([mesh.faces, caps]), process=False, validate=False
+    )
     assert capped.is_watertight
     assert capped.is_winding_consistent
     assert capped.volume > 0
@@ -253,8 +255,10 @@ def test_capped_piece_is_watertight_with_outward_normals(piece: PieceArrays) -> 
 def test_vertex_normals_face_outward(piece: PieceArrays) -> None:
     """Stored normals agree in sign with the winding's face normals around each vertex."""
     mesh = piece_mesh(piece)
-    fn = np.cross(mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]],
-                  mesh.vertices[mesh.faces[:, 2]] - mesh.vertices[mesh.faces[:, 0]])
+    fn = np.cross(
+        mesh.vertices[mesh.faces[:, 1]] - mesh.vertices[mesh.faces[:, 0]],
+        mesh.vertices[mesh.faces[:, 2]] - mesh.vertices[mesh.faces[:, 0]],
+    )
     acc = np.zeros_like(piece.positions)
     for i in range(3):
         np.add.at(acc, mesh.faces[:, i], fn)
@@ -267,6 +271,15 @@ def test_library_is_cached_and_deterministic() -> None:
 
     for name, make in MAKERS.items():
         a, b = make(1), piece_library(1)[PIECE_NAMES.index(name)]
-        for field in ("positions", "normals", "quads", "tile_class", "joint_indices",
-                      "joint_weights", "root_rim", "leaf_rims", "building"):
+        for field in (
+            "positions",
+            "normals",
+            "quads",
+            "tile_class",
+            "joint_indices",
+            "joint_weights",
+            "root_rim",
+            "leaf_rims",
+            "building",
+        ):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field))

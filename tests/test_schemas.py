@@ -1,4 +1,4 @@
-"""Committed JSON Schema exports match the pydantic models (regenerate: python -m schemas.export)."""
+"""Committed JSON Schema exports match the models (regenerate: python -m schemas.export)."""
 
 import json
 
@@ -12,7 +12,8 @@ from schemas.export import FOLDER, MODELS, schema_text
 def test_exported_schema_has_not_drifted(name: str) -> None:
     committed = (FOLDER / f"{name}.schema.json").read_text(encoding="utf-8")
     assert committed == schema_text(MODELS[name]), (
-        f"schemas/json/{name}.schema.json is stale: run `python -m schemas.export`")
+        f"schemas/json/{name}.schema.json is stale: run `python -m schemas.export`"
+    )
 
 
 @pytest.mark.parametrize("name", preset_names())

@@ -40,8 +40,7 @@ def check_tiles(f: Forest) -> None:
 @pytest.mark.parametrize("name", preset_names())
 @settings(max_examples=5, deadline=None)
 @given(seed=SEEDS, segments=st.sampled_from([1, 2]))
-def test_tile_indices_shape_padding_and_class_ranges(name: str, seed: int,
-                                                     segments: int) -> None:
+def test_tile_indices_shape_padding_and_class_ranges(name: str, seed: int, segments: int) -> None:
     f = generate_forest(load_preset(name), seed, ForestOptions(trees=2, segments=segments))
     assert f.manifest == DEFAULT_MANIFEST
     check_tiles(f)
@@ -64,8 +63,9 @@ def test_tiles_are_spread_evenly() -> None:
     """Multiply-shift of uint16 draws: every slice of a class comes up about equally often."""
     f = generate_forest(load_preset("uniform"), 9, ForestOptions(trees=60))
     for cls in DEFAULT_MANIFEST.classes:
-        counts = np.array([(f.tile_indices == s).sum()
-                           for s in range(cls.first, cls.first + cls.count)])
+        counts = np.array(
+            [(f.tile_indices == s).sum() for s in range(cls.first, cls.first + cls.count)]
+        )
         assert counts.min() > 0.8 * counts.mean(), (cls.name, counts)
 
 
@@ -78,7 +78,8 @@ def test_tiles_are_deterministic_per_seed(seed: int) -> None:
     np.testing.assert_array_equal(a.tile_indices, b.tile_indices)
     c = generate_forest(load_preset("shrub"), seed + 1, opts)
     assert a.tile_indices.shape != c.tile_indices.shape or not np.array_equal(
-        a.tile_indices, c.tile_indices)
+        a.tile_indices, c.tile_indices
+    )
 
 
 def test_draw_is_deterministic_per_generator() -> None:
@@ -104,7 +105,7 @@ def test_class_tables() -> None:
     np.testing.assert_array_equal(n_quads, [len(p.quads) for p in pieces])
     assert first.shape == count.shape == (len(pieces), n_quads.max())
     for i, p in enumerate(pieces):
-        assert (count[i, n_quads[i]:] == 0).all()
+        assert (count[i, n_quads[i] :] == 0).all()
         bark = p.tile_class == 1
         assert (first[i, : n_quads[i]][bark] == 0).all()
         assert (count[i, : n_quads[i]][bark] == 8).all()
@@ -113,13 +114,21 @@ def test_class_tables() -> None:
 
 
 def test_custom_manifest() -> None:
-    manifest = TileSetManifest(classes=[TileClass(name="fork", id=2, first=0, count=1),
-                                        TileClass(name="bark", id=1, first=1, count=100)])
+    manifest = TileSetManifest(
+        classes=[
+            TileClass(name="fork", id=2, first=0, count=1),
+            TileClass(name="bark", id=1, first=1, count=100),
+        ]
+    )
     f = generate_forest(load_preset("almond"), 1, ForestOptions(trees=2), manifest=manifest)
     assert f.manifest is manifest
     check_tiles(f)
-    fork = np.concatenate([f.tile_indices[i, : len(f.pieces[p].quads)][f.pieces[p].tile_class == 2]
-                           for i, p in enumerate(f.graph.piece)])
+    fork = np.concatenate(
+        [
+            f.tile_indices[i, : len(f.pieces[p].quads)][f.pieces[p].tile_class == 2]
+            for i, p in enumerate(f.graph.piece)
+        ]
+    )
     assert (fork == 0).all()
 
 

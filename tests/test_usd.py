@@ -22,8 +22,9 @@ from forest.usd_skinned import tree_slices
 def validation_errors(stage: Usd.Stage) -> list[str]:
     registry = UsdValidation.ValidationRegistry()
     ctx = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
-    return [f"{e.GetIdentifier()}: {e.GetMessage()}" for e in ctx.Validate(stage)
-            if not e.HasNoError()]
+    return [
+        f"{e.GetIdentifier()}: {e.GetMessage()}" for e in ctx.Validate(stage) if not e.HasNoError()
+    ]
 
 
 def test_skinned_scene_passes_usd_validation(skinned_scene: Path) -> None:
@@ -45,15 +46,18 @@ def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> 
     assert len(meshes) == 4 + 2 * 2  # prototypes + (bark, proxy) per tree
     for mesh in meshes:
         ok, why = UsdGeom.Mesh.ValidateTopology(
-            mesh.GetFaceVertexIndicesAttr().Get(), mesh.GetFaceVertexCountsAttr().Get(),
-            len(mesh.GetPointsAttr().Get()))
+            mesh.GetFaceVertexIndicesAttr().Get(),
+            mesh.GetFaceVertexCountsAttr().Get(),
+            len(mesh.GetPointsAttr().Get()),
+        )
         assert ok, f"{mesh.GetPath()}: {why}"
         assert mesh.GetExtentAttr().HasAuthoredValue()
     assert validation_errors(stage) == []
 
 
-def test_point_instancer_reproduces_generator_transforms(skinned_scene: Path,
-                                                         windy_forest: Forest) -> None:
+def test_point_instancer_reproduces_generator_transforms(
+    skinned_scene: Path, windy_forest: Forest
+) -> None:
     stage = Usd.Stage.Open(str(skinned_scene))
     inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(PIECES))
     t = Usd.TimeCode.Default()
@@ -65,15 +69,21 @@ def test_point_instancer_reproduces_generator_transforms(skinned_scene: Path,
 
 
 @pytest.mark.parametrize("suffix", [".usda", ".usdc", ".usdz"])
-def test_reader_returns_generator_arrays(windy_forest: Forest, tmp_path: Path,
-                                         suffix: str) -> None:
+def test_reader_returns_generator_arrays(windy_forest: Forest, tmp_path: Path, suffix: str) -> None:
     f = windy_forest
     scene = read_scene(write_scene(f, tmp_path / f"f{suffix}"))
     g = f.graph
-    for ours, theirs in [(g.piece, scene.proto_indices), (g.tree, scene.tree),
-                         (f.bones.offset, scene.bone_offset), (f.tile_indices, scene.tile_indices),
-                         (g.parent, scene.parent), (g.parent_rim, scene.parent_rim),
-                         (g.twist, scene.twist), (g.depth, scene.depth), (g.symbol, scene.symbol)]:
+    for ours, theirs in [
+        (g.piece, scene.proto_indices),
+        (g.tree, scene.tree),
+        (f.bones.offset, scene.bone_offset),
+        (f.tile_indices, scene.tile_indices),
+        (g.parent, scene.parent),
+        (g.parent_rim, scene.parent_rim),
+        (g.twist, scene.twist),
+        (g.depth, scene.depth),
+        (g.symbol, scene.symbol),
+    ]:
         assert theirs.dtype == np.int32
         np.testing.assert_array_equal(theirs, ours)
     assert scene.seed == 11 and scene.version == f.version
@@ -99,8 +109,7 @@ def _our_skinned_points(f: Forest, inst: slice, time: float) -> np.ndarray:
     return np.concatenate(out)
 
 
-def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path,
-                                                 windy_forest: Forest) -> None:
+def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path, windy_forest: Forest) -> None:
     f = windy_forest
     stage = Usd.Stage.Open(str(skinned_scene))
     for k, (inst, _) in enumerate(tree_slices(f)):
@@ -121,8 +130,10 @@ def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path,
             size = np.ptp(ours, axis=0).max()
             assert np.abs(usd - ours).max() < 1e-5 * size
         # the wind really moves the tree between the two frames
-        assert np.abs(_our_skinned_points(f, inst, 0.0)
-                      - _our_skinned_points(f, inst, 3 / 24)).max() > 1e-4 * size
+        assert (
+            np.abs(_our_skinned_points(f, inst, 0.0) - _our_skinned_points(f, inst, 3 / 24)).max()
+            > 1e-4 * size
+        )
 
 
 def test_proxy_is_decimated_and_bound(skinned_scene: Path) -> None:
@@ -141,8 +152,14 @@ def test_udim_st_follows_tile_indices(skinned_scene: Path, windy_forest: Forest)
     mesh = UsdGeom.Mesh(stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000/Bark"))
     st = np.asarray(UsdGeom.PrimvarsAPI(mesh).GetPrimvar("st").Get()).reshape(-1, 4, 2)
     inst, _ = tree_slices(windy_forest)[0]
-    tiles = np.concatenate([windy_forest.tile_indices[i, : len(
-        windy_forest.pieces[windy_forest.graph.piece[i]].quads)] for i in range(inst.start, inst.stop)])
+    tiles = np.concatenate(
+        [
+            windy_forest.tile_indices[
+                i, : len(windy_forest.pieces[windy_forest.graph.piece[i]].quads)
+            ]
+            for i in range(inst.start, inst.stop)
+        ]
+    )
     udim_u, udim_v = np.floor(st.min(axis=1)).T
     np.testing.assert_array_equal(udim_u + 10 * udim_v, tiles)
 
@@ -163,14 +180,19 @@ def test_same_grammar_and_seed_give_byte_identical_files(tmp_path: Path, suffix:
     for i, tz in enumerate(("UTC", "Asia/Tokyo")):  # usdz zip headers once held local mtimes
         out = tmp_path / f"run{i}" / f"forest{suffix}"
         out.parent.mkdir()
-        subprocess.run([sys.executable, "-c", _WRITE, str(out)], check=True,
-                       env={"TZ": tz, "PATH": "/usr/bin:/bin"}, cwd=Path(__file__).parents[1])
+        subprocess.run(
+            [sys.executable, "-c", _WRITE, str(out)],
+            check=True,
+            env={"TZ": tz, "PATH": "/usr/bin:/bin"},
+            cwd=Path(__file__).parents[1],
+        )
         paths.append(out)
     assert paths[0].read_bytes() == paths[1].read_bytes()
 
 
-def test_unwritable_and_unknown_outputs_fail_before_work(windy_forest: Forest,
-                                                         tmp_path: Path) -> None:
+def test_unwritable_and_unknown_outputs_fail_before_work(
+    windy_forest: Forest, tmp_path: Path
+) -> None:
     with pytest.raises(OutputError, match="unknown format"):
         write_scene(windy_forest, tmp_path / "x.obj")
     with pytest.raises(OutputError, match="does not exist"):

@@ -18,7 +18,8 @@ def preset_names() -> list[str]:
 @cache
 def load_preset(name: str) -> Grammar:
     if name not in preset_names():
-        raise GrammarError(f"unknown preset {name!r}; choose one of {', '.join(preset_names())}",
-                           path="preset")
+        raise GrammarError(
+            f"unknown preset {name!r}; choose one of {', '.join(preset_names())}", path="preset"
+        )
     text = resources.files(__name__).joinpath(f"{name}.json").read_text(encoding="utf-8")
     return grammar_from_json(text, source=f"preset {name}")

@@ -1,0 +1,36 @@
+# Two set-up commands for a fresh machine (see README):
+#   make demo   -> creates .venv, installs the package, runs the main job (`forest demo`)
+#   make test   -> creates .venv, installs the package with its test tools, runs lint,
+#                  type checks and the whole test suite
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
+
+.PHONY: demo test lint bench schemas clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	rm -f $(VENV)/.installed-* && touch $@
+
+demo: $(STAMP)
+	$(BIN)/forest demo -o demo
+
+lint: $(STAMP)
+	$(BIN)/ruff check forest schemas tests
+	$(BIN)/mypy
+
+test: $(STAMP) lint
+	bash tests/setup_blender_venv.sh
+	$(BIN)/python -m pytest -n 2 --dist loadfile
+
+bench: $(STAMP)
+	$(BIN)/forest bench generate
+
+schemas: $(STAMP)
+	$(BIN)/python -m schemas.export
+
+clean:
+	rm -rf $(VENV) .venv-blender demo .pytest_cache .mypy_cache .ruff_cache .hypothesis

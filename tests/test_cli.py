@@ -1,0 +1,136 @@
+"""The `forest` command as a user runs it: one clear line and exit code 2 for bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pxr import Usd, UsdGeom
+
+ROOT = Path(__file__).parents[1]
+
+
+def forest(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run(
+        [sys.executable, "-m", "forest.cli", *args],
+        cwd=cwd,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+
+
+def test_presets_lists_every_preset(tmp_path: Path) -> None:
+    out = forest("presets", cwd=tmp_path)
+    assert out.returncode == 0
+    names = [line.split()[0] for line in out.stdout.splitlines()]
+    assert names == ["almond", "alternating", "conifer", "shrub", "uniform"]
+
+
+def test_generate_writes_a_forest(tmp_path: Path) -> None:
+    out = forest(
+        "generate",
+        "--preset",
+        "conifer",
+        "--seed",
+        "4",
+        "--trees",
+        "3",
+        "--frames",
+        "2",
+        "--skinned",
+        "-o",
+        "c.usdz",
+        cwd=tmp_path,
+    )
+    assert out.returncode == 0, out.stderr
+    assert "3 tree(s)" in out.stdout
+    stage = Usd.Stage.Open(str(tmp_path / "c.usdz"))
+    inst = UsdGeom.PointInstancer(stage.GetPrimAtPath("/World/Forest/Pieces"))
+    assert len(inst.GetProtoIndicesAttr().Get()) > 3
+    assert len(stage.GetPrimAtPath("/World/Forest/Trees").GetChildren()) == 3
+
+
+def test_demo_says_what_it_wrote(tmp_path: Path) -> None:
+    out = forest("demo", "-o", "d", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    written = sorted(p.name for p in (tmp_path / "d").iterdir())
+    assert written == ["almond_skinned.usdz", "conifers.usda", "forest.usdc"]
+    for name in written:
+        assert name in out.stdout
+
+
+GOOD_RULE = {"piece": "I", "successors": [None]}
+BAD_INPUTS = [
+    (
+        {"axiom": "A", "rules": {"A": [{"piece": "I", "successors": [{"symbol": "B"}]}]}},
+        "rules.A[0].successors[0].symbol: unknown symbol 'B'",
+    ),
+    ({"axiom": "A", "rules": {"A": [{**GOOD_RULE, "weight": -1}]}}, "rules.A[0].weight"),
+    ({"axiom": "A", "rules": {"A": [{**GOOD_RULE, "weight": 0}]}}, "rules.A[0].weight"),
+    (
+        {
+            "axiom": "A",
+            "rules": {"A": [{"piece": "Y", "successors": [{"symbol": "A"}, {"symbol": "A"}]}]},
+        },
+        "max_depth: the rules never terminate",
+    ),
+    (
+        {
+            "axiom": "A",
+            "max_depth": 40,
+            "rules": {"A": [{"piece": "Y", "successors": [{"symbol": "A"}, {"symbol": "A"}]}]},
+        },
+        "max_pieces_per_tree",
+    ),
+    (
+        {"axiom": "A", "rules": {"A": [{"piece": "Y", "successors": [None]}]}},
+        "rules.A[0].successors: piece Y has 2 leaf rim(s)",
+    ),
+]
+
+
+@pytest.mark.parametrize(("grammar", "message"), BAD_INPUTS)
+def test_bad_grammar_gets_one_line_and_exit_2(tmp_path: Path, grammar: dict, message: str) -> None:
+    (tmp_path / "g.json").write_text(json.dumps(grammar))
+    t0 = time.monotonic()
+    out = forest("generate", "--grammar", "g.json", "-o", "x.usda", cwd=tmp_path)
+    assert time.monotonic() - t0 < 30  # generous: interpreter start-up, not the check
+    assert out.returncode == 2
+    assert message in out.stderr
+    assert out.stderr.count("\n") == 1 and "Traceback" not in out.stderr
+    assert not (tmp_path / "x.usda").exists()
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--preset", "almond", "--trees", "1000000000"], "trees: trees must be between 1 and"),
+        (["--preset", "nope"], "preset: unknown preset 'nope'"),
+        (["--grammar", "missing.json"], "missing.json: no such file"),
+        (["--grammar", "trunc.json"], "truncated JSON"),
+        (["--grammar", "bad.json"], "malformed JSON"),
+        (["--preset", "almond", "-o", "/proc/forest.usda"], "/proc: folder is not writable"),
+        (["--preset", "almond", "-o", "no/such/dir/f.usda"], "folder does not exist"),
+        (["--preset", "almond", "-o", "f.obj"], "unknown format '.obj'"),
+        (["--preset", "almond", "--grammar", "bad.json"], "exactly one of --preset"),
+        (["--preset", "almond", "--frames", "-3"], "frames must be between 0"),
+        (["--preset", "almond", "--area", "0", "10"], "area.width"),
+    ],
+)
+def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:
+    (tmp_path / "trunc.json").write_text('{"axiom": "A", "rules": {"A": [{"piece": "I", "succ')
+    (tmp_path / "bad.json").write_text('{"axiom": "A",, "rules": {}}')
+    if "-o" not in args:
+        args = [*args, "-o", "out.usda"]
+    out = forest("generate", *args, cwd=tmp_path)
+    assert out.returncode == 2, out.stderr
+    assert message in out.stderr
+    assert "Traceback" not in out.stderr
