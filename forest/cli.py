@@ -131,7 +131,8 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "--tiles",
     "tiles_dir",
     metavar="DIR",
-    help="Folder (relative to the scene) of bark.<UDIM>.png tiles for the material.",
+    help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
+    "and tile indices follow its manifest.json.",
 )
 @click.option(
     "-o",
@@ -159,11 +160,14 @@ def generate(
     """Generate a forest from a grammar and a seed and write it as USD."""
     from forest.generate import ForestOptions, generate_forest
     from forest.skeleton import Wind
+    from forest.tiles import manifest_for
     from forest.usd_files import check_output_path
     from forest.usd_scene import write_scene
+    from schemas.tileset import DEFAULT_MANIFEST
 
     check_output_path(output)
     g = _load_grammar(preset, grammar)
+    manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
     options = ForestOptions(
         trees=trees,
         area=area,
@@ -174,7 +178,7 @@ def generate(
         wind=Wind(strength_deg=wind_deg),
     )
     with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
-        forest = generate_forest(g, seed, options, progress=bar)
+        forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
         write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

@@ -42,9 +42,21 @@ class PieceGraph:
     @property
     def levels(self) -> list[I32]:
         """Instance indices of each depth level, in order."""
-        order = np.argsort(self.depth, kind="stable").astype(np.int32)
-        bounds = np.searchsorted(self.depth[order], np.arange(int(self.depth.max()) + 2))
-        return [order[a:b] for a, b in itertools.pairwise(bounds)]
+        return self.levels_in(0, len(self))
+
+    def levels_in(self, start: int, stop: int) -> list[I32]:
+        """Indices of the instances in ``[start, stop)`` of each depth level, in order."""
+        depth = self.depth[start:stop]
+        order = np.argsort(depth, kind="stable").astype(np.int32)
+        bounds = np.searchsorted(depth[order], np.arange(int(depth.max()) + 2))
+        return [order[a:b] + np.int32(start) for a, b in itertools.pairwise(bounds)]
+
+    def tree_blocks(self, size: int) -> list[tuple[int, int]]:
+        """Instance ranges ``[start, stop)`` of whole trees, each about ``size`` long."""
+        starts = np.flatnonzero(np.diff(self.tree, prepend=-1))
+        cuts = np.unique(starts[np.searchsorted(starts, np.arange(0, len(self), size))])
+        bounds = [*cuts.tolist(), len(self)]
+        return list(itertools.pairwise(bounds))
 
 
 def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -73,7 +85,12 @@ def expand(
         alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
         keep = total > 0  # no eligible alternative at this depth: the rim stays a tip
         alt, f_tree, f_parent, f_rim, f_sym = (
-            alt[keep], f_tree[keep], f_parent[keep], f_rim[keep], f_sym[keep])
+            alt[keep],
+            f_tree[keep],
+            f_parent[keep],
+            f_rim[keep],
+            f_sym[keep],
+        )
         f_len, f_rad = f_len[keep], f_rad[keep]
         m = len(alt)
         if m == 0:

@@ -19,11 +19,10 @@ from forest.settings import ForestSettings, get_settings
 from forest.skeleton import (
     Bones,
     PoseParams,
+    Poser,
     Wind,
     build_bones,
     draw_pose,
-    local_transforms,
-    posed_palette,
     rest_palette,
 )
 from forest.tiles import draw_tile_indices
@@ -110,22 +109,25 @@ class Forest:
             return [None]
         return [f / self.options.fps for f in range(self.options.frames)]
 
-    def local_bones(self, time: float | None = None) -> F64:
-        """``(b, 4, 4)`` local bone transforms, posed, with wind at ``time`` if given."""
-        return local_transforms(
+    def poser(self, pose: PoseParams | None = None) -> Poser:
+        return Poser(
             self.graph,
             self.bones,
             self.pieces,
             self.tree_transforms,
             self.transforms,
-            self.pose,
-            None if time is None else self.options.wind,
-            time or 0.0,
+            pose or self.pose,
         )
+
+    def local_bones(self, time: float | None = None) -> F64:
+        """``(b, 4, 4)`` local bone transforms, posed, with wind at ``time`` if given."""
+        wind = None if time is None else self.options.wind
+        return self.poser().local_transforms(wind, time or 0.0)
 
     def palette(self, time: float | None = None) -> F64:
         """``(b, 4, 4)`` posed skinning matrices (prototype space -> world)."""
-        return posed_palette(self.graph, self.bones, self.local_bones(time))
+        wind = None if time is None else self.options.wind
+        return self.poser().palette(wind, time or 0.0)
 
     def rest_palette(self) -> F64:
         return rest_palette(self.bones, self.transforms)

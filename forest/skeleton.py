@@ -11,7 +11,10 @@ points straight to world space.
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
+from functools import cache, cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -23,6 +26,9 @@ from forest.transforms import F64, axis_angle_matrix, invert_similarity, matrix_
 
 I32 = NDArray[np.int32]
 HUB, TIP0 = 1, 2
+# instances per block of trees evaluated together: big enough to amortise numpy's per-call
+# cost, small enough that a level's temporaries stay in cache and blocks spread over cores
+BLOCK_PIECES = 16384
 
 
 @dataclass(frozen=True)
@@ -91,8 +97,9 @@ class PoseParams:
 
     bend_azimuth, bend_angle : (n,) hub rotation about the horizontal axis at that azimuth
     spread_azimuth, spread_angle : (n, R) terminal rotations, likewise (radians)
-    tip_scale : (n, R) terminal uniform scale, rounded to binary16 (USD stores SkelAnimation
-    scales as half3; rounding here keeps our skinning and USD's identical)
+    tip_scale : (n, R) terminal uniform scale: the rest scale times the radius scale, the
+    latter rounded to binary16 (USD stores SkelAnimation scales as half3, and the skinned
+    export stores exactly that ratio; rounding here keeps our skinning and USD's identical)
     length : (n,) length scale of each instance (scales its joint offsets)
     phase : (n,) wind phase (per tree, plus a little per depth)
     """
@@ -125,7 +132,7 @@ def draw_pose(
         spread_azimuth=rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi),
         spread_angle=spread[:, None, 0]
         + rng.random((n, MAX_LEAF_RIMS)) * (spread[:, None, 1] - spread[:, None, 0]),
-        tip_scale=(sigma * children_radius(graph)).astype(np.float16).astype(np.float64),
+        tip_scale=sigma * children_radius(graph).astype(np.float16).astype(np.float64),
         length=graph.length,
         phase=tree_phase[graph.tree] + 0.35 * graph.depth,
     )
@@ -152,6 +159,7 @@ def _rest_tip_scale(pieces: tuple[PieceArrays, ...]) -> F64:
     return out
 
 
+@cache
 def _local_tables(pieces: tuple[PieceArrays, ...]) -> tuple[F64, F64, F64]:
     """Rest local offsets: hub translation (p, 3); terminal translation (p, R, 3) and
     rotation (p, R, 3, 3) relative to the hub."""
@@ -167,105 +175,134 @@ def _local_tables(pieces: tuple[PieceArrays, ...]) -> tuple[F64, F64, F64]:
     return hub_t, tip_t, tip_r
 
 
-def local_transforms(
-    graph: PieceGraph,
-    bones: Bones,
-    pieces: tuple[PieceArrays, ...],
-    tree_transforms: F64,
-    transforms: F64,
-    pose: PoseParams,
-    wind: Wind | None = None,
-    time: float = 0.0,
-) -> F64:
-    """``(b, 4, 4)`` local bone transforms at ``time`` seconds (no wind if None).
-    ``transforms`` are the instances' topological transforms (wind axes follow them)."""
-    hub_t, tip_t, tip_r = _local_tables(pieces)
-    n = len(graph)
-    out = np.zeros((len(bones), 4, 4))
-    out[:, 3, 3] = 1.0
-    # wind: one world axis, rotated into each joint's parent frame by the rest orientation
-    if wind is not None and wind.strength_deg:
+@dataclass(frozen=True, eq=False)
+class Poser:
+    """Evaluates a forest's pose (and wind) into local bone transforms or the palette.
+
+    Locals are built for any subset of instances by :meth:`locals_for`, the one definition
+    both outputs share: ``Tr(length * t) @ R_wind @ R_bend`` for hubs and
+    ``Tr(length * t) @ R_wind @ R_spread @ R_rest @ S(scale)`` for terminals; a root bone's
+    local is the tree's model transform or the twist.
+    """
+
+    graph: PieceGraph
+    bones: Bones
+    pieces: tuple[PieceArrays, ...]
+    tree_transforms: F64
+    transforms: F64
+    pose: PoseParams
+
+    @cached_property
+    def _tree_depth(self) -> NDArray[np.int32]:
+        """``(t,)`` depth of each tree's deepest piece."""
+        deepest = np.zeros(int(self.graph.tree.max()) + 1, np.int32)
+        np.maximum.at(deepest, self.graph.tree, self.graph.depth)
+        return deepest
+
+    def _wind(self, idx: I32, wind: Wind | None, time: float) -> tuple[F64, F64] | None:
+        """Per instance of ``idx``: sway angle ``(m,)`` and the wind axis in the instance's
+        root frame ``(m, 3)`` (one world axis across the wind, turned by the rest rotation)."""
+        if wind is None or not wind.strength_deg:
+            return None
         d = np.deg2rad(wind.direction_deg)
         world_axis = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
-        depth_max = np.maximum(_tree_max(graph), 1)
+        depth = self.graph.depth[idx]
+        deepest = self._tree_depth[self.graph.tree[idx]]
         amp = np.deg2rad(wind.strength_deg) * (
-            wind.base + (1 - wind.base) * graph.depth / depth_max
+            wind.base + (1 - wind.base) * depth / np.maximum(deepest, 1)
         )
-        sway = amp * np.sin(2 * np.pi * wind.frequency_hz * time + pose.phase)
-    else:
-        world_axis = None
-        sway = np.zeros(n)
-    # root bones
-    roots = bones.offset
-    is_tree_root = graph.parent < 0
-    out[roots[is_tree_root]] = tree_transforms[graph.tree[is_tree_root]]
-    out[roots[~is_tree_root]] = rim.twists()[graph.twist[~is_tree_root]]
-    # hub: Tr(length * t) @ R_wind @ R_bend
-    hub_rot = horizontal_rotation(pose.bend_azimuth, pose.bend_angle)
-    if world_axis is not None:
-        frame = _inverse_rotation(transforms)
-        wind_axis = np.einsum("nij,j->ni", frame, world_axis)
-        hub_rot = axis_angle_matrix(wind_axis, sway)[:, :3, :3] @ hub_rot
-    hubs = bones.offset + HUB
-    out[hubs, :3, :3] = hub_rot
-    out[hubs, :3, 3] = pose.length[:, None] * hub_t[graph.piece]
-    # terminals: Tr(length * t) @ R_wind @ R_spread @ R_rest @ S(scale)
-    n_rims = np.array([p.n_leaf_rims for p in pieces])[graph.piece]
-    inst, r = np.nonzero(np.arange(MAX_LEAF_RIMS)[None] < n_rims[:, None])
-    rot = horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
-    if world_axis is not None:
-        # the hub frame is the root frame turned by the hub's bend; wind sways tips half as
-        # much as hubs so the motion ripples rather than swinging rigidly
-        hub_axis = np.einsum("nji,nj->ni", hub_rot[inst], wind_axis[inst])
-        rot = axis_angle_matrix(hub_axis, 0.5 * sway[inst])[:, :3, :3] @ rot
-    rot = rot @ tip_r[graph.piece[inst], r]
-    tips = bones.offset[inst] + TIP0 + r
-    out[tips, :3, :3] = rot * pose.tip_scale[inst, r][:, None, None]
-    out[tips, :3, 3] = pose.length[inst, None] * tip_t[graph.piece[inst], r]
-    return out
+        sway = amp * np.sin(2 * np.pi * wind.frequency_hz * time + self.pose.phase[idx])
+        lin = self.transforms[idx, :3, :3]
+        axis = np.einsum("nji,j->ni", lin, world_axis)  # R^T a, up to the uniform scale
+        return sway, axis / np.linalg.norm(axis, axis=-1, keepdims=True)
 
+    def locals_for(
+        self, idx: I32, wind: Wind | None = None, time: float = 0.0
+    ) -> tuple[F64, F64, F64, I32, I32]:
+        """Local transforms of the instances ``idx``: roots ``(m, 4, 4)``, hubs ``(m, 4, 4)``,
+        terminals ``(k, 4, 4)`` with their position in ``idx`` and rim, each ``(k,)``."""
+        g, pose = self.graph, self.pose
+        hub_t, tip_t, tip_r = _local_tables(self.pieces)
+        m = len(idx)
+        piece = g.piece[idx]
+        top = g.parent[idx] < 0
+        root = rim.twists()[g.twist[idx]]
+        root[top] = self.tree_transforms[g.tree[idx[top]]]
+        hub = np.zeros((m, 4, 4))
+        hub[:, 3, 3] = 1.0
+        hub_rot = horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
+        swaying = self._wind(idx, wind, time)
+        if swaying is not None:
+            sway, axis = swaying
+            hub_rot = axis_angle_matrix(axis, sway)[:, :3, :3] @ hub_rot
+        hub[:, :3, :3] = hub_rot
+        hub[:, :3, 3] = pose.length[idx, None] * hub_t[piece]
+        pos, r = np.nonzero(np.arange(MAX_LEAF_RIMS)[None] < self.bones.piece_rims[piece][:, None])
+        inst = idx[pos]
+        rot = horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
+        if swaying is not None:
+            # in the hub's frame; tips sway half as much as hubs, so the motion ripples up
+            # the tree instead of swinging each piece rigidly
+            hub_axis = np.einsum("nji,nj->ni", hub_rot[pos], axis[pos])
+            rot = axis_angle_matrix(hub_axis, 0.5 * sway[pos])[:, :3, :3] @ rot
+        tips = np.zeros((len(pos), 4, 4))
+        tips[:, 3, 3] = 1.0
+        tips[:, :3, :3] = (rot @ tip_r[piece[pos], r]) * pose.tip_scale[inst, r][:, None, None]
+        tips[:, :3, 3] = pose.length[inst, None] * tip_t[piece[pos], r]
+        return root, hub, tips, pos.astype(np.int32), r.astype(np.int32)
 
-def _tree_max(graph: PieceGraph) -> NDArray[np.float64]:
-    deepest = np.zeros(int(graph.tree.max()) + 1)
-    np.maximum.at(deepest, graph.tree, graph.depth)
-    return deepest[graph.tree]
+    def local_transforms(self, wind: Wind | None = None, time: float = 0.0) -> F64:
+        """``(b, 4, 4)`` local transforms of every bone (what a SkelAnimation stores)."""
+        idx = np.arange(len(self.graph), dtype=np.int32)
+        root, hub, tips, pos, r = self.locals_for(idx, wind, time)
+        out = np.empty((len(self.bones), 4, 4))
+        off = self.bones.offset
+        out[off] = root
+        out[off + HUB] = hub
+        out[off[pos] + TIP0 + r] = tips
+        return out
 
+    def palette(self, wind: Wind | None = None, time: float = 0.0) -> F64:
+        """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``.
 
-def _inverse_rotation(transforms: F64) -> F64:
-    """``(n, 3, 3)`` inverse rotation part of similarities."""
-    lin = transforms[:, :3, :3]
-    scale = np.cbrt(np.linalg.det(lin))
-    return np.swapaxes(lin / scale[:, None, None], -1, -2)
+        Trees are independent, so blocks of whole trees run on all cores (numpy releases the
+        GIL in the batched products); within a block, see :meth:`_palette_block`."""
+        pal = np.empty((len(self.bones), 4, 4))
+        blocks = self.graph.tree_blocks(BLOCK_PIECES)
+        with ThreadPoolExecutor(max_workers=min(len(blocks), os.cpu_count() or 1)) as pool:
+            list(pool.map(lambda ab: self._palette_block(ab[0], ab[1], pal, wind, time), blocks))
+        return pal
 
-
-def posed_palette(graph: PieceGraph, bones: Bones, local: F64) -> F64:
-    """``(b, 4, 4)`` skinning matrices ``G @ inv(J)`` from local bone transforms.
-
-    Forward kinematics one depth level at a time (root, hub, then terminals of every piece
-    of that level at once); each global is turned into its palette entry as soon as it is
-    known, so no second pass over the bones is needed."""
-    glob = np.empty_like(local)
-    pal = np.empty_like(local)
-    n_rims = bones.piece_rims
-    for idx in graph.levels:
-        root = bones.offset[idx]
-        par = bones.parent[root]
-        g_root = local[root] if par[0] < 0 else glob[par] @ local[root]
-        glob[root] = g_root
-        pal[root] = g_root  # J_root = I
-        g_hub = g_root @ local[root + HUB]
-        glob[root + HUB] = g_hub
-        piece = graph.piece[idx]
-        pal[root + HUB] = g_hub @ bones.inv_rest[piece, HUB]
-        for r in range(MAX_LEAF_RIMS):
-            has = np.nonzero(n_rims[piece] > r)[0]
-            if not len(has):
-                break
-            tip = root[has] + TIP0 + r
-            g_tip = g_hub[has] @ local[tip]
-            glob[tip] = g_tip
-            pal[tip] = g_tip @ bones.inv_rest[piece[has], TIP0 + r]
-    return pal
+    def _palette_block(
+        self, start: int, stop: int, pal: F64, wind: Wind | None, time: float
+    ) -> None:
+        """Forward kinematics of instances ``[start, stop)`` one depth level at a time: roots,
+        hubs, then terminals of every piece of the level at once. Each global becomes its
+        palette entry as soon as it is known; only the terminals' globals are kept, for the
+        next level's roots."""
+        g, b = self.graph, self.bones
+        prev_tips: F64 | None = None
+        level_pos = np.empty(stop - start, np.int32)
+        for idx in g.levels_in(start, stop):
+            level_pos[idx - start] = np.arange(len(idx), dtype=np.int32)
+            root, hub, tips, pos, r = self.locals_for(idx, wind, time)
+            par = g.parent[idx]
+            if prev_tips is not None:
+                root = prev_tips[level_pos[par - start], g.parent_rim[idx]] @ root
+            off = b.offset[idx]
+            pal[off] = root  # J_root = I
+            g_hub = root @ hub
+            piece = g.piece[idx]
+            # inv(J_hub) is a pure translation: apply it as one matrix-vector product
+            hub_pal = g_hub.copy()
+            hub_pal[:, :3, 3] += np.einsum(
+                "nij,nj->ni", g_hub[:, :3, :3], b.inv_rest[piece, HUB, :3, 3]
+            )
+            pal[off + HUB] = hub_pal
+            g_tips = g_hub[pos] @ tips
+            pal[off[pos] + TIP0 + r] = g_tips @ b.inv_rest[piece[pos], TIP0 + r]
+            prev_tips = np.empty((len(idx), MAX_LEAF_RIMS, 4, 4))
+            prev_tips[pos, r] = g_tips
 
 
 def horizontal_rotation(azimuth: F64, angle: F64) -> F64:

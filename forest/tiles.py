@@ -3,12 +3,15 @@ among the tiles of its class, so no two instances look alike."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 from numpy.typing import NDArray
+from pydantic import ValidationError
 
 from forest.errors import ForestError
 from forest.pieces import PieceArrays
-from schemas.tileset import TileSetManifest
+from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
 
 
 def class_tables(
@@ -59,3 +62,23 @@ def draw_tile_indices(
         tile += first[p, :q]
         out[rows, :q] = tile
     return out
+
+
+MANIFEST_NAME = "manifest.json"
+
+
+def manifest_for(folder: Path) -> TileSetManifest:
+    """The manifest of a tile-set folder; the built-in default where the folder has none."""
+    if not folder.is_dir():
+        raise ForestError("tile-set folder does not exist", path=str(folder))
+    path = folder / MANIFEST_NAME
+    if not path.exists():
+        return DEFAULT_MANIFEST
+    try:
+        return TileSetManifest.model_validate_json(path.read_bytes())
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        where = ".".join(str(p) for p in err["loc"])
+        raise ForestError(
+            f"{where}: {err['msg']}" if where else err["msg"], path=str(path)
+        ) from None

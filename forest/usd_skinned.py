@@ -18,8 +18,14 @@ from scipy.spatial import cKDTree
 
 from forest.generate import Forest
 from forest.pieces import MAX_INFLUENCES
-from forest.skeleton import local_trs
-from forest.transforms import F64, invert_similarity, transform_points, transform_vectors
+from forest.skeleton import local_trs, rest_pose
+from forest.transforms import (
+    F64,
+    compose_similarity,
+    invert_similarity,
+    transform_points,
+    transform_vectors,
+)
 from forest.usd_scene import FOREST, _primvar, _time_code, row_major, tile_udim_st
 
 TREES = f"{FOREST}/Trees"
@@ -48,12 +54,13 @@ def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
     local_inst = names.instance[bones] - inst.start
     out: list[str] = []
     for i in range(bones.stop - bones.start):
-        if joint[i] == 0:
-            leaf = f"p{local_inst[i]}"
-        elif joint[i] == 1:
-            leaf = "hub"
-        else:
-            leaf = f"tip{joint[i] - 2}"
+        # every joint's own name is unique in the skeleton: Blender names bones and vertex
+        # groups by it, and drops the weights of a repeated one
+        leaf = f"p{local_inst[i]}"
+        if joint[i] == 1:
+            leaf += "_hub"
+        elif joint[i] > 1:
+            leaf += f"_tip{joint[i] - 2}"
         out.append(leaf if parent[i] < 0 else f"{out[parent[i]]}/{leaf}")
     return out
 
@@ -126,9 +133,32 @@ def write_skinned_trees(
 ) -> None:
     UsdGeom.Scope.Define(stage, TREES)
     times = forest.frame_times()
-    # local bone transforms per frame, the tree root joint replaced by identity below
-    trs = [local_trs(forest.local_bones(t)) for t in times]
+    b = forest.bones
     rest = _rest_locals(forest)
+    # Joint frames are stored without scale (DCC bones cannot hold one): with s_j the rest
+    # scale of joint j in tree space, each local becomes S(s_parent) @ L @ S(1 / s_j), i.e.
+    # the translation times s_parent and the scale divided by the rest local scale.
+    rest_scale = _scale(rest)
+    binds = _bind_transforms(forest)
+    bind_scale = _scale(binds)
+    binds[:, :3, :3] /= bind_scale[:, None, None]
+    parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
+    tree_root = b.offset[forest.graph.parent < 0]
+    parent_scale[tree_root] = 1.0
+
+    def unscaled(
+        local: F64,
+    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]:
+        t, q, _ = local_trs(local)
+        t = t * parent_scale[:, None]
+        # the pose's own scale (the rounded radius scale) is all that is left: exact in half
+        s = np.repeat((_scale(local) / rest_scale)[:, None], 3, axis=1).astype(np.float16)
+        t[tree_root], q[tree_root], s[tree_root] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
+        return t.astype(np.float32), q, s
+
+    # a still forest's pose is one sample at time 0: DCC importers read only samples
+    frames = [(t, unscaled(forest.local_bones(t))) for t in times]
+    rest_unscaled = unscaled(rest)
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/Tree_{k:05d}"
@@ -139,23 +169,21 @@ def write_skinned_trees(
         skel = UsdSkel.Skeleton.Define(stage, f"{path}/Skeleton")
         joints = joint_paths(forest, inst, bones)
         skel.CreateJointsAttr(joints)
-        b = forest.bones
-        bind = (
-            to_tree
-            @ forest.transforms[b.instance[bones]]
-            @ b.rest[forest.graph.piece[b.instance[bones]], b.joint[bones]]
+        skel.CreateBindTransformsAttr(row_major(binds[bones]))
+        skel.CreateRestTransformsAttr(
+            row_major(
+                compose_similarity(
+                    rest_unscaled[0][bones], rest_unscaled[1][bones], rest_unscaled[2][bones, 0]
+                )
+            )
         )
-        skel.CreateBindTransformsAttr(row_major(bind))
-        skel.CreateRestTransformsAttr(row_major(rest[bones]))
         anim = UsdSkel.Animation.Define(stage, f"{path}/Skeleton/Wind")
         anim.CreateJointsAttr(joints)
-        for time, (tr, rot, sc) in zip(times, trs, strict=True):
-            tc = _time_code(time, forest.options.fps)
-            t, q, s = tr[bones].copy(), rot[bones].copy(), sc[bones].copy()
-            t[0], q[0], s[0] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
-            anim.CreateTranslationsAttr().Set(Vt.Vec3fArray.FromNumpy(t), tc)
-            anim.CreateRotationsAttr().Set(Vt.QuatfArray.FromNumpy(q), tc)
-            anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(s), tc)
+        for time, (t, q, s) in frames:
+            tc = Usd.TimeCode(0.0) if time is None else _time_code(time, forest.options.fps)
+            anim.CreateTranslationsAttr().Set(Vt.Vec3fArray.FromNumpy(t[bones]), tc)
+            anim.CreateRotationsAttr().Set(Vt.QuatfArray.FromNumpy(q[bones]), tc)
+            anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(s[bones]), tc)
         UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()]
         )
@@ -187,17 +215,20 @@ def write_skinned_trees(
             progress("skinned trees", k + 1, len(slices))
 
 
+def _scale(m: F64) -> F64:
+    """Uniform scale of similarities ``(n, 4, 4)``."""
+    return np.cbrt(np.linalg.det(m[:, :3, :3]))
+
+
+def _bind_transforms(forest: Forest) -> F64:
+    """``(b, 4, 4)`` rest joint frames in their tree's space (the skeleton's space)."""
+    b, g = forest.bones, forest.graph
+    to_tree = invert_similarity(forest.tree_transforms)[g.tree[b.instance]]
+    return to_tree @ forest.transforms[b.instance] @ b.rest[g.piece[b.instance], b.joint]
+
+
 def _rest_locals(forest: Forest) -> F64:
     """``(b, 4, 4)`` rest local transforms (no pose, no wind) with tree roots at identity."""
-    from forest.skeleton import local_transforms, rest_pose
-
-    local = local_transforms(
-        forest.graph,
-        forest.bones,
-        forest.pieces,
-        forest.tree_transforms,
-        forest.transforms,
-        rest_pose(forest.graph, forest.pieces),
-    )
+    local = forest.poser(rest_pose(forest.graph, forest.pieces)).local_transforms()
     local[forest.bones.offset[forest.graph.parent < 0]] = np.eye(4)
     return local

@@ -9,6 +9,7 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 
@@ -134,3 +135,37 @@ def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], me
     assert out.returncode == 2, out.stderr
     assert message in out.stderr
     assert "Traceback" not in out.stderr
+
+
+def test_tiles_folder_sets_material_and_manifest(tmp_path: Path) -> None:
+    from forest.usd_read import read_scene
+
+    (tmp_path / "tiles").mkdir()
+    (tmp_path / "tiles" / "manifest.json").write_text(
+        json.dumps(
+            {
+                "classes": [
+                    {"name": "bark", "id": 1, "first": 0, "count": 3},
+                    {"name": "fork", "id": 2, "first": 3, "count": 2},
+                ]
+            }
+        )
+    )
+    out = forest(
+        "generate", "--preset", "uniform", "--tiles", "tiles", "-o", "f.usda", cwd=tmp_path
+    )
+    assert out.returncode == 0, out.stderr
+    assert "tiles/bark.<UDIM>.png" in (tmp_path / "f.usda").read_text()
+    scene = read_scene(tmp_path / "f.usda")
+    used = scene.tile_indices[scene.tile_indices >= 0]
+    assert set(np.unique(used)) == set(range(5))
+    assert scene.manifest.classes[0].count == 3
+
+    (tmp_path / "tiles" / "manifest.json").write_text('{"classes": []}')
+    out = forest(
+        "generate", "--preset", "uniform", "--tiles", "tiles", "-o", "g.usda", cwd=tmp_path
+    )
+    assert out.returncode == 2
+    assert "tiles/manifest.json: classes" in out.stderr
+    out = forest("generate", "--preset", "uniform", "--tiles", "none", "-o", "g.usda", cwd=tmp_path)
+    assert out.returncode == 2 and "tile-set folder does not exist" in out.stderr
