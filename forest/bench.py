@@ -19,7 +19,7 @@ from forest.grammar import CompiledGrammar, compile_grammar
 from forest.pieces import PieceArrays, piece_library, skinning_rest_inverse
 from forest.presets import load_preset
 from forest.scatter import tree_transforms
-from forest.skeleton import _local_tables, _rest_tip_scale
+from forest.skeleton import _piece_tables, _rest_tip_scale
 from forest.tiles import class_tables
 from forest.transforms import axis_angle_matrix
 from forest.usd_scene import write_scene
@@ -36,7 +36,10 @@ def baseline_generate(
     rng = random.Random(seed)
     twists = rim.twists()
     inv_rest = skinning_rest_inverse(pieces)
-    hub_t, tip_t, tip_r = _local_tables(pieces)
+    tab = _piece_tables(pieces)
+    hub_t = tab.hub_t.T
+    tip_t = tab.tip_t.T.reshape(len(pieces), -1, 3)
+    tip_r = tab.tip_r.T.reshape(len(pieces), -1, 3, 3)
     sigma = _rest_tip_scale(pieces)
     first, count, n_quads = class_tables(pieces, DEFAULT_MANIFEST)
     g = cg.grammar

@@ -11,23 +11,22 @@ points straight to world space.
 
 from __future__ import annotations
 
-import os
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from functools import cache, cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
-from forest import rim
+from forest import affine, rim
+from forest.assembly import building_twist_column, building_twist_table
 from forest.expand import PieceGraph, children_radius
 from forest.pieces import MAX_LEAF_RIMS, PieceArrays, skinning_rest_inverse
-from forest.transforms import F64, axis_angle_matrix, invert_similarity, matrix_to_quat
+from forest.transforms import F64, invert_similarity, matrix_to_quat
 
 I32 = NDArray[np.int32]
 HUB, TIP0 = 1, 2
 # instances per block of trees evaluated together: big enough to amortise numpy's per-call
-# cost, small enough that a level's temporaries stay in cache and blocks spread over cores
+# cost, small enough that a level's temporaries stay in cache
 BLOCK_PIECES = 16384
 
 
@@ -159,20 +158,57 @@ def _rest_tip_scale(pieces: tuple[PieceArrays, ...]) -> F64:
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _PieceTables:
+    """Per piece (p) and leaf rim (r), in the SoA layout of :mod:`forest.affine`.
+
+    hub_t : (3, p) hub offset from the root
+    tip_t : (3, p*R) terminal offset from the hub tip_r : (9, p*R) terminal rest rotation
+    tip_scale : (p*R,) terminal rest scale sigma
+    twists : (12, 6) the six rim twists
+    building_twist : (12, p*R*6) ``B_r @ Twist_k``
+    """
+
+    hub_t: F64
+    tip_t: F64
+    tip_r: F64
+    tip_scale: F64
+    twists: F64
+    building_twist: F64
+
+
 @cache
-def _local_tables(pieces: tuple[PieceArrays, ...]) -> tuple[F64, F64, F64]:
-    """Rest local offsets: hub translation (p, 3); terminal translation (p, R, 3) and
-    rotation (p, R, 3, 3) relative to the hub."""
-    hub_t = np.zeros((len(pieces), 3))
-    tip_t = np.zeros((len(pieces), MAX_LEAF_RIMS, 3))
-    tip_r = np.broadcast_to(np.eye(3), (len(pieces), MAX_LEAF_RIMS, 3, 3)).copy()
+def _piece_tables(pieces: tuple[PieceArrays, ...]) -> _PieceTables:
+    n = len(pieces)
+    hub_t = np.zeros((n, 3))
+    tip_t = np.zeros((n, MAX_LEAF_RIMS, 3))
+    tip_r = np.broadcast_to(np.eye(3), (n, MAX_LEAF_RIMS, 3, 3)).copy()
     for i, p in enumerate(pieces):
         hub_t[i] = p.joint_rest[HUB, :3, 3]
         local = invert_similarity(p.joint_rest[HUB]) @ p.joint_rest[TIP0:]
         tip_t[i, : p.n_leaf_rims] = local[:, :3, 3]
         lin = local[:, :3, :3]
         tip_r[i, : p.n_leaf_rims] = lin / np.cbrt(np.linalg.det(lin))[:, None, None]
-    return hub_t, tip_t, tip_r
+    return _PieceTables(
+        hub_t=hub_t.T.copy(),
+        tip_t=tip_t.reshape(-1, 3).T.copy(),
+        tip_r=tip_r.reshape(-1, 9).T.copy(),
+        tip_scale=_rest_tip_scale(pieces).ravel(),
+        twists=affine.from_matrices(rim.twists()),
+        building_twist=affine.from_matrices(building_twist_table(pieces).reshape(-1, 4, 4)),
+    )
+
+
+@dataclass(frozen=True, eq=False)
+class _Locals:
+    """Local transforms of a set of instances (SoA, see :mod:`forest.affine`): roots and hubs
+    ``(12, m)``; terminals ``(12, k)`` with their instance position ``pos`` and rim ``r``."""
+
+    root: F64
+    hub: F64
+    tips: F64
+    pos: I32
+    r: I32
 
 
 @dataclass(frozen=True, eq=False)
@@ -201,7 +237,7 @@ class Poser:
 
     def _wind(self, idx: I32, wind: Wind | None, time: float) -> tuple[F64, F64] | None:
         """Per instance of ``idx``: sway angle ``(m,)`` and the wind axis in the instance's
-        root frame ``(m, 3)`` (one world axis across the wind, turned by the rest rotation)."""
+        root frame ``(3, m)`` (one world axis across the wind, turned by the rest rotation)."""
         if wind is None or not wind.strength_deg:
             return None
         d = np.deg2rad(wind.direction_deg)
@@ -213,114 +249,110 @@ class Poser:
         )
         sway = amp * np.sin(2 * np.pi * wind.frequency_hz * time + self.pose.phase[idx])
         lin = self.transforms[idx, :3, :3]
-        axis = np.einsum("nji,j->ni", lin, world_axis)  # R^T a, up to the uniform scale
-        return sway, axis / np.linalg.norm(axis, axis=-1, keepdims=True)
+        axis = np.einsum("nji,j->in", lin, world_axis)  # R^T a, up to the uniform scale
+        return sway, axis / np.linalg.norm(axis, axis=0)
 
-    def locals_for(
-        self, idx: I32, wind: Wind | None = None, time: float = 0.0
-    ) -> tuple[F64, F64, F64, I32, I32]:
-        """Local transforms of the instances ``idx``: roots ``(m, 4, 4)``, hubs ``(m, 4, 4)``,
-        terminals ``(k, 4, 4)`` with their position in ``idx`` and rim, each ``(k,)``."""
-        g, pose = self.graph, self.pose
-        hub_t, tip_t, tip_r = _local_tables(self.pieces)
-        m = len(idx)
+    def _hub_and_tip_rotations(
+        self, idx: I32, wind: Wind | None, time: float
+    ) -> tuple[F64, F64, I32, I32]:
+        """Hub locals ``(12, m)``, and the pose rotation ``R_wind @ R_spread`` ``(9, k)`` of
+        every terminal with its instance position ``pos`` and rim ``r`` (each ``(k,)``)."""
+        g, pose, tab = self.graph, self.pose, _piece_tables(self.pieces)
         piece = g.piece[idx]
-        top = g.parent[idx] < 0
-        root = rim.twists()[g.twist[idx]]
-        root[top] = self.tree_transforms[g.tree[idx[top]]]
-        hub = np.zeros((m, 4, 4))
-        hub[:, 3, 3] = 1.0
-        hub_rot = horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
+        hub = np.empty((12, len(idx)))
+        hub_rot = affine.horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
         swaying = self._wind(idx, wind, time)
         if swaying is not None:
             sway, axis = swaying
-            hub_rot = axis_angle_matrix(axis, sway)[:, :3, :3] @ hub_rot
-        hub[:, :3, :3] = hub_rot
-        hub[:, :3, 3] = pose.length[idx, None] * hub_t[piece]
+            hub_rot = affine.compose_linear(affine.axis_angle(axis, sway), hub_rot)
+        hub[affine.LIN] = hub_rot
+        hub[affine.TRANS] = pose.length[idx] * tab.hub_t[:, piece]
         pos, r = np.nonzero(np.arange(MAX_LEAF_RIMS)[None] < self.bones.piece_rims[piece][:, None])
         inst = idx[pos]
-        rot = horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
+        rot = affine.horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
         if swaying is not None:
             # in the hub's frame; tips sway half as much as hubs, so the motion ripples up
             # the tree instead of swinging each piece rigidly
-            hub_axis = np.einsum("nji,nj->ni", hub_rot[pos], axis[pos])
-            rot = axis_angle_matrix(hub_axis, 0.5 * sway[pos])[:, :3, :3] @ rot
-        tips = np.zeros((len(pos), 4, 4))
-        tips[:, 3, 3] = 1.0
-        tips[:, :3, :3] = (rot @ tip_r[piece[pos], r]) * pose.tip_scale[inst, r][:, None, None]
-        tips[:, :3, 3] = pose.length[inst, None] * tip_t[piece[pos], r]
-        return root, hub, tips, pos.astype(np.int32), r.astype(np.int32)
+            hub_axis = affine.apply_linear(affine.transpose_linear(hub_rot)[:, pos], axis[:, pos])
+            rot = affine.compose_linear(affine.axis_angle(hub_axis, 0.5 * sway[pos]), rot)
+        return hub, rot, pos.astype(np.int32), r.astype(np.int32)
+
+    def locals_for(self, idx: I32, wind: Wind | None = None, time: float = 0.0) -> _Locals:
+        """Local transforms of the instances ``idx``."""
+        g, pose, tab = self.graph, self.pose, _piece_tables(self.pieces)
+        top = g.parent[idx] < 0
+        root = tab.twists[:, g.twist[idx]]
+        if top.any():
+            root[:, top] = affine.from_matrices(self.tree_transforms[g.tree[idx[top]]])
+        hub, rot, pos, r = self._hub_and_tip_rotations(idx, wind, time)
+        inst = idx[pos]
+        col = g.piece[inst] * MAX_LEAF_RIMS + r
+        tips = np.empty((12, len(pos)))
+        tips[affine.LIN] = affine.compose_linear(rot, tab.tip_r[:, col]) * pose.tip_scale[inst, r]
+        tips[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col]
+        return _Locals(root, hub, tips, pos, r)
 
     def local_transforms(self, wind: Wind | None = None, time: float = 0.0) -> F64:
         """``(b, 4, 4)`` local transforms of every bone (what a SkelAnimation stores)."""
-        idx = np.arange(len(self.graph), dtype=np.int32)
-        root, hub, tips, pos, r = self.locals_for(idx, wind, time)
+        loc = self.locals_for(np.arange(len(self.graph), dtype=np.int32), wind, time)
         out = np.empty((len(self.bones), 4, 4))
         off = self.bones.offset
-        out[off] = root
-        out[off + HUB] = hub
-        out[off[pos] + TIP0 + r] = tips
+        out[off] = affine.to_matrices(loc.root)
+        out[off + HUB] = affine.to_matrices(loc.hub)
+        out[off[loc.pos] + TIP0 + loc.r] = affine.to_matrices(loc.tips)
         return out
 
     def palette(self, wind: Wind | None = None, time: float = 0.0) -> F64:
-        """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``.
-
-        Trees are independent, so blocks of whole trees run on all cores (numpy releases the
-        GIL in the batched products); within a block, see :meth:`_palette_block`."""
+        """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``, computed block by block of whole
+        trees (small enough for the temporaries to stay in cache)."""
         pal = np.empty((len(self.bones), 4, 4))
-        blocks = self.graph.tree_blocks(BLOCK_PIECES)
-        with ThreadPoolExecutor(max_workers=min(len(blocks), os.cpu_count() or 1)) as pool:
-            list(pool.map(lambda ab: self._palette_block(ab[0], ab[1], pal, wind, time), blocks))
+        for start, stop in self.graph.tree_blocks(BLOCK_PIECES):
+            self._palette_block(start, stop, pal, wind, time)
         return pal
 
     def _palette_block(
         self, start: int, stop: int, pal: F64, wind: Wind | None, time: float
     ) -> None:
-        """Forward kinematics of instances ``[start, stop)`` one depth level at a time: roots,
-        hubs, then terminals of every piece of the level at once. Each global becomes its
-        palette entry as soon as it is known; only the terminals' globals are kept, for the
-        next level's roots."""
-        g, b = self.graph, self.bones
-        prev_tips: F64 | None = None
-        level_pos = np.empty(stop - start, np.int32)
+        """Forward kinematics of instances ``[start, stop)``, one depth level at a time, in
+        closed forms that skip the terminals' globals.
+
+        With ``J_tip = B_r = Tr(h + t) R_rest S(sigma)`` and the terminal's local
+        ``Tr(length t) R S(sigma rho)``, the terminal's palette entry is
+        ``G_hub @ [rho R | length t - rho R (t + h)]``; a child's root global is its parent
+        terminal's palette entry times ``B_r @ Twist_k``, a constant per piece, rim and twist.
+        """
+        g, b, pose = self.graph, self.bones, self.pose
+        tab = _piece_tables(self.pieces)
+        b0 = int(b.offset[start])
+        b1 = int(b.offset[stop]) if stop < len(g) else len(b)
+        block = np.empty((12, b1 - b0))  # this block's palette, SoA
         for idx in g.levels_in(start, stop):
-            level_pos[idx - start] = np.arange(len(idx), dtype=np.int32)
-            root, hub, tips, pos, r = self.locals_for(idx, wind, time)
+            off = b.offset[idx] - b0
             par = g.parent[idx]
-            if prev_tips is not None:
-                root = prev_tips[level_pos[par - start], g.parent_rim[idx]] @ root
-            off = b.offset[idx]
-            pal[off] = root  # J_root = I
-            g_hub = root @ hub
             piece = g.piece[idx]
-            # inv(J_hub) is a pure translation: apply it as one matrix-vector product
+            if par[0] < 0:
+                root = affine.from_matrices(self.tree_transforms[g.tree[idx]])
+            else:
+                parent_tip = block[:, b.offset[par] - b0 + TIP0 + g.parent_rim[idx]]
+                bt = building_twist_column(g.piece[par], g.parent_rim[idx], g.twist[idx])
+                root = affine.compose(parent_tip, tab.building_twist[:, bt])
+            block[:, off] = root  # J_root = I
+            hub, rot, pos, r = self._hub_and_tip_rotations(idx, wind, time)
+            g_hub = affine.compose(root, hub)
+            # inv(J_hub) is a pure translation: one matrix-vector product
             hub_pal = g_hub.copy()
-            hub_pal[:, :3, 3] += np.einsum(
-                "nij,nj->ni", g_hub[:, :3, :3], b.inv_rest[piece, HUB, :3, 3]
+            hub_pal[affine.TRANS] -= affine.apply(g_hub, tab.hub_t[:, piece])
+            block[:, off + HUB] = hub_pal
+            inst = idx[pos]
+            col = piece[pos] * MAX_LEAF_RIMS + r
+            rho = pose.tip_scale[inst, r] / tab.tip_scale[col]
+            m = np.empty((12, len(pos)))
+            m[affine.LIN] = rot * rho
+            m[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col] - affine.apply_linear(
+                m[affine.LIN], tab.tip_t[:, col] + tab.hub_t[:, piece[pos]]
             )
-            pal[off + HUB] = hub_pal
-            g_tips = g_hub[pos] @ tips
-            pal[off[pos] + TIP0 + r] = g_tips @ b.inv_rest[piece[pos], TIP0 + r]
-            prev_tips = np.empty((len(idx), MAX_LEAF_RIMS, 4, 4))
-            prev_tips[pos, r] = g_tips
-
-
-def horizontal_rotation(azimuth: F64, angle: F64) -> F64:
-    """``(..., 3, 3)`` rotations by ``angle`` about the horizontal axis (cos az, 0, sin az)."""
-    x, z = np.cos(azimuth), np.sin(azimuth)
-    c, s = np.cos(angle), np.sin(angle)
-    k = 1.0 - c
-    m = np.empty((*np.shape(angle), 3, 3))
-    m[..., 0, 0] = c + x * x * k
-    m[..., 0, 1] = -z * s
-    m[..., 0, 2] = x * z * k
-    m[..., 1, 0] = z * s
-    m[..., 1, 1] = c
-    m[..., 1, 2] = -x * s
-    m[..., 2, 0] = x * z * k
-    m[..., 2, 1] = x * s
-    m[..., 2, 2] = c + z * z * k
-    return m
+            block[:, off[pos] + TIP0 + r] = affine.compose(g_hub[:, pos], m)
+        affine.to_matrices(block, pal[b0:b1])
 
 
 def rest_palette(bones: Bones, transforms: F64) -> F64:

@@ -1,0 +1,116 @@
+"""Batched affine transforms in structure-of-arrays layout, for the hot loops of posing.
+
+An affine batch is ``(12, n)`` float64: the top three rows of the 4x4 column-vector matrices,
+row-major (``r00 r01 r02 tx r10 r11 r12 ty r20 r21 r22 tz``), so converting to ``(n, 4, 4)``
+is one strided copy. A linear batch (rotations) is ``(9, n)``: ``r00 r01 r02 r10 ... r22``.
+Composition is a few dozen multiply-adds on contiguous rows, which numpy runs as SIMD loops:
+about five times faster than ``np.matmul`` on ``(n, 4, 4)`` stacks, whose per-matrix inner
+loop is scalar.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+F64 = NDArray[np.float64]
+LIN = np.array([0, 1, 2, 4, 5, 6, 8, 9, 10])  # rows of an affine batch holding the linear part
+TRANS = np.array([3, 7, 11])
+
+
+def from_matrices(m: F64) -> F64:
+    """``(n, 4, 4)`` column-vector matrices -> ``(12, n)``."""
+    return np.ascontiguousarray(m[:, :3, :].reshape(len(m), 12).T)
+
+
+def to_matrices(a: F64, out: F64 | None = None) -> F64:
+    """``(12, n)`` -> ``(n, 4, 4)``, written into ``out`` (contiguous) if given."""
+    n = a.shape[1]
+    if out is None:
+        out = np.empty((n, 4, 4))
+    flat = out.reshape(n, 16)
+    flat[:, :12] = a.T
+    flat[:, 12:] = (0.0, 0.0, 0.0, 1.0)
+    return out
+
+
+def compose(a: F64, b: F64) -> F64:
+    """``a @ b`` for affine batches ``(12, n)``."""
+    out = np.empty((12, a.shape[1]))
+    tmp = np.empty(a.shape[1])
+    for i in range(3):
+        a0, a1, a2 = a[4 * i], a[4 * i + 1], a[4 * i + 2]
+        for j in range(4):
+            o = out[4 * i + j]
+            np.multiply(a0, b[j], out=o)
+            o += np.multiply(a1, b[4 + j], out=tmp)
+            o += np.multiply(a2, b[8 + j], out=tmp)
+        out[4 * i + 3] += a[4 * i + 3]
+    return out
+
+
+def compose_linear(a: F64, b: F64) -> F64:
+    """``a @ b`` for linear batches ``(9, n)``."""
+    out = np.empty((9, a.shape[1]))
+    tmp = np.empty(a.shape[1])
+    for i in range(3):
+        a0, a1, a2 = a[3 * i], a[3 * i + 1], a[3 * i + 2]
+        for j in range(3):
+            o = out[3 * i + j]
+            np.multiply(a0, b[j], out=o)
+            o += np.multiply(a1, b[3 + j], out=tmp)
+            o += np.multiply(a2, b[6 + j], out=tmp)
+    return out
+
+
+def apply(a: F64, v: F64) -> F64:
+    """Linear part of affine batch ``(12, n)`` times vectors ``(3, n)`` -> ``(3, n)``."""
+    out = np.empty((3, a.shape[1]))
+    tmp = np.empty(a.shape[1])
+    for i in range(3):
+        o = out[i]
+        np.multiply(a[4 * i], v[0], out=o)
+        o += np.multiply(a[4 * i + 1], v[1], out=tmp)
+        o += np.multiply(a[4 * i + 2], v[2], out=tmp)
+    return out
+
+
+def apply_linear(a: F64, v: F64) -> F64:
+    """Linear batch ``(9, n)`` times vectors ``(3, n)`` -> ``(3, n)``."""
+    return np.stack([a[3 * i] * v[0] + a[3 * i + 1] * v[1] + a[3 * i + 2] * v[2] for i in range(3)])
+
+
+def transpose_linear(a: F64) -> F64:
+    """Transposes of a linear batch ``(9, n)`` (inverse rotations)."""
+    return a[[0, 3, 6, 1, 4, 7, 2, 5, 8]]
+
+
+def axis_angle(axis: F64, angle: F64) -> F64:
+    """``(9, n)`` rotations about unit axes ``(3, n)`` by ``angle`` ``(n,)`` radians."""
+    x, y, z = axis
+    c, s = np.cos(angle), np.sin(angle)
+    k = 1.0 - c
+    xk, yk, zk = x * k, y * k, z * k
+    xs, ys, zs = x * s, y * s, z * s
+    return np.stack(
+        [
+            c + x * xk,
+            y * xk - zs,
+            z * xk + ys,
+            x * yk + zs,
+            c + y * yk,
+            z * yk - xs,
+            x * zk - ys,
+            y * zk + xs,
+            c + z * zk,
+        ]
+    )
+
+
+def horizontal_rotation(azimuth: F64, angle: F64) -> F64:
+    """``(9, n)`` rotations by ``angle`` about the horizontal axis ``(cos az, 0, sin az)``."""
+    x, z = np.cos(azimuth), np.sin(azimuth)
+    c, s = np.cos(angle), np.sin(angle)
+    k = 1.0 - c
+    xz = x * z * k
+    return np.stack([c + x * x * k, -z * s, xz, z * s, c, -x * s, xz, x * s, c + z * z * k])
