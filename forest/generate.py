@@ -185,6 +185,15 @@ def generate_forest(
     transforms = topological_transforms(graph, trees, pieces)
     note("bones", 3, 5)
     bones = build_bones(graph, pieces)
+    matrices = len(bones) * max(options.frames, 1)
+    if matrices > settings.max_palette_matrices:
+        raise LimitError(
+            f"{len(bones)} bones x {max(options.frames, 1)} frame(s) = {matrices} palette "
+            f"matrices, over the cap of {settings.max_palette_matrices}; use fewer frames or "
+            "trees",
+            path="max_palette_matrices",
+            limit=settings.max_palette_matrices,
+        )
     pose = draw_pose(graph, pieces, cg.alt_bend, cg.alt_spread, rng_pose, options.trees)
     note("tiles", 4, 5)
     tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)

@@ -16,6 +16,8 @@ class ForestSettings(BaseSettings):
     max_pieces_per_forest: int = Field(5_000_000, gt=0)
     max_trees: int = Field(200_000, gt=0)
     max_frames: int = Field(10_000, gt=0)
+    # bone matrices over all frames (128 bytes each in a scene): 50 M is 6.4 GB of palette
+    max_palette_matrices: int = Field(50_000_000, gt=0)
     # depth at which a grammar without max_depth is declared non-terminating
     depth_limit: int = Field(64, gt=0, le=256)
 

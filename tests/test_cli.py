@@ -169,3 +169,30 @@ def test_tiles_folder_sets_material_and_manifest(tmp_path: Path) -> None:
     assert "tiles/manifest.json: classes" in out.stderr
     out = forest("generate", "--preset", "uniform", "--tiles", "none", "-o", "g.usda", cwd=tmp_path)
     assert out.returncode == 2 and "tile-set folder does not exist" in out.stderr
+
+
+def test_palette_size_is_capped(tmp_path: Path) -> None:
+    env_cap = {"FOREST_MAX_PALETTE_MATRICES": "1000"}
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "forest.cli",
+            "generate",
+            "--preset",
+            "almond",
+            "--trees",
+            "20",
+            "--frames",
+            "48",
+            "-o",
+            "f.usdc",
+        ],
+        cwd=tmp_path,
+        env={**os.environ, "PYTHONPATH": str(ROOT), **env_cap},
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert out.returncode == 2
+    assert "max_palette_matrices" in out.stderr and "use fewer frames" in out.stderr
