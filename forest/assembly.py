@@ -7,7 +7,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import affine, rim
-from forest.expand import PieceGraph
+from forest.expand import BLOCK_PIECES, PieceGraph
 from forest.pieces import MAX_LEAF_RIMS, PieceArrays
 from forest.transforms import F64
 
@@ -31,16 +31,18 @@ def building_twist_column(
 def topological_transforms(
     graph: PieceGraph, tree_transforms: F64, pieces: tuple[PieceArrays, ...]
 ) -> F64:
-    """``(n, 4, 4)`` world transforms of every piece instance at rest."""
+    """``(n, 4, 4)`` world transforms of every piece instance at rest, composed block by
+    block of whole trees, one depth level at a time (SoA, see :mod:`forest.affine`)."""
     table = affine.from_matrices(building_twist_table(pieces).reshape(-1, 4, 4))
-    soa = np.empty((12, len(graph)))
-    for idx in graph.levels:
-        par = graph.parent[idx]
-        if par[0] < 0:  # level 0: tree roots
-            soa[:, idx] = affine.from_matrices(tree_transforms[graph.tree[idx]])
-            continue
-        col = (graph.piece[par] * MAX_LEAF_RIMS + graph.parent_rim[idx]) * rim.SIDES + graph.twist[
-            idx
-        ]
-        soa[:, idx] = affine.compose(soa[:, par], table[:, col])
-    return affine.to_matrices(soa)
+    out = np.empty((len(graph), 4, 4))
+    for start, stop in graph.tree_blocks(BLOCK_PIECES):
+        soa = np.empty((12, stop - start))
+        for idx in graph.levels_in(start, stop):
+            par = graph.parent[idx]
+            if par[0] < 0:  # level 0: tree roots
+                soa[:, idx - start] = affine.from_matrices(tree_transforms[graph.tree[idx]])
+                continue
+            col = building_twist_column(graph.piece[par], graph.parent_rim[idx], graph.twist[idx])
+            soa[:, idx - start] = affine.compose(soa[:, par - start], table[:, col])
+        affine.to_matrices(soa, out[start:stop])
+    return out

@@ -14,6 +14,9 @@ from forest.pieces import MAX_LEAF_RIMS
 from forest.settings import ForestSettings
 
 I32 = NDArray[np.int32]
+# instances per block of whole trees that later stages process together: big enough to
+# amortise numpy's per-call cost, small enough that a level's temporaries stay in cache
+BLOCK_PIECES = 16384
 
 
 @dataclass(frozen=True, eq=False)

@@ -124,10 +124,11 @@ class Forest:
         wind = None if time is None else self.options.wind
         return self.poser().local_transforms(wind, time or 0.0)
 
-    def palette(self, time: float | None = None) -> F64:
-        """``(b, 4, 4)`` posed skinning matrices (prototype space -> world)."""
+    def palette(self, time: float | None = None, row_vectors: bool = False) -> F64:
+        """``(b, 4, 4)`` posed skinning matrices (prototype space -> world); transposed to
+        USD's row-vector convention with ``row_vectors``."""
         wind = None if time is None else self.options.wind
-        return self.poser().palette(wind, time or 0.0)
+        return self.poser().palette(wind, time or 0.0, row_vectors)
 
     def rest_palette(self) -> F64:
         return rest_palette(self.bones, self.transforms)

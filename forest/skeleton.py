@@ -19,15 +19,12 @@ from numpy.typing import NDArray
 
 from forest import affine, rim
 from forest.assembly import building_twist_column, building_twist_table
-from forest.expand import PieceGraph, children_radius
+from forest.expand import BLOCK_PIECES, PieceGraph, children_radius
 from forest.pieces import MAX_LEAF_RIMS, PieceArrays, skinning_rest_inverse
 from forest.transforms import F64, invert_similarity, matrix_to_quat
 
 I32 = NDArray[np.int32]
 HUB, TIP0 = 1, 2
-# instances per block of trees evaluated together: big enough to amortise numpy's per-call
-# cost, small enough that a level's temporaries stay in cache
-BLOCK_PIECES = 16384
 
 
 @dataclass(frozen=True)
@@ -302,16 +299,25 @@ class Poser:
         out[off[loc.pos] + TIP0 + loc.r] = affine.to_matrices(loc.tips)
         return out
 
-    def palette(self, wind: Wind | None = None, time: float = 0.0) -> F64:
+    def palette(
+        self, wind: Wind | None = None, time: float = 0.0, row_vectors: bool = False
+    ) -> F64:
         """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``, computed block by block of whole
-        trees (small enough for the temporaries to stay in cache)."""
+        trees (small enough for the temporaries to stay in cache); transposed for USD with
+        ``row_vectors``, so a scene writer needs no second copy."""
         pal = np.empty((len(self.bones), 4, 4))
         for start, stop in self.graph.tree_blocks(BLOCK_PIECES):
-            self._palette_block(start, stop, pal, wind, time)
+            self._palette_block(start, stop, pal, wind, time, row_vectors)
         return pal
 
     def _palette_block(
-        self, start: int, stop: int, pal: F64, wind: Wind | None, time: float
+        self,
+        start: int,
+        stop: int,
+        pal: F64,
+        wind: Wind | None,
+        time: float,
+        row_vectors: bool,
     ) -> None:
         """Forward kinematics of instances ``[start, stop)``, one depth level at a time, in
         closed forms that skip the terminals' globals.
@@ -352,7 +358,7 @@ class Poser:
                 m[affine.LIN], tab.tip_t[:, col] + tab.hub_t[:, piece[pos]]
             )
             block[:, off[pos] + TIP0 + r] = affine.compose(g_hub[:, pos], m)
-        affine.to_matrices(block, pal[b0:b1])
+        affine.to_matrices(block, pal[b0:b1], row_vectors)
 
 
 def rest_palette(bones: Bones, transforms: F64) -> F64:
