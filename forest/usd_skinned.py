@@ -208,9 +208,10 @@ def write_skinned_trees(
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
-        root.CreateExtentAttr(
-            UsdGeom.Boundable.ComputeExtentFromPlugins(root, Usd.TimeCode.Default())
-        )
+        for boundable in (skel, root):  # the skeleton's joints first, then the whole tree
+            boundable.CreateExtentAttr(
+                UsdGeom.Boundable.ComputeExtentFromPlugins(boundable, Usd.TimeCode.Default())
+            )
         if progress:
             progress("skinned trees", k + 1, len(slices))
 

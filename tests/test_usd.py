@@ -36,6 +36,9 @@ def test_skinned_scene_passes_usd_validation(skinned_scene: Path) -> None:
     assert stage.GetTimeCodesPerSecond() == 24.0
     for prim in stage.Traverse():
         assert prim.GetTypeName(), f"typeless prim {prim.GetPath()}"
+        if prim.IsA(UsdGeom.Boundable):  # no UsdValidation validator checks extents
+            extent = UsdGeom.Boundable(prim).GetExtentAttr().Get()
+            assert extent is not None and len(extent) == 2, f"no extent on {prim.GetPath()}"
 
 
 @pytest.mark.parametrize("name", preset_names())
