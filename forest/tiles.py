@@ -46,17 +46,16 @@ def draw_tile_indices(
 
     One uint16 per quad from raw random bytes, mapped by multiply-shift: for ``c`` tiles the
     bias is at most ``c / 65536`` (below 1/16 for any class size the manifest allows), and it
-    is far cheaper than bounded integer draws. Filled one piece type at a time, so the
-    per-quad tables broadcast instead of being gathered per instance.
+    is far cheaper than bounded integer draws. Drawn one piece type at a time, only for the
+    quads that type has, so the per-quad tables broadcast instead of being gathered.
     """
     first, count, n_quads = class_tables(pieces, manifest)
-    q_max = first.shape[1]
-    raw = np.frombuffer(rng.bytes(2 * len(piece) * q_max), dtype=np.uint16).reshape(-1, q_max)
-    out = np.full((len(piece), q_max), -1, np.int32)
+    out = np.full((len(piece), first.shape[1]), -1, np.int32)
     for p in range(len(pieces)):
         rows = np.nonzero(piece == p)[0]
         q = int(n_quads[p])
-        tile = raw[rows, :q].astype(np.int32)
+        raw = np.frombuffer(rng.bytes(2 * len(rows) * q), dtype=np.uint16)
+        tile = raw.reshape(len(rows), q).astype(np.int32)
         tile *= count[p, :q]
         tile >>= 16
         tile += first[p, :q]
