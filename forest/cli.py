@@ -240,5 +240,248 @@ def bench_generate(trees: int, preset: str, repeat: int) -> None:
     run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)
 
 
+@main.command()
+@click.argument("scene", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Preview PNG.")
+@click.option(
+    "--metrics", type=click.Path(path_type=Path), help="Frame-time metrics JSON to write."
+)
+@click.option("--width", type=int, default=640, show_default=True)
+@click.option("--height", type=int, default=480, show_default=True)
+@click.option(
+    "--tess-max",
+    type=float,
+    default=8.0,
+    show_default=True,
+    help="Highest tessellation level (nearest edges); it halves every --lod-half metres.",
+)
+@click.option(
+    "--lod-half",
+    type=float,
+    help="Metres over which the level halves (0: every edge at --tess-max). "
+    "Default: a quarter of the forest's diagonal.",
+)
+@click.option("--alpha", type=float, default=0.75, show_default=True, help="Phong shape factor.")
+@click.option(
+    "--frame", type=int, default=0, show_default=True, help="First palette (wind) sample."
+)
+@click.option(
+    "--frames", type=int, default=1, show_default=True, help="Frames to draw and measure."
+)
+@click.option(
+    "--tiles",
+    "tiles_dir",
+    type=click.Path(path_type=Path),
+    help="Tile-set folder (default: the one the scene's material names, else a placeholder).",
+)
+@click.option(
+    "--per-instance", is_flag=True, help="One draw call per piece instance (for comparison)."
+)
+@click.option("--no-cull", is_flag=True, help="Keep patches outside the view (for comparison).")
+@input_errors
+def render(
+    scene: Path,
+    output: Path,
+    metrics: Path | None,
+    width: int,
+    height: int,
+    tess_max: float,
+    lod_half: float | None,
+    alpha: float,
+    frame: int,
+    frames: int,
+    tiles_dir: Path | None,
+    per_instance: bool,
+    no_cull: bool,
+) -> None:
+    """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
+    from worker.render_job import RenderRequest, render_file
+
+    m = render_file(
+        RenderRequest(
+            scene=scene,
+            output=output,
+            metrics=metrics,
+            width=width,
+            height=height,
+            tess_max=tess_max,
+            alpha=alpha,
+            lod_half=lod_half,
+            frame=frame,
+            frames=frames,
+            tiles=tiles_dir,
+            per_instance=per_instance,
+            cull=not no_cull,
+        )
+    )
+    med = m.median
+    gpu = f", GPU {med.gpu_ms:.2f} ms" if med.gpu_ms is not None else ""
+    click.echo(
+        f"wrote {output}: {m.width}x{m.height}, {m.instances} pieces in "
+        f"{m.frames[0].draw_calls} draw call(s), {med.primitives:.0f} triangles; median of "
+        f"{len(m.frames)} frame(s): CPU {med.cpu_ms:.2f} ms{gpu}"
+    )
+    click.echo(f"renderer: {m.renderer}")
+    if metrics is not None:
+        click.echo(f"wrote {metrics}")
+
+
+@main.command()
+@click.argument(
+    "examples", nargs=-1, required=True, type=click.Path(path_type=Path), metavar="EXAMPLE_IMAGE..."
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="Folder to write the tile set into (created if missing).",
+)
+@click.option(
+    "--per-class",
+    type=click.IntRange(1, 499),
+    default=8,
+    show_default=True,
+    help="Tiles in each class (bark and fork).",
+)
+@click.option(
+    "--size", type=click.IntRange(16, 4096), default=256, show_default=True, help="Tile side, px."
+)
+@click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
+@input_errors
+def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, seed: int) -> None:
+    """Build a bark tile set from example images by image quilting (paper 5.2).
+
+    Writes bark.<UDIM>.png per texture-array slice, bark_array.tif (all slices as subimages),
+    edge.<colour>.png and corner.png (the patterns every tile's border shows) and
+    manifest.json (classes, sources with checksums, seed, sizes, file names).
+    """
+    from forest.tileset import make_tileset
+
+    ts = make_tileset(examples, output, per_class, size, seed)
+    m = ts.manifest
+    assert m.files is not None
+    counts = ", ".join(f"{c.count} {c.name}" for c in m.classes)
+    click.echo(
+        f"wrote {output}: {len(ts.tiles)} tiles of {size} px ({counts}) quilted from "
+        f"{len(examples)} example(s), seed {seed}"
+    )
+    names = [m.files.slices[0], "..", m.files.slices[-1]] if len(ts.tiles) > 2 else m.files.slices
+    extra = [m.files.array or "", *(p.file for p in m.edge_patterns), "manifest.json"]
+    click.echo("  " + " ".join(names) + ", " + ", ".join(x for x in extra if x))
+    if ts.reused:
+        region = size - 2 * (m.border or 0)
+        click.echo(
+            f"note: the examples hold only {len(ts.tiles) - ts.reused} disjoint {region} px "
+            f"interiors; {ts.reused} tile(s) partly repeat others: give more or larger "
+            "examples, or fewer or smaller tiles",
+            err=True,
+        )
+
+
+@bench.command("tiles")
+@click.option("--size", type=click.IntRange(16, 1024), default=256, show_default=True)
+@click.option("--tiles", "n_tiles", type=click.IntRange(2, 256), default=16, show_default=True)
+@click.option("--repeat", type=click.IntRange(1, 100), default=3, show_default=True)
+@input_errors
+def bench_tiles(size: int, n_tiles: int, repeat: int) -> None:
+    """Milliseconds per tile of the quilting stitch against a plain-Python baseline, and of
+    the whole tile-set build."""
+    from forest.bench_tiles import run_tiles_bench
+
+    run_tiles_bench(size=size, tiles=n_tiles, repeat=repeat, echo=click.echo)
+
+
+
+@main.command()
+@click.argument("scene", type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--output", type=click.Path(path_type=Path), required=True, help="Contact sheet PNG."
+)
+@click.option("--frame", type=int, default=0, show_default=True, help="Palette (wind) sample.")
+@click.option("--width", type=click.IntRange(200, 8192), default=1400, show_default=True)
+@click.option("--height", type=click.IntRange(150, 8192), default=1050, show_default=True)
+@input_errors
+def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> None:
+    """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
+    indices, piece types."""
+    from forest.errors import OutputError
+    from forest.usd_read import read_scene
+    from worker.inspect_sheet import contact_sheet
+
+    if output.suffix.lower() != ".png":
+        raise OutputError("the contact sheet is a PNG: name it *.png", path=str(output))
+    if not output.parent.resolve().is_dir():
+        raise OutputError("folder does not exist", path=str(output))
+    s = read_scene(scene)
+    if not 0 <= frame < len(s.palettes):
+        raise ForestError(
+            f"the scene has {len(s.palettes)} palette sample(s), got {frame}", path="frame"
+        )
+    contact_sheet(s, output, frame, (width, height))
+    click.echo(f"wrote {output}: {s.n_instances} pieces, frame {frame}")
+
+
+
+@bench.command("render")
+@click.option(
+    "--trees",
+    "trees_text",
+    default="1,10,50",
+    show_default=True,
+    help="Comma-separated tree counts, e.g. 1,10,50,100,250,500,1000 (the paper's).",
+)
+@click.option(
+    "--levels",
+    "levels_text",
+    default="1,10",
+    show_default=True,
+    help="Comma-separated tessellation levels, the same on every edge.",
+)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--width", type=click.IntRange(16, 8192), default=320, show_default=True)
+@click.option("--height", type=click.IntRange(16, 8192), default=240, show_default=True)
+@click.option("--frames", type=click.IntRange(1, 1000), default=3, show_default=True)
+@click.option("--no-naive", is_flag=True, help="Skip the one-draw-call-per-piece baseline.")
+@click.option(
+    "--plot",
+    type=click.Path(path_type=Path),
+    default=Path("bench-render.png"),
+    show_default=True,
+    help="PNG plot of frame time against tree count.",
+)
+@input_errors
+def bench_render(
+    trees_text: str,
+    levels_text: str,
+    preset: str,
+    width: int,
+    height: int,
+    frames: int,
+    no_naive: bool,
+    plot: Path,
+) -> None:
+    """Frame time against tree count, instanced against one draw call per piece, at fixed
+    tessellation levels (the paper's Figure 16 and its levels 1 and 10)."""
+    from worker.bench import parse_counts, run_render_bench
+
+    try:
+        levels = [float(x) for x in levels_text.split(",") if x.strip()]
+    except ValueError:
+        raise ForestError(f"expected numbers, got {levels_text!r}", path="levels") from None
+    if not levels or not all(1.0 <= lv <= 64.0 for lv in levels):
+        raise ForestError("levels must be in [1, 64]", path="levels")
+    run_render_bench(
+        parse_counts(trees_text),
+        levels,
+        preset=preset,
+        size=(width, height),
+        frames=frames,
+        naive=not no_naive,
+        plot=plot,
+        echo=click.echo,
+    )
+
+
 if __name__ == "__main__":
     main()

@@ -12,10 +12,12 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from schemas.grammar import Grammar
+from schemas.metrics import RenderMetrics
 from schemas.tileset import TileSetManifest
 
 MODELS: dict[str, type[BaseModel]] = {
     "grammar": Grammar,
+    "metrics": RenderMetrics,
     "tileset": TileSetManifest,
 }
 FOLDER = Path(__file__).parent / "json"

@@ -1,11 +1,42 @@
-"""Tile-set manifest (paper 5.1): which texture-array slices belong to which tile class."""
+"""Tile-set manifest (paper 5.1, 5.2): which texture-array slices belong to which tile class,
+and, for a tile set built by ``forest tiles``, how it was made: the edge pattern of every edge
+colour, the source images (with checksums), the seed, the tile geometry and the file names.
+
+Image orientation throughout: row 0 is the top of a tile, column 0 its left. On a quad, u runs
+left to right (around the tube) and v bottom to top (along it), so a tile's ``bottom`` edge is
+the quad's v = 0 edge.
+"""
 
 from __future__ import annotations
 
 import itertools
-from typing import Annotated
+from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
+
+ColourName = Annotated[str, Field(pattern=r"^[a-z0-9][a-z0-9_-]{0,31}$")]
+"""An edge colour (paper Fig. 9): tiles match along an edge when both sides name it."""
+FileName = Annotated[str, Field(pattern=r"^[^/\\]+$", min_length=1, max_length=255)]
+"""A file in the tile-set folder (no folders in the name)."""
+Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
+Pixels = Annotated[int, Field(ge=0)]
+UDIM_TOKEN = "<UDIM>"
+MAX_UDIM_SLICES = 999
+"""UDIM tiles run from 1001 to 1999 (ten columns, a hundred rows)."""
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class TileEdges(_Strict):
+    """The edge colour of each side of the tiles of a class. Left and right edges take
+    ``vertical`` edge patterns, top and bottom ``horizontal`` ones."""
+
+    left: ColourName
+    right: ColourName
+    top: ColourName
+    bottom: ColourName
 
 
 class TileClass(BaseModel):
@@ -17,12 +48,97 @@ class TileClass(BaseModel):
     first: Annotated[int, Field(ge=0)]
     """First texture-array slice (also UDIM tile ``1001 + slice``) of this class."""
     count: Annotated[int, Field(ge=1, le=4096)]
+    edges: TileEdges | None = None
+    """Edge colours of this class's tiles (absent in a manifest written by hand)."""
+
+
+class SourceImage(_Strict):
+    """An example image the tile set was cut from."""
+
+    file: Annotated[str, Field(min_length=1, max_length=255)]
+    """The file's name (without its folder)."""
+    sha256: Sha256
+    """Checksum of the file's bytes."""
+    width: Annotated[int, Field(ge=1)]
+    height: Annotated[int, Field(ge=1)]
+    channels: Literal[1, 3]
+    format: Annotated[str, Field(min_length=1, max_length=16)]
+    """Pixel type in the file: ``uint8``, ``uint16``, ``half``, ``float``..."""
+
+
+class _Crop(_Strict):
+    source: Annotated[int, Field(ge=0)]
+    """Index into ``sources``."""
+    x: Pixels
+    """Left column of the crop in the source image."""
+    y: Pixels
+    """Top row of the crop in the source image."""
+
+
+class EdgePattern(_Crop):
+    """The image straddling every edge of one colour (paper 5.2: one per edge colour).
+
+    A ``vertical`` pattern is ``tile_size`` rows by ``2 * (border + overlap)`` columns and runs
+    along left and right edges: the tile left of such an edge shows the pattern's left half
+    in its rightmost columns, the tile right of it the right half in its leftmost columns, so
+    the two meet without a seam. A ``horizontal`` pattern is the same turned a quarter: its
+    top half ends the tile above, its bottom half starts the tile below. Only the ``border``
+    columns (rows) next to the edge are guaranteed in every tile; further in, the tile's
+    interior takes over along a minimum-error cut. The first and last ``border + overlap``
+    pixels along the edge are the corner pattern's, so all tiles agree at their corners.
+    """
+
+    name: ColourName
+    axis: Literal["vertical", "horizontal"]
+    file: FileName
+
+
+class CornerPattern(_Crop):
+    """Where four tiles meet: ``file`` holds the ``2 * (border + overlap)`` square around a
+    tile corner (its top-left quadrant ends the tile up-left of the corner). ``size`` is the
+    side of the crop taken from the source, which is larger by ``overlap`` on every side."""
+
+    file: FileName
+    size: Annotated[int, Field(ge=2)]
+
+
+class TileRecord(_Crop):
+    """Where one tile's interior came from."""
+
+    slice: Pixels
+    class_id: Annotated[int, Field(ge=1, le=255)]
+    error: Annotated[int, Field(ge=0)]
+    """Sum of squared 8-bit differences between the interior patch and the tile's frame over
+    the overlap bands, before the cut (image quilting's patch-selection error)."""
+
+
+class TileSetFiles(_Strict):
+    udim: Annotated[str, Field(pattern=r"^[^/\\]*<UDIM>[^/\\]*$")] = "bark.<UDIM>.png"
+    """File-name pattern of the per-slice images: slice ``k`` is UDIM tile ``1001 + k``."""
+    slices: list[FileName]
+    """One image per texture-array slice, in slice order."""
+    array: FileName | None = None
+    """The texture array in one file (a TIFF with one subimage per slice, in slice order)."""
 
 
 class TileSetManifest(BaseModel):
     model_config = ConfigDict(extra="allow", frozen=True)
 
     classes: Annotated[list[TileClass], Field(min_length=1)]
+    tile_size: Annotated[int, Field(ge=2, le=4096)] | None = None
+    """Width and height of every tile, pixels."""
+    border: Annotated[int, Field(ge=1)] | None = None
+    """Width of the strip along each edge that equals the edge pattern exactly."""
+    overlap: Annotated[int, Field(ge=1)] | None = None
+    """Width of the band next to the border where the cut to the interior runs."""
+    seed: Annotated[int, Field(ge=0)] | None = None
+    generator: Annotated[str, Field(max_length=64)] | None = None
+    """What built the set, with its version (``interlocking-forest 0.1.0``)."""
+    sources: list[SourceImage] = []
+    edge_patterns: list[EdgePattern] = []
+    corner: CornerPattern | None = None
+    tiles: list[TileRecord] = []
+    files: TileSetFiles | None = None
 
     @model_validator(mode="after")
     def _disjoint(self) -> TileSetManifest:
@@ -35,9 +151,54 @@ class TileSetManifest(BaseModel):
                 raise ValueError("tile class slice ranges overlap")
         return self
 
+    @model_validator(mode="after")
+    def _references(self) -> TileSetManifest:
+        axis = {p.name: p.axis for p in self.edge_patterns}
+        if len(axis) != len(self.edge_patterns):
+            raise ValueError("edge pattern names repeat")
+        for c in self.classes:
+            if c.edges is None:
+                continue
+            for side in ("left", "right", "top", "bottom"):
+                name = getattr(c.edges, side)
+                want = "vertical" if side in ("left", "right") else "horizontal"
+                if name not in axis:
+                    raise ValueError(f"class {c.name}: {side} edge colour {name!r} has no pattern")
+                if axis[name] != want:
+                    raise ValueError(
+                        f"class {c.name}: {side} edge colour {name!r} is {axis[name]}, not {want}"
+                    )
+        crops: list[_Crop] = [*self.edge_patterns, *self.tiles]
+        if self.corner is not None:
+            crops.append(self.corner)
+        for crop in crops:
+            if crop.source >= len(self.sources):
+                raise ValueError(f"source {crop.source} is not in sources")
+        by_id = {c.id: c for c in self.classes}
+        for t in self.tiles:
+            cls = by_id.get(t.class_id)
+            if cls is None or not cls.first <= t.slice < cls.first + cls.count:
+                raise ValueError(f"tile of slice {t.slice} is not in class {t.class_id}")
+        if self.files is not None and len(self.files.slices) != self.n_slices:
+            raise ValueError(
+                f"files.slices names {len(self.files.slices)} images for {self.n_slices} slices"
+            )
+        if self.files is not None and self.n_slices > MAX_UDIM_SLICES:
+            raise ValueError(f"{self.n_slices} slices; UDIM tiles 1001-1999 hold {MAX_UDIM_SLICES}")
+        size, border, overlap = self.tile_size, self.border, self.overlap
+        known = size is not None and border is not None and overlap is not None
+        if known and 2 * (border + overlap) >= size:  # type: ignore[operator]
+            raise ValueError("border and overlap leave no interior in the tile")
+        return self
+
     @property
     def n_slices(self) -> int:
         return max(c.first + c.count for c in self.classes)
+
+
+def udim_file(pattern: str, slice_index: int) -> str:
+    """The file of one slice: ``bark.<UDIM>.png`` and slice ``k`` give ``bark.{1001+k}.png``."""
+    return pattern.replace(UDIM_TOKEN, str(1001 + slice_index))
 
 
 DEFAULT_MANIFEST = TileSetManifest(

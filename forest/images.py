@@ -1,0 +1,239 @@
+"""Image files through OpenImageIO: texture examples in (8 or 16 bit, float, grey or RGB, any
+format OpenImageIO reads), tile PNGs and the multi-subimage TIFF texture array out.
+
+Every problem with an input file raises :class:`~forest.errors.ForestError` naming the file
+and what is wrong with it; a file that cannot be written raises
+:class:`~forest.errors.OutputError`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import OpenImageIO as oiio
+from numpy.typing import NDArray
+
+from forest.errors import ForestError, OutputError
+
+U8 = NDArray[np.uint8]
+# An example larger than this is almost surely a mistake (a 64 Mpx photo is 192 MB as RGB
+# bytes), and reading it whole would take the machine's memory for nothing.
+MAX_EXAMPLE_PIXELS = 64 * 1024 * 1024
+# TIFF writers stamp the current time; a fixed stamp keeps the texture array reproducible.
+FIXED_DATETIME = "2000:01:01 00:00:00"
+
+
+@dataclass(frozen=True, eq=False)
+class ExampleImage:
+    """One texture example, as RGB bytes.
+
+    pixels : (h, w, 3) uint8 (grey files are repeated into the three channels)
+    channels : channels in the file (1 or 3)   format : the file's pixel type ("uint8", ...)
+    sha256 : hex digest of the file's bytes
+    """
+
+    path: Path
+    pixels: U8
+    channels: int
+    format: str
+    sha256: str
+
+    @property
+    def width(self) -> int:
+        return int(self.pixels.shape[1])
+
+    @property
+    def height(self) -> int:
+        return int(self.pixels.shape[0])
+
+
+@contextmanager
+def _quiet_stderr() -> Iterator[None]:
+    """Silence file descriptor 2 for a moment: libpng prints its errors to the console as
+    well as handing them to OpenImageIO, and we report them once, as a ForestError."""
+    sys.stderr.flush()
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr to silence
+        yield
+        return
+    try:
+        with open(os.devnull, "wb") as null:
+            os.dup2(null.fileno(), 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
+def _oiio_message(text: str) -> str:
+    lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+    return lines[0] if lines else "unknown error"
+
+
+def read_example(path: Path, min_size: int = 2) -> ExampleImage:
+    """Read a texture example, checking everything that would make it unusable.
+
+    min_size : the smallest width and height accepted (the tile size, when building tiles)
+    """
+    where = str(path)
+    if not path.exists():
+        raise ForestError("file not found", path=where)
+    if path.is_dir():
+        raise ForestError("is a folder, not an image", path=where)
+    try:
+        data = path.read_bytes()
+    except OSError as exc:
+        raise ForestError(f"cannot read file: {exc.strerror}", path=where) from None
+    if not data:
+        raise ForestError("file is empty", path=where)
+    inp = oiio.ImageInput.open(where)
+    if inp is None:
+        raise ForestError(f"not a readable image ({_oiio_message(oiio.geterror())})", path=where)
+    try:
+        spec = inp.spec()
+        width, height, nch = spec.width, spec.height, spec.nchannels
+        names = ", ".join(spec.channelnames)
+        if spec.deep or spec.depth > 1:
+            raise ForestError("deep and volume images are not texture examples", path=where)
+        if spec.alpha_channel >= 0 or nch in (2, 4):
+            raise ForestError(
+                f"has an alpha channel ({names}); give grey or RGB images without alpha",
+                path=where,
+            )
+        if nch not in (1, 3):
+            raise ForestError(
+                f"has {nch} channels ({names}); give grey (1) or RGB (3) images", path=where
+            )
+        if width * height <= 1:
+            raise ForestError(f"is a single pixel ({width}x{height}), not a texture", path=where)
+        if width < min_size or height < min_size:
+            raise ForestError(
+                f"is {width}x{height} pixels, smaller than one {min_size}x{min_size} tile",
+                path=where,
+            )
+        if width * height > MAX_EXAMPLE_PIXELS:
+            raise ForestError(
+                f"is {width}x{height} pixels, more than the {MAX_EXAMPLE_PIXELS} accepted",
+                path=where,
+            )
+        with _quiet_stderr():
+            pixels = inp.read_image(0, 0, 0, nch, "uint8")
+        # a truncated file may come back as None, or as pixels with an error left behind
+        problem = inp.geterror()
+        if pixels is None or problem:
+            raise ForestError(
+                f"image data is truncated or corrupt ({_oiio_message(problem)})", path=where
+            )
+        fmt = str(spec.format)
+    finally:
+        inp.close()
+    pixels = np.asarray(pixels, dtype=np.uint8).reshape(height, width, nch)
+    if nch == 1:
+        pixels = np.repeat(pixels, 3, axis=2)
+    return ExampleImage(
+        path=path,
+        pixels=np.ascontiguousarray(pixels),
+        channels=nch,
+        format=fmt,
+        sha256=hashlib.sha256(data).hexdigest(),
+    )
+
+
+def read_pixels(path: Path) -> U8:
+    """A whole image as stored, ``(h, w, c)`` uint8 (for tile-set outputs and tests)."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ForestError(
+            f"not a readable image ({_oiio_message(oiio.geterror())})", path=str(path)
+        )
+    try:
+        spec = inp.spec()
+        pixels = inp.read_image(0, 0, 0, spec.nchannels, "uint8")
+        if pixels is None or inp.geterror():
+            raise ForestError("image data is truncated or corrupt", path=str(path))
+    finally:
+        inp.close()
+    return np.asarray(pixels, np.uint8).reshape(spec.height, spec.width, spec.nchannels)
+
+
+def _spec(pixels: U8) -> oiio.ImageSpec:
+    h, w, c = pixels.shape
+    spec = oiio.ImageSpec(w, h, c, "uint8")
+    spec.attribute("DateTime", FIXED_DATETIME)
+    return spec
+
+
+def _create(path: Path) -> oiio.ImageOutput:
+    out = oiio.ImageOutput.create(str(path))
+    if out is None:
+        raise OutputError(f"cannot write ({_oiio_message(oiio.geterror())})", path=str(path))
+    return out
+
+
+def write_png(path: Path, pixels: U8) -> Path:
+    """Write ``(h, w, c)`` uint8 pixels (c = 1 or 3) as an 8-bit PNG."""
+    pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
+    out = _create(path)
+    ok = out.open(str(path), _spec(pixels)) and out.write_image(pixels)
+    problem = out.geterror()
+    out.close()
+    if not ok or problem:
+        raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
+    return path
+
+
+def write_texture_array(path: Path, slices: U8) -> Path:
+    """Write ``(n, h, w, c)`` uint8 slices as one TIFF with ``n`` subimages in slice order
+    (zip-compressed, fixed time stamp, so the same slices give the same bytes)."""
+    slices = np.ascontiguousarray(slices, dtype=np.uint8)
+    specs = [_spec(s) for s in slices]
+    for spec in specs:
+        spec.attribute("compression", "zip")
+        # this libtiff build fails writing the (empty) Exif directory; there is none to keep
+        spec.attribute("tiff:write_exif", 0)
+    out = _create(path)
+    if not out.supports("multiimage"):
+        out.close()
+        raise OutputError("format cannot hold several subimages; use .tif", path=str(path))
+    ok = out.open(str(path), specs)
+    for k, pixels in enumerate(slices):
+        if not ok:
+            break
+        if k:
+            ok = out.open(str(path), specs[k], "AppendSubimage")
+        ok = ok and out.write_image(pixels)
+    problem = out.geterror()
+    out.close()
+    if not ok or problem:
+        raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
+    return path
+
+
+def read_texture_array(path: Path) -> U8:
+    """Every subimage of a texture-array TIFF, ``(n, h, w, c)`` uint8 in slice order."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        raise ForestError(
+            f"not a readable image ({_oiio_message(oiio.geterror())})", path=str(path)
+        )
+    slices = []
+    try:
+        k = 0
+        while inp.seek_subimage(k, 0):
+            spec = inp.spec()
+            pixels = inp.read_image(k, 0, 0, spec.nchannels, "uint8")
+            if pixels is None or inp.geterror():
+                raise ForestError(f"subimage {k} is truncated or corrupt", path=str(path))
+            slices.append(np.asarray(pixels, np.uint8).reshape(spec.height, spec.width, -1))
+            k += 1
+    finally:
+        inp.close()
+    return np.stack(slices)

@@ -1,0 +1,83 @@
+"""Frame-time metrics of a render (``forest render --metrics``, the render worker's result)."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+NonNegative = Annotated[float, Field(ge=0)]
+Count = Annotated[int, Field(ge=0)]
+
+
+class TessellationSettings(BaseModel):
+    """Level of detail (paper 4.4): ``level(d) = clamp(max_level * 2^(-max(d - lod_near, 0)
+    / lod_half), 1, max_level)`` for the camera distance ``d`` of an edge midpoint (outer
+    levels) or the quad centre (inner levels)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    max_level: Annotated[float, Field(ge=1, le=64)]
+    alpha: Annotated[float, Field(ge=0, le=1)]
+    """Phong shape factor: 0 bilinear quads, 1 full projection onto the tangent planes."""
+    lod_near: NonNegative
+    """Metres from the camera within which every edge gets ``max_level``."""
+    lod_half: NonNegative
+    """Metres over which the level halves; 0 means no falloff (every edge at max_level)."""
+    spacing: Literal["fractional_odd"] = "fractional_odd"
+
+
+class FrameMetrics(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    frame: Count
+    """Index into the scene's time-sampled bone palette."""
+    time: Annotated[float | None, Field(ge=0)]
+    """Seconds of that palette sample; null for a still scene."""
+    cpu_ms: NonNegative
+    """Wall time from the palette upload to a finished frame (after glFinish)."""
+    gpu_ms: NonNegative | None
+    """GL_TIME_ELAPSED of the draw calls; null where the driver has no timer queries. On a
+    CPU rasteriser (llvmpipe) the timer brackets command submission only: there the
+    rasterisation shows in ``cpu_ms`` (which waits for it with glFinish)."""
+    primitives: Count
+    """GL_PRIMITIVES_GENERATED: triangles out of the tessellator."""
+    draw_calls: Count
+    instances: Count
+
+
+class MetricsSummary(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    cpu_ms: NonNegative
+    gpu_ms: NonNegative | None
+    primitives: NonNegative
+    fps: NonNegative
+    """1000 / median cpu_ms."""
+
+
+class RenderMetrics(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    scene: str
+    renderer: str
+    """GL_RENDERER, e.g. an NVIDIA board or llvmpipe (CPU rasteriser)."""
+    gl_version: str
+    width: Annotated[int, Field(ge=1)]
+    height: Annotated[int, Field(ge=1)]
+    mode: Literal["instanced", "per_instance"]
+    """One draw call per piece type (instanced) or one per piece instance (the naive way)."""
+    frustum_culling: bool
+    """Whether patches wholly outside the view were dropped before tessellation."""
+    piece_types: Count
+    instances: Count
+    quads: Count
+    """Patches drawn per frame (every instance's quads)."""
+    bones: Count
+    textures: str
+    """Where the bark slices came from (a tile-set file or the procedural placeholder)."""
+    tessellation: TessellationSettings
+    warmup_frames: Count
+    """Frames drawn before the measured ones (shader compilation, first uploads)."""
+    frames: Annotated[list[FrameMetrics], Field(min_length=1)]
+    median: MetricsSummary

@@ -1,0 +1,109 @@
+"""GL fixtures for the render worker's tests: one EGL context per test session (made by
+``worker.gl_context``, the one place that creates contexts), reset around each test, with
+``ctx.error == "GL_NO_ERROR"`` asserted after each. Features are skipped by capability
+(``ctx.version_code``), never by guessing the machine. Without any EGL context the GL tests
+skip, unless ``FOREST_REQUIRE_GL=1`` (CI sets it) turns that into a failure."""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from forest.generate import ForestOptions, generate_forest
+from forest.usd_read import SceneArrays, read_scene
+from forest.usd_scene import write_scene
+from schemas.grammar import Grammar
+
+# Every piece type, with bends, spreads and thinner side branches, so rims meet in all the
+# ways a grammar can make them meet.
+ALL_PIECES = {
+    "name": "all-pieces",
+    "axiom": "A",
+    "max_depth": 4,
+    "trunk_radius": 0.2,
+    "rules": {
+        "A": [
+            {
+                "piece": "T",
+                "successors": [{"symbol": "B"}, {"symbol": "C", "radius": [0.6, 0.7]}],
+                "pose": {"bend": [5, 10], "spread": [10, 20]},
+            }
+        ],
+        "B": [
+            {
+                "piece": "Psi",
+                "successors": [
+                    {"symbol": "C"},
+                    {"symbol": "C", "radius": [0.7, 0.8]},
+                    {"symbol": "C", "radius": [0.7, 0.8]},
+                ],
+                "pose": {"spread": [10, 20]},
+            }
+        ],
+        "C": [
+            {
+                "piece": "Y",
+                "max_depth": 3,
+                "successors": [{"symbol": "D"}, {"symbol": "D", "length": [0.7, 0.9]}],
+                "pose": {"bend": [0, 10], "spread": [5, 20]},
+            },
+            {"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}},
+        ],
+        "D": [{"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}}],
+    },
+}
+
+
+@pytest.fixture(scope="session")
+def gl_session() -> Iterator[Any]:
+    from worker.gl_context import GLUnavailableError, create_context
+
+    try:
+        # ask for any version: each test checks the capability it needs
+        ctx = create_context(require=330)
+    except GLUnavailableError as exc:
+        if os.environ.get("FOREST_REQUIRE_GL") == "1":
+            raise
+        pytest.skip(f"no EGL context: {exc}")
+    ctx.gc_mode = "auto"  # objects a test drops are released when Python collects them
+    yield ctx
+    ctx.release()
+
+
+@pytest.fixture
+def ctx(gl_session: Any) -> Iterator[Any]:
+    """The session's context, reset before and checked after the test."""
+    import moderngl
+
+    gl_session.clear_errors()
+    gl_session.enable_only(moderngl.NOTHING)
+    yield gl_session
+    gl_session.finish()
+    assert gl_session.error == "GL_NO_ERROR"
+    gl_session.enable_only(moderngl.NOTHING)
+
+
+@pytest.fixture
+def gl43(ctx: Any) -> Any:
+    """The context, for tests of the tessellation pipeline (GL 4.3: tessellation + SSBOs)."""
+    if ctx.version_code < 430:
+        pytest.skip(f"needs OpenGL 4.3, the context has {ctx.version_code}")
+    return ctx
+
+
+@pytest.fixture(scope="session")
+def mixed_scene_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """Two posed trees of every piece type with 3 wind frames, as a USD file."""
+    forest = generate_forest(
+        Grammar.model_validate(ALL_PIECES), 7, ForestOptions(trees=2, frames=3, area=(6.0, 6.0))
+    )
+    return write_scene(forest, tmp_path_factory.mktemp("worker") / "mixed.usda")
+
+
+@pytest.fixture(scope="session")
+def mixed_scene(mixed_scene_path: Path) -> SceneArrays:
+    return read_scene(mixed_scene_path)

@@ -1,0 +1,74 @@
+"""``forest inspect``: the numpy skinning behind the contact sheet, and the sheet itself
+(pyvista offscreen through VTK's EGL window)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from forest.cli import main
+from forest.tolerances import TEST_RIM_POSITION_REL
+from forest.usd_read import SceneArrays
+from worker.gl_context import GLUnavailableError
+from worker.inspect_sheet import contact_sheet, skin_forest
+from worker.textures import read_image_subimages
+
+
+def test_skinned_sheet_mesh_has_every_quad_rim_and_joint(mixed_scene: SceneArrays) -> None:
+    sk = skin_forest(mixed_scene, frame=1)
+    n_quads = np.array([len(p.quads) for p in mixed_scene.pieces])[mixed_scene.proto_indices]
+    assert len(sk.quads) == n_quads.sum()
+    np.testing.assert_array_equal(sk.tile, mixed_scene.tile_indices[sk.instance, sk.quad])
+    n_rims = np.array([1 + p.n_leaf_rims for p in mixed_scene.pieces])[mixed_scene.proto_indices]
+    assert len(sk.rims) == n_rims.sum()
+    assert len(sk.joints) == mixed_scene.palettes.shape[1]
+
+
+def test_sheet_skeleton_joins_child_roots_to_parent_tips(mixed_scene: SceneArrays) -> None:
+    """A child's root joint sits on its parent's terminal joint (paper 4.3)."""
+    sk = skin_forest(mixed_scene, frame=2)
+    s = mixed_scene
+    # joints come out per piece type in instance order, like the palette they are read from
+    first = np.zeros(s.n_instances, np.int64)
+    k = 0
+    for t, piece in enumerate(s.pieces):
+        idx = np.nonzero(s.proto_indices == t)[0]
+        first[idx] = k + piece.n_joints * np.arange(len(idx))
+        k += piece.n_joints * len(idx)
+    child = np.nonzero(s.parent >= 0)[0]
+    root = sk.joints[first[child]]
+    tip = sk.joints[first[s.parent[child]] + 2 + s.parent_rim[child]]
+    scale = float(np.ptp(sk.points, axis=0).max())
+    np.testing.assert_allclose(root, tip, atol=TEST_RIM_POSITION_REL * scale)
+
+
+def test_contact_sheet_png(mixed_scene: SceneArrays, tmp_path: Path) -> None:
+    out = tmp_path / "sheet.png"
+    try:
+        contact_sheet(mixed_scene, out, frame=1, size=(480, 360))
+    except GLUnavailableError as exc:
+        if os.environ.get("FOREST_REQUIRE_GL") == "1":
+            raise
+        pytest.skip(str(exc))
+    img = read_image_subimages(out)[0]
+    assert img.shape == (360, 480, 4)
+    rgb = img[..., :3].astype(int)
+    background = rgb[-1, -1]
+    assert (np.abs(rgb - background).max(axis=-1) > 30).mean() > 0.02  # trees drawn
+    quadrant = [rgb[:180, :240], rgb[:180, 240:], rgb[180:, :240], rgb[180:, 240:]]
+    drawn = [(np.abs(q - background).max(axis=-1) > 30).mean() for q in quadrant]
+    assert min(drawn) > 0.01  # every panel shows the forest
+    red = (rgb[..., 0] > 180) & (rgb[..., 1] < 80) & (rgb[..., 2] < 90)
+    assert red[:180, 240:].sum() > 20  # rims highlighted in the tile-class panel
+
+
+def test_inspect_cli_refuses_other_formats(mixed_scene_path: Path, tmp_path: Path) -> None:
+    res = CliRunner().invoke(
+        main, ["inspect", str(mixed_scene_path), "-o", str(tmp_path / "a.jpg")]
+    )
+    assert res.exit_code == 2
+    assert res.output == f"error: {tmp_path / 'a.jpg'}: the contact sheet is a PNG: name it *.png\n"

@@ -1,0 +1,47 @@
+"""``forest bench render`` runs end to end on a tiny forest (its timings are never asserted:
+budgets belong to the benchmark, not to tests)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import pytest
+from click.testing import CliRunner
+
+from forest.cli import main
+from worker.bench import parse_counts, run_render_bench
+
+
+def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_path: Path) -> None:
+    lines: list[str] = []
+    rows = run_render_bench(
+        [1, 2], levels=[1.0, 3.0], size=(32, 32), frames=1, plot=tmp_path / "b.png",
+        echo=lines.append,
+    )  # fmt: skip
+    assert len(rows) == 8  # 2 counts x 2 levels x 2 modes
+    for r in rows:
+        assert r.draw_calls == (r.pieces if r.mode == "per_instance" else 2)  # I and Y pieces
+    by = {(r.trees, r.level, r.mode): r for r in rows}
+    assert by[(2, 3.0, "instanced")].triangles == by[(2, 3.0, "per_instance")].triangles
+    assert by[(2, 3.0, "instanced")].triangles == 9 * by[(2, 1.0, "instanced")].triangles
+    assert lines[0].startswith("renderer: ")
+    assert (tmp_path / "b.png").stat().st_size > 1000
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--trees", "1,x"], "error: trees: expected comma-separated integers, got '1,x'\n"),
+        (["--trees", "0"], "error: trees: tree counts must be positive integers\n"),
+        (["--levels", "0.5"], "error: levels: levels must be in [1, 64]\n"),
+    ],
+)
+def test_bench_render_bad_options(args: list[str], message: str) -> None:
+    res = CliRunner().invoke(main, ["bench", "render", *args])
+    assert res.exit_code == 2
+    assert res.output == message
+
+
+def test_parse_counts() -> None:
+    assert parse_counts("1, 10,50") == [1, 10, 50]

@@ -1,0 +1,173 @@
+"""``forest bench render``: frame time against tree count (the paper's Figure 16), instanced
+(one draw call per piece type) side by side with the naive way (one draw call per piece
+instance), at fixed tessellation levels (1 and 10 by default, as the paper measured).
+
+Each forest is generated, written as ``.usdc`` and read back, so the renderer sees exactly
+what a worker gets. The level is the same on every edge (no distance falloff), so triangles
+per frame are ``2 * level^2`` per quad. Frame time is the wall time around a finished frame
+(glFinish) at the median of the measured frames; GPU timer-query times are printed beside it,
+but on a CPU rasteriser such as llvmpipe they bracket command submission only.
+"""
+
+from __future__ import annotations
+
+import math
+import statistics
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from forest.errors import ForestError
+from forest.generate import ForestOptions, generate_forest
+from forest.presets import load_preset
+from forest.usd_read import read_scene
+from forest.usd_scene import write_scene
+from worker.gl_context import create_context, gl_info, raise_gl_error
+from worker.render_job import preview_view
+from worker.renderer import Renderer, TessSettings
+from worker.textures import procedural_tiles
+
+Echo = Callable[[str], None]
+SPACING = 6.0  # metres between trees: the area grows with the tree count
+# the paper's Figure 16 (DirectX 11, no animation), milliseconds per frame
+PAPER = {
+    "GTX 980 Ti": {1: 0.5319, 10: 0.9523, 50: 3.5714, 100: 6.25, 250: 17.5439, 500: 28.5714,
+                   1000: 58.8235},
+    "GTX 950M": {1: 3.125, 10: 4.3478, 50: 11.1111, 100: 25.0, 250: 38.4615, 500: 83.3333,
+                 1000: 166.6667},
+}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class BenchRow:
+    trees: int
+    pieces: int
+    level: float
+    mode: str  # "instanced" or "per_instance"
+    draw_calls: int
+    triangles: int
+    cpu_ms: float
+    gpu_ms: float | None
+
+
+def parse_counts(text: str) -> list[int]:
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ForestError(
+            f"expected comma-separated integers, got {text!r}", path="trees"
+        ) from None
+    if not counts or min(counts) < 1:
+        raise ForestError("tree counts must be positive integers", path="trees")
+    return counts
+
+
+def run_render_bench(
+    trees: Sequence[int],
+    levels: Sequence[float] = (1.0, 10.0),
+    preset: str = "alternating",
+    size: tuple[int, int] = (320, 240),
+    frames: int = 3,
+    naive: bool = True,
+    plot: Path | None = None,
+    echo: Echo = print,
+) -> list[BenchRow]:
+    ctx = create_context()
+    info = gl_info(ctx)
+    echo(f"renderer: {info.renderer} ({info.version})")
+    if info.software:
+        echo("note: a CPU rasteriser: frame times measure the CPU, not a GPU")
+    grammar = load_preset(preset)
+    rows: list[BenchRow] = []
+    header = (
+        f"{'trees':>6} {'pieces':>7} {'level':>5} {'mode':>12} {'draws':>6} "
+        f"{'triangles':>11} {'frame ms':>9} {'gpu ms':>8}"
+    )
+    echo(header)
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for n in trees:
+                side = SPACING * math.sqrt(n)
+                forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
+                path = write_scene(forest, Path(tmp) / f"bench_{n}.usdc")
+                scene = read_scene(path)
+                images = procedural_tiles(scene.manifest, scene.manifest.n_slices)
+                renderer = Renderer(ctx, scene, size, images)
+                try:
+                    camera, _ = preview_view(scene, size, 1.0)
+                    for level in levels:
+                        tess = TessSettings(max_level=level, lod_half=0.0)
+                        for per_instance in (False, True) if naive else (False,):
+                            renderer.draw(camera, tess, per_instance=per_instance)  # warm-up
+                            stats = [
+                                renderer.draw(camera, tess, per_instance=per_instance)
+                                for _ in range(frames)
+                            ]
+                            gpu = [s.gpu_ms for s in stats if s.gpu_ms is not None]
+                            row = BenchRow(
+                                trees=n,
+                                pieces=scene.n_instances,
+                                level=level,
+                                mode="per_instance" if per_instance else "instanced",
+                                draw_calls=stats[0].draw_calls,
+                                triangles=stats[0].primitives,
+                                cpu_ms=statistics.median(s.cpu_ms for s in stats),
+                                gpu_ms=statistics.median(gpu) if len(gpu) == len(stats) else None,
+                            )
+                            rows.append(row)
+                            g = f"{row.gpu_ms:8.2f}" if row.gpu_ms is not None else f"{'-':>8}"
+                            echo(
+                                f"{n:>6} {row.pieces:>7} {level:>5g} {row.mode:>12} "
+                                f"{row.draw_calls:>6} {row.triangles:>11} {row.cpu_ms:>9.2f} {g}"
+                            )
+                    raise_gl_error(ctx, f"the {n}-tree forest")
+                finally:
+                    renderer.release()
+    finally:
+        ctx.release()
+    _summary(rows, echo)
+    if plot is not None:
+        plot_rows(rows, plot, info.renderer)
+        echo(f"wrote {plot}")
+    return rows
+
+
+def _summary(rows: list[BenchRow], echo: Echo) -> None:
+    by = {(r.trees, r.level, r.mode): r for r in rows}
+    for r in rows:
+        naive = by.get((r.trees, r.level, "per_instance"))
+        if r.mode == "instanced" and naive is not None and r.cpu_ms > 0:
+            echo(
+                f"{r.trees} trees, level {r.level:g}: instanced is {naive.cpu_ms / r.cpu_ms:.2f}x "
+                f"the speed of one draw call per piece ({r.draw_calls} vs {naive.draw_calls} calls)"
+            )
+
+
+def plot_rows(rows: list[BenchRow], path: Path, renderer: str) -> Path:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 5), dpi=110)
+    series = sorted({(r.mode, r.level) for r in rows})
+    for mode, level in series:
+        pts = sorted((r.trees, r.cpu_ms) for r in rows if (r.mode, r.level) == (mode, level))
+        label = f"{'instanced' if mode == 'instanced' else 'draw per piece'}, level {level:g}"
+        style = "-o" if mode == "instanced" else "--s"
+        ax.plot(*zip(*pts, strict=True), style, label=label)
+    for (gpu, values), style in zip(PAPER.items(), (":", "-."), strict=True):
+        pts = sorted(values.items())
+        ax.plot(*zip(*pts, strict=True), style, color="grey", alpha=0.8, label=f"paper, {gpu}")
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("trees")
+    ax.set_ylabel("frame time, ms (median)")
+    ax.set_title(f"forest bench render: {renderer}", fontsize=9)
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path)
+    plt.close(fig)
+    return path

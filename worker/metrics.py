@@ -1,0 +1,80 @@
+"""Frame statistics -> the wire model :class:`schemas.metrics.RenderMetrics`, and its JSON."""
+
+from __future__ import annotations
+
+import statistics
+from pathlib import Path
+
+import numpy as np
+
+from forest.errors import OutputError
+from schemas.metrics import FrameMetrics, MetricsSummary, RenderMetrics
+from worker.renderer import FrameStats, Renderer, TessSettings
+
+
+def summarize(frames: list[FrameStats]) -> MetricsSummary:
+    """Medians over the frames; ``gpu_ms`` only where every frame has it."""
+    cpu = statistics.median(f.cpu_ms for f in frames)
+    gpu_values = [f.gpu_ms for f in frames if f.gpu_ms is not None]
+    gpu = statistics.median(gpu_values) if len(gpu_values) == len(frames) else None
+    return MetricsSummary(
+        cpu_ms=cpu,
+        gpu_ms=gpu,
+        primitives=statistics.median(f.primitives for f in frames),
+        fps=1e3 / cpu if cpu > 0 else 0.0,
+    )
+
+
+def render_metrics(
+    renderer: Renderer,
+    frames: list[FrameStats],
+    tess: TessSettings,
+    *,
+    per_instance: bool = False,
+    cull: bool = True,
+    warmup_frames: int = 0,
+) -> RenderMetrics:
+    scene = renderer.scene
+    n_quads = renderer.buffers.n_quads
+    times = scene.times
+    return RenderMetrics(
+        scene=scene.path,
+        renderer=renderer.info.renderer,
+        gl_version=renderer.info.version,
+        width=renderer.size[0],
+        height=renderer.size[1],
+        mode="per_instance" if per_instance else "instanced",
+        frustum_culling=cull,
+        piece_types=len(scene.pieces),
+        instances=scene.n_instances,
+        quads=int(np.asarray(n_quads)[scene.proto_indices].sum()),
+        bones=int(scene.palettes.shape[1]),
+        textures=renderer.images.source,
+        tessellation=tess.schema(),
+        warmup_frames=warmup_frames,
+        frames=[
+            FrameMetrics(
+                frame=f.frame,
+                time=times[f.frame],
+                cpu_ms=f.cpu_ms,
+                gpu_ms=f.gpu_ms,
+                primitives=f.primitives,
+                draw_calls=f.draw_calls,
+                instances=f.instances,
+            )
+            for f in frames
+        ],
+        median=summarize(frames),
+    )
+
+
+def write_metrics(path: Path, metrics: RenderMetrics) -> Path:
+    """Write ``metrics`` as indented JSON (via a temporary name, then renamed)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(metrics.model_dump_json(indent=2) + "\n", encoding="utf-8")
+        tmp.replace(path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OutputError(f"cannot write: {exc.strerror}", path=str(path)) from None
+    return path

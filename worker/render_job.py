@@ -1,0 +1,154 @@
+"""``forest render``: a scene file -> preview PNG (+ frame-time metrics JSON).
+
+The camera frames the forest automatically; wind frames are played from the scene's
+time-sampled bone palette. Frame ``F`` is drawn once unmeasured (shader compilation, first
+uploads), then ``N`` measured frames ``F, F+1, ...`` (wrapping around the palette's samples);
+the preview is the first measured frame.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.errors import ForestError, OutputError
+from forest.usd_read import SceneArrays, read_scene
+from schemas.metrics import RenderMetrics
+from worker.camera import Camera, frame_points
+from worker.gl_context import create_context, raise_gl_error
+from worker.metrics import render_metrics, write_metrics
+from worker.renderer import Renderer, TessSettings, auto_lod
+from worker.scene_buffers import check_scene, scene_points
+from worker.textures import tile_images
+
+MAX_SIZE = 8192
+MAX_TESS = 64.0  # GL_MAX_TESS_GEN_LEVEL is at least 64 on every GL 4 driver
+MAX_FRAMES = 10_000
+
+
+@dataclass(frozen=True)
+class RenderRequest:
+    scene: Path
+    output: Path
+    metrics: Path | None = None
+    width: int = 640
+    height: int = 480
+    tess_max: float = 8.0
+    alpha: float = 0.75
+    lod_half: float | None = None  # metres; None: a quarter of the forest's diagonal
+    frame: int = 0
+    frames: int = 1
+    warmup: int = 1
+    tiles: Path | None = None
+    per_instance: bool = False
+    cull: bool = True
+
+    def check(self) -> None:
+        for name, value in (("width", self.width), ("height", self.height)):
+            if not 1 <= value <= MAX_SIZE:
+                raise ForestError(f"must be in [1, {MAX_SIZE}], got {value}", path=name)
+        if not 1.0 <= self.tess_max <= MAX_TESS:
+            raise ForestError(f"must be in [1, {MAX_TESS:g}], got {self.tess_max}", path="tess_max")
+        if not 0.0 <= self.alpha <= 1.0:
+            raise ForestError(f"must be in [0, 1], got {self.alpha}", path="alpha")
+        if self.lod_half is not None and not (self.lod_half >= 0 and np.isfinite(self.lod_half)):
+            raise ForestError(f"must be >= 0 metres, got {self.lod_half}", path="lod_half")
+        if self.frame < 0:
+            raise ForestError(f"must be >= 0, got {self.frame}", path="frame")
+        if not 1 <= self.frames <= MAX_FRAMES:
+            raise ForestError(f"must be in [1, {MAX_FRAMES}], got {self.frames}", path="frames")
+        if not 0 <= self.warmup <= 100:
+            raise ForestError(f"must be in [0, 100], got {self.warmup}", path="warmup")
+        for path in (self.output, self.metrics):
+            if path is not None and not path.parent.resolve().is_dir():
+                raise OutputError("folder does not exist", path=str(path))
+        if self.output.suffix.lower() != ".png":
+            raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
+
+
+def write_png(path: Path, rgba: NDArray[np.uint8]) -> Path:
+    """Write ``(h, w, 4)`` uint8 (top row first) with OpenImageIO."""
+    import OpenImageIO as oiio
+
+    h, w, c = rgba.shape
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    out = oiio.ImageOutput.create(str(tmp))
+    if out is None:
+        raise OutputError(f"no image writer: {oiio.geterror()}", path=str(path))
+    try:
+        if not out.open(str(tmp), oiio.ImageSpec(w, h, c, "uint8")):
+            raise OutputError(f"cannot open for writing: {out.geterror()}", path=str(path))
+        if not out.write_image(np.ascontiguousarray(rgba)):
+            raise OutputError(f"cannot write: {out.geterror()}", path=str(path))
+        out.close()
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+    return path
+
+
+def preview_view(
+    scene: SceneArrays,
+    size: tuple[int, int],
+    tess_max: float,
+    frame: int = 0,
+    alpha: float = 0.75,
+    lod_half: float | None = None,
+) -> tuple[Camera, TessSettings]:
+    """The automatic camera framing the forest at ``frame`` and its level-of-detail settings."""
+    points = scene_points(scene, frame)
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    camera = frame_points(points, size[0] / size[1])
+    tess = auto_lod(camera, lo, hi, tess_max, alpha)
+    if lod_half is not None:
+        tess = TessSettings(tess_max, alpha, tess.lod_near, lod_half)
+    return camera, tess
+
+
+def render_file(req: RenderRequest) -> RenderMetrics:
+    req.check()
+    scene = read_scene(req.scene)
+    n_frames = len(scene.palettes)
+    if req.frame >= n_frames:
+        raise ForestError(
+            f"the scene has {n_frames} palette sample(s): frame must be below {n_frames}",
+            path="frame",
+        )
+    check_scene(scene, scene.manifest.n_slices)  # before any GL or texture work
+    ctx = create_context()
+    try:
+        images = tile_images(
+            scene.manifest, int(scene.tile_indices.max()), req.tiles, scene_path=req.scene
+        )
+        renderer = Renderer(ctx, scene, (req.width, req.height), images)
+        camera, tess = preview_view(
+            scene, (req.width, req.height), req.tess_max, req.frame, req.alpha, req.lod_half
+        )
+        for _ in range(req.warmup):
+            renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)
+        stats = []
+        for k in range(req.frames):
+            stats.append(
+                renderer.draw(camera, tess, req.frame + k, req.per_instance, cull=req.cull)
+            )
+            if k == 0:
+                preview = renderer.read_color()
+        raise_gl_error(ctx, "rendering")
+        write_png(req.output, preview)
+        metrics = render_metrics(
+            renderer,
+            stats,
+            tess,
+            per_instance=req.per_instance,
+            cull=req.cull,
+            warmup_frames=req.warmup,
+        )
+        if req.metrics is not None:
+            write_metrics(req.metrics, metrics)
+        renderer.release()
+        return metrics
+    finally:
+        ctx.release()

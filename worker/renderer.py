@@ -1,0 +1,298 @@
+"""The forest renderer: one instanced draw call of quad patches per piece type, skinned in the
+vertex shader, Phong-tessellated with distance-based levels, bark from a texture array by
+per-instance, per-quad tile indices (paper 4.3, 4.4, 5.1). Offscreen, on any GL 4.3 context.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, cast
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.usd_read import SceneArrays
+from schemas.metrics import TessellationSettings
+from worker import shaders
+from worker.camera import Camera
+from worker.gl_context import gl_info
+from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, check_scene
+from worker.textures import TileImages, tile_images, upload
+
+if TYPE_CHECKING:
+    import moderngl
+
+PROGRAM = "piece"
+SUN = np.array([0.45, 0.8, 0.35]) / np.linalg.norm([0.45, 0.8, 0.35])
+SKY = np.array([0.52, 0.66, 0.85])  # linear
+# fog density as a fraction of the inverse camera-target distance: the target is ~11% hazed
+FOG_AT_TARGET = 0.12
+CAPTURE_DTYPE = np.dtype(
+    [
+        ("position", "<f4", 4),
+        ("normal", "<f4", 4),
+        ("coord", "<f4", 4),  # tess coord u, v, inner levels
+        ("outer", "<f4", 4),
+        ("ids", "<i4", 4),  # instance id, quad, tile, 0
+    ]
+)
+CAPTURE_HEADER = 16  # count, capacity, two pads (uint)
+
+
+def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:
+    return cast("moderngl.Uniform", prog[name])
+
+
+@dataclass(frozen=True)
+class TessSettings:
+    """See :class:`schemas.metrics.TessellationSettings` for the level formula."""
+
+    max_level: float = 8.0
+    alpha: float = 0.75
+    lod_near: float = 0.0
+    lod_half: float = 0.0
+
+    def __post_init__(self) -> None:
+        TessellationSettings(**self.__dict__)  # validate ranges with the wire model
+
+    def schema(self) -> TessellationSettings:
+        return TessellationSettings(**self.__dict__)
+
+    def level(self, distance: NDArray[np.float64]) -> NDArray[np.float64]:
+        """numpy twin of ``level()`` in shaders/piece.tesc."""
+        d = np.maximum(np.asarray(distance, dtype=np.float64) - self.lod_near, 0.0)
+        f = np.exp2(-d / self.lod_half) if self.lod_half > 0 else np.ones_like(d)
+        return np.clip(self.max_level * f, 1.0, self.max_level)
+
+
+def auto_lod(
+    camera: Camera,
+    lo: NDArray[np.float64],
+    hi: NDArray[np.float64],
+    max_level: float,
+    alpha: float = 0.75,
+) -> TessSettings:
+    """Full detail up to the nearest point of the forest's box, then the level halves every
+    quarter of the box's diagonal further away (capped below at 1)."""
+    nearest = float(np.linalg.norm(camera.eye - np.clip(camera.eye, lo, hi)))
+    return TessSettings(
+        max_level=max_level,
+        alpha=alpha,
+        lod_near=nearest,
+        lod_half=max(0.25 * float(np.linalg.norm(hi - lo)), 1e-3),
+    )
+
+
+@dataclass(frozen=True)
+class FrameStats:
+    frame: int
+    cpu_ms: float
+    gpu_ms: float | None
+    primitives: int
+    draw_calls: int
+    instances: int
+
+
+class Renderer:
+    """Draws one scene into an offscreen framebuffer of ``size = (width, height)``.
+
+    ``ids=True`` adds an integer attachment holding (tile, instance id, quad, 1) per pixel.
+    """
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        scene: SceneArrays,
+        size: tuple[int, int],
+        images: TileImages | None = None,
+        ids: bool = False,
+    ) -> None:
+        import moderngl
+
+        self.ctx = ctx
+        self.info = gl_info(ctx)
+        self.scene = scene
+        self.size = size
+        self.buffers = SceneBuffers(ctx, scene)
+        self.images = images or tile_images(scene.manifest, int(self.buffers.layout.tiles.max()))
+        check_scene(scene, self.images.n_slices)
+        self.texture = upload(ctx, self.images)
+        self.color = ctx.texture(size, 4)
+        self.id_texture = ctx.texture(size, 4, dtype="i4") if ids else None
+        attachments = [self.color] + ([self.id_texture] if self.id_texture else [])
+        self.depth = ctx.depth_renderbuffer(size)
+        self.fbo = ctx.framebuffer(attachments, self.depth)
+        self.query = ctx.query(time=self.info.timer_query, primitives=True)
+        self._variants: dict[frozenset[str], tuple[Any, list[Any]]] = {}
+        self._moderngl = moderngl
+
+    # -- programs -----------------------------------------------------------------------------
+
+    def _variant(self, *defines: str) -> tuple[moderngl.Program, list[moderngl.VertexArray]]:
+        key = frozenset(defines)
+        if key not in self._variants:
+            make: Any = self.ctx.program
+            prog = make(**shaders.sources(PROGRAM, dict.fromkeys(defines, True)))
+            vaos = [
+                self.ctx.vertex_array(prog, [(vbo, PATCH_FORMAT, *PATCH_ATTRIBUTES)])
+                for vbo in self.buffers.patches
+            ]
+            self._variants[key] = (prog, vaos)
+        return self._variants[key]
+
+    def _uniforms(
+        self,
+        prog: moderngl.Program,
+        camera: Camera,
+        tess: TessSettings,
+        skinning: bool,
+        cull: bool,
+    ) -> None:
+        values: dict[str, Any] = {
+            "u_skinning": skinning,
+            "u_cull": cull,
+            "u_camera": tuple(camera.eye),
+            "u_tess_max": tess.max_level,
+            "u_lod_near": tess.lod_near,
+            "u_lod_half": tess.lod_half,
+            "u_alpha": tess.alpha,
+            "u_sun": tuple(SUN),
+            "u_sky": tuple(SKY),
+            "u_fog": FOG_AT_TARGET / max(float(np.linalg.norm(camera.target - camera.eye)), 1e-6),
+            "u_tiles": 0,
+        }
+        for name, value in values.items():
+            if name in prog:
+                _uniform(prog, name).value = value
+        vp = camera.view_projection().T.astype("f4")
+        _uniform(prog, "u_view_projection").write(vp.tobytes())
+        _uniform(prog, "u_frustum").write(camera.frustum_planes().astype("f4").tobytes())
+
+    def _draw_all(
+        self, prog: moderngl.Program, vaos: list[moderngl.VertexArray], per_instance: bool
+    ) -> int:
+        """Issue the draw calls; returns how many."""
+        mgl = self._moderngl
+        base = _uniform(prog, "u_base_instance")
+        layout, calls = self.buffers.layout, 0
+        for t, vao in enumerate(vaos):
+            n, first = int(layout.count[t]), int(layout.first[t])
+            if n == 0:
+                continue
+            vertices = 4 * self.buffers.n_quads[t]
+            if per_instance:  # the naive way: one draw call per piece instance
+                for slot in range(first, first + n):
+                    base.value = slot
+                    vao.render(mgl.PATCHES, vertices=vertices, instances=1)
+                calls += n
+            else:
+                base.value = first
+                vao.render(mgl.PATCHES, vertices=vertices, instances=n)
+                calls += 1
+        return calls
+
+    # -- frames -------------------------------------------------------------------------------
+
+    def draw(
+        self,
+        camera: Camera,
+        tess: TessSettings,
+        frame: int = 0,
+        per_instance: bool = False,
+        skinning: bool = True,
+        cull: bool = True,
+    ) -> FrameStats:
+        """Draw palette frame ``frame`` and wait for it to finish. ``cull`` drops patches
+        wholly outside the view frustum in the tessellation control shader."""
+        mgl, ctx = self._moderngl, self.ctx
+        prog, vaos = self._variant(*(["ID_OUTPUT"] if self.id_texture else []))
+        t0 = time.perf_counter()
+        self.buffers.use(frame)
+        self.fbo.use()
+        self.fbo.viewport = (0, 0, *self.size)
+        ctx.enable_only(mgl.DEPTH_TEST)
+        ctx.patch_vertices = 4
+        r, g, b = (float(c) for c in np.power(SKY, 1 / 2.2))
+        self.fbo.clear(color=(r, g, b, 1.0), depth=1.0)
+        if self.id_texture is not None:
+            self.id_texture.write(np.zeros((*self.size[::-1], 4), np.int32).tobytes())
+        self.texture.use(0)
+        self._uniforms(prog, camera, tess, skinning, cull)
+        with self.query:
+            calls = self._draw_all(prog, vaos, per_instance)
+        ctx.finish()
+        cpu_ms = (time.perf_counter() - t0) * 1e3
+        gpu_ms = self.query.elapsed / 1e6 if self.info.timer_query else None
+        return FrameStats(
+            frame=frame % self.buffers.n_frames,
+            cpu_ms=cpu_ms,
+            gpu_ms=gpu_ms,
+            primitives=int(self.query.primitives),
+            draw_calls=calls,
+            instances=self.scene.n_instances,
+        )
+
+    def read_color(self) -> NDArray[np.uint8]:
+        """``(h, w, 4)`` uint8, top row first."""
+        w, h = self.size
+        raw = np.frombuffer(self.color.read(), np.uint8).reshape(h, w, 4)
+        return raw[::-1].copy()
+
+    def read_ids(self) -> NDArray[np.int32]:
+        """``(h, w, 4)`` int32 (tile, instance id, quad, covered), top row first."""
+        if self.id_texture is None:
+            raise ValueError("the renderer was made without ids=True")
+        w, h = self.size
+        raw = np.frombuffer(self.id_texture.read(), np.int32).reshape(h, w, 4)
+        return raw[::-1].copy()
+
+    def capture(
+        self,
+        camera: Camera,
+        tess: TessSettings,
+        frame: int = 0,
+        capacity: int = 1 << 20,
+        skinning: bool = True,
+        cull: bool = False,
+    ) -> NDArray[np.void]:
+        """Every vertex the tessellation evaluation shader produced (CAPTURE_DTYPE), with the
+        rasteriser off. Vertices shared by neighbouring triangles may repeat. Frustum culling
+        is off by default, so every patch is there."""
+        mgl, ctx = self._moderngl, self.ctx
+        prog, vaos = self._variant("CAPTURE")
+        head = np.array([0, capacity, 0, 0], np.uint32).tobytes()
+        buf = ctx.buffer(reserve=CAPTURE_HEADER + capacity * CAPTURE_DTYPE.itemsize)
+        buf.write(head)
+        try:
+            buf.bind_to_storage_buffer(3)
+            self.buffers.use(frame)
+            self.fbo.use()  # a complete framebuffer, or the driver may skip the draws
+            ctx.enable_only(mgl.RASTERIZER_DISCARD)
+            ctx.patch_vertices = 4
+            self._uniforms(prog, camera, tess, skinning, cull)
+            self._draw_all(prog, vaos, per_instance=False)
+            ctx.memory_barrier(mgl.SHADER_STORAGE_BARRIER_BIT)
+            count = int(np.frombuffer(buf.read(4), np.uint32)[0])
+            if count > capacity:
+                raise ValueError(f"capture overflow: {count} vertices, capacity {capacity}")
+            data = buf.read(count * CAPTURE_DTYPE.itemsize, offset=CAPTURE_HEADER) if count else b""
+        finally:
+            ctx.disable(mgl.RASTERIZER_DISCARD)
+            buf.release()
+        return np.frombuffer(data, CAPTURE_DTYPE).copy()
+
+    def release(self) -> None:
+        for prog, vaos in self._variants.values():
+            for vao in vaos:
+                vao.release()
+            prog.release()
+        self._variants.clear()
+        # moderngl rebinds the last used framebuffer after creating one: leave GL on the
+        # default framebuffer, not on a deleted name (GL_INVALID_OPERATION later)
+        self.ctx.detect_framebuffer(0).use()
+        for obj in (self.fbo, self.color, self.depth, self.texture):
+            obj.release()
+        if self.id_texture is not None:
+            self.id_texture.release()
+        self.buffers.release()
