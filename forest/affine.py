@@ -103,7 +103,9 @@ def cos_sin(angle: F64) -> tuple[F64, F64]:
     rad of the one asked, and rotations built from it are orthonormal to 1e-16. Pose and wind
     angles are random or sampled, so the difference is no loss.
     """
-    a = np.remainder(angle, 2 * np.pi).astype(np.float32)
+    if len(angle) and np.abs(angle).max() > 2 * np.pi:
+        angle = np.remainder(angle, 2 * np.pi)
+    a = angle.astype(np.float32)
     c = np.cos(a).astype(np.float64)
     s = np.sin(a).astype(np.float64)
     r = np.hypot(c, s)

@@ -93,6 +93,7 @@ def _best(fn: Callable[[], T], repeat: int) -> tuple[float, T]:
     best = math.inf
     out = fn()  # warm-up run: first-touch page faults and imports are not the algorithm
     for _ in range(repeat):
+        del out  # free the last result first, as a process making one forest after another
         t0 = time.perf_counter()
         out = fn()
         best = min(best, time.perf_counter() - t0)

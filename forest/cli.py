@@ -63,6 +63,9 @@ def stage_progress(enabled: bool, label: str) -> Iterator[Callable[[str, int, in
 @click.version_option(package_name="interlocking-forest", prog_name="forest")
 def main() -> None:
     """Procedural forests from interlocking quad-mesh pieces, written as USD scenes."""
+    from forest.memory import keep_freed_memory
+
+    keep_freed_memory()
 
 
 @main.command()
