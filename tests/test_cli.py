@@ -196,3 +196,15 @@ def test_palette_size_is_capped(tmp_path: Path) -> None:
     )
     assert out.returncode == 2
     assert "max_palette_matrices" in out.stderr and "use fewer frames" in out.stderr
+
+
+def test_bench_generate_prints_both_sides(tmp_path: Path) -> None:
+    out = forest("bench", "generate", "--trees", "30", "--repeat", "1", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    for label in (
+        "vectorised (per depth level)",
+        "baseline (per-piece Python loop)",
+        "speed-up",
+        "write .usdc",
+    ):
+        assert label in out.stdout
