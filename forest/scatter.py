@@ -6,7 +6,6 @@ from __future__ import annotations
 from typing import Literal
 
 import numpy as np
-from scipy.stats import qmc
 
 from forest.transforms import F64, rotation_y, scaling, translation
 
@@ -33,6 +32,9 @@ def poisson_disk(n: int, width: float, depth: float, rng: np.random.Generator) -
     falls back to a jittered grid for whatever the disk sampler could not place."""
     if n == 0:
         return np.zeros((0, 2))
+    # scipy.stats takes about a second to import: pay it only when the disk sampler runs
+    from scipy.stats import qmc
+
     aspect = np.array([width, depth]) / max(width, depth)
     # packing density of random Poisson-disk sets is ~0.7 of the hexagonal optimum
     radius = 0.75 * np.sqrt(aspect.prod() / n)
