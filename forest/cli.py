@@ -281,6 +281,12 @@ def bench_generate(trees: int, preset: str, repeat: int) -> None:
     "--per-instance", is_flag=True, help="One draw call per piece instance (for comparison)."
 )
 @click.option("--no-cull", is_flag=True, help="Keep patches outside the view (for comparison).")
+@click.option("--no-foliage", is_flag=True, help="Leave the leaf clouds out.")
+@click.option(
+    "--foliage-geometry",
+    is_flag=True,
+    help="Draw the real leaf-cloud mesh at every cloud instead of 2.5D impostors (comparison).",
+)
 @input_errors
 def render(
     scene: Path,
@@ -296,6 +302,8 @@ def render(
     tiles_dir: Path | None,
     per_instance: bool,
     no_cull: bool,
+    no_foliage: bool = False,
+    foliage_geometry: bool = False,
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
     from worker.render_job import RenderRequest, render_file
@@ -315,6 +323,7 @@ def render(
             tiles=tiles_dir,
             per_instance=per_instance,
             cull=not no_cull,
+            foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
         )
     )
     med = m.median
@@ -324,6 +333,18 @@ def render(
         f"{m.frames[0].draw_calls} draw call(s), {med.primitives:.0f} triangles; median of "
         f"{len(m.frames)} frame(s): CPU {med.cpu_ms:.2f} ms{gpu}"
     )
+    if m.foliage is not None and m.frames[0].foliage is not None:
+        fo, f0 = m.foliage, m.frames[0].foliage
+        click.echo(
+            f"foliage: {fo.clouds} leaf clouds as {fo.mode}"
+            + (
+                f" ({fo.impostor_size} px, pass 1 ran {fo.impostor_renders} time(s))"
+                if fo.mode == "impostor"
+                else ""
+            )
+            + f"; pass 2: {f0.billboards.draw_calls} draw call(s), {f0.billboards.primitives} "
+            "triangles"
+        )
     click.echo(f"renderer: {m.renderer}")
     if metrics is not None:
         click.echo(f"wrote {metrics}")
@@ -447,6 +468,13 @@ def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> N
 @click.option("--frames", type=click.IntRange(1, 1000), default=3, show_default=True)
 @click.option("--no-naive", is_flag=True, help="Skip the one-draw-call-per-piece baseline.")
 @click.option(
+    "--foliage-trees",
+    "foliage_text",
+    default="100,1000",
+    show_default=True,
+    help="Tree counts for impostor foliage against the real leaf-cloud mesh ('none': skip).",
+)
+@click.option(
     "--plot",
     type=click.Path(path_type=Path),
     default=Path("bench-render.png"),
@@ -463,6 +491,7 @@ def bench_render(
     frames: int,
     no_naive: bool,
     plot: Path,
+    foliage_text: str = "none",
 ) -> None:
     """Frame time against tree count, instanced against one draw call per piece, at fixed
     tessellation levels (the paper's Figure 16 and its levels 1 and 10)."""
@@ -483,6 +512,95 @@ def bench_render(
         naive=not no_naive,
         plot=plot,
         echo=click.echo,
+        foliage_trees=(
+            [] if foliage_text.strip() == "none" else parse_counts(foliage_text, "foliage_trees")
+        ),
+    )
+
+
+@main.command()
+@click.option(
+    "--data",
+    "data_dir",
+    type=click.Path(path_type=Path),
+    default=Path("forest-data"),
+    show_default=True,
+    envvar="FOREST_DATA_DIR",
+    help="Folder of the embedded job store, broker and artifacts.",
+)
+@click.option("--host", default="127.0.0.1", show_default=True)
+@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
+@click.option("--workers", type=click.IntRange(0, 64), default=2, show_default=True)
+def serve(data_dir: Path, host: str, port: int, workers: int) -> None:
+    """The HTTP API plus local worker processes. With no FOREST_DATABASE_URL /
+    FOREST_BROKER_URL / FOREST_ARTIFACTS_DIR set, everything lives in --data (SQLite)."""
+    import os
+
+    from service.embedded import serve as run_serve
+    from service.settings import get_settings, override_settings
+
+    os.environ["FOREST_DATA_DIR"] = str(data_dir.resolve())
+    override_settings(None)
+    s = get_settings()
+    click.echo(f"forest serve: http://{host}:{port} (docs at /docs), {workers} worker(s)")
+    click.echo(f"  jobs {s.db_url.split('@')[-1]}, broker {s.broker.split('@')[-1]}")
+    run_serve(s, host, port, workers)
+
+
+@main.command("worker")
+@click.option(
+    "-Q", "--queues", default="default,gpu", show_default=True, help="Queues to consume."
+)
+@click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
+@click.option("--loglevel", default="info", show_default=True)
+@click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
+def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -> None:
+    """Join a cluster: consume jobs from the broker and job store in the settings
+    (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
+    if list_kinds:
+        from service.dispatch import KIND_QUEUES
+        from worker.tasks import KINDS
+
+        for kind in KINDS:
+            click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}")
+        return
+    from worker.main import run_worker
+
+    try:
+        run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
+    except ValueError as exc:
+        click.echo(f"error: queues: {exc}", err=True)
+        sys.exit(EXIT_INPUT)
+
+
+
+@bench.command("service")
+@click.option("--preset", default="almond", show_default=True)
+@click.option("--concurrency", default="1,8,32", show_default=True, help="Client counts.")
+@click.option("--requests", type=click.IntRange(1, 100_000), default=200, show_default=True)
+@click.option("--workers", default="1,2", show_default=True, help="Worker counts for jobs.")
+@click.option("--jobs", type=click.IntRange(1, 10_000), default=16, show_default=True)
+@click.option("--trees", type=click.IntRange(1, 10_000), default=200, show_default=True)
+@input_errors
+def bench_service(
+    preset: str, concurrency: str, requests: int, workers: str, jobs: int, trees: int
+) -> None:
+    """Latency (p50, p99) and req/s of POST /v1/trees at several client counts, and
+    forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server."""
+    from service.bench import run_service_bench
+
+    def counts(text: str, name: str) -> list[int]:
+        try:
+            values = [int(x) for x in text.split(",") if x.strip()]
+        except ValueError:
+            raise ForestError(f"expected integers, got {text!r}", path=name) from None
+        if not values or min(values) < 1:
+            raise ForestError("expected positive integers", path=name)
+        return values
+
+    run_service_bench(
+        preset, counts(concurrency, "concurrency"), requests, counts(workers, "workers"), jobs,
+        trees, echo=click.echo,
     )
 
 

@@ -12,6 +12,7 @@ from forest import __version__
 from forest.assembly import topological_transforms
 from forest.errors import LimitError
 from forest.expand import PieceGraph, expand
+from forest.foliage import HUB, FoliageAnchors, foliage_anchors
 from forest.grammar import CompiledGrammar, compile_grammar
 from forest.pieces import PieceArrays, piece_library
 from forest.scatter import Placement, tree_transforms
@@ -133,15 +134,20 @@ class Forest:
     def rest_palette(self) -> F64:
         return rest_palette(self.bones, self.transforms)
 
-    def foliage_points(self) -> tuple[F64, F64]:
-        """Leaf-cloud centres ``(k, 3)`` at the hubs of foliage-bearing pieces and their
-        diameters ``(k,)`` (three piece radii: the piece's scale)."""
-        t = self.transforms[self.foliage_instance]
-        hubs = np.stack([p.joint_rest[1, :3, 3] for p in self.pieces])
-        hub = hubs[self.graph.piece[self.foliage_instance]]
-        pos = np.einsum("nij,nj->ni", t[:, :3, :3], hub) + t[:, :3, 3]
-        scale = np.cbrt(np.linalg.det(t[:, :3, :3]))
-        return pos, 3.0 * scale
+    def foliage_anchors(self) -> FoliageAnchors:
+        """Where leaf clouds sit: the hub of each foliage-bearing piece, following its hub bone
+        (see :mod:`forest.foliage`)."""
+        hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
+        return foliage_anchors(
+            self.foliage_instance, self.graph.piece, self.bones.offset, self.transforms, hubs
+        )
+
+    def foliage_points(self, time: float | None = None) -> tuple[F64, F64]:
+        """Leaf-cloud centres ``(k, 3)`` on the posed forest (with wind at ``time`` if given):
+        each hub bone's palette matrix applied to the hub's rest point; and the clouds'
+        diameters ``(k,)`` (``forest.foliage.CLOUD_RADII`` piece radii)."""
+        a = self.foliage_anchors()
+        return a.positions(self.palette(time)), a.size
 
 
 def generate_forest(

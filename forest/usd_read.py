@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
 from forest.errors import SceneError
+from forest.foliage import LeafCloud, anchor_positions
 from forest.pieces import PieceArrays
 from forest.transforms import F64, compose_similarity
 from forest.usd_scene import FOLIAGE, FOREST, PIECES
@@ -50,10 +51,27 @@ class SceneArrays:
     palettes: F64
     foliage_positions: F64
     foliage_sizes: F64
+    foliage_instance: I32
+    foliage_bone: I32
+    foliage_rest: F64
+    foliage_cloud: LeafCloud | None
 
     @property
     def n_instances(self) -> int:
         return len(self.proto_indices)
+
+    @property
+    def n_foliage(self) -> int:
+        return len(self.foliage_sizes)
+
+    def foliage_at(self, frame: int = 0) -> F64:
+        """``(k, 3)`` leaf-cloud centres at palette sample ``frame``: each cloud's bone applied
+        to its rest point (clouds without a bone, ``foliage_bone < 0``, stay where the scene
+        puts them)."""
+        pal = self.palettes[frame % len(self.palettes)]
+        bone = np.maximum(self.foliage_bone, 0)
+        pos = anchor_positions(pal, bone, self.foliage_rest)
+        return np.where((self.foliage_bone >= 0)[:, None], pos, self.foliage_positions)
 
 
 def _get(prim: Usd.Prim, name: str, required: bool = True) -> Any:
@@ -172,12 +190,7 @@ def read_scene(path: str | Path) -> SceneArrays:
     times: list[float | None] = [s / fps for s in samples] if samples else [None]
     codes = [Usd.TimeCode(s) for s in samples] or [Usd.TimeCode.Default()]
     palettes = np.stack([_matrices(inst_prim, "forest:bonePalette", c) for c in codes])
-    foliage = stage.GetPrimAtPath(FOLIAGE)
-    if foliage:
-        fpos = _array(foliage, "points", np.float64, (-1, 3))
-        fsize = _array(foliage, "widths", np.float64)
-    else:
-        fpos, fsize = np.zeros((0, 3)), np.zeros(0)
+    foliage = _read_foliage(stage, len(palettes[0]))
     try:
         options = json.loads(_get(forest, "forest:options"))
         manifest = TileSetManifest.model_validate_json(_get(forest, "forest:tileManifest"))
@@ -204,6 +217,82 @@ def read_scene(path: str | Path) -> SceneArrays:
         tree_transforms=_matrices(forest, "forest:treeTransforms"),
         times=times,
         palettes=palettes,
-        foliage_positions=fpos,
-        foliage_sizes=fsize,
+        **foliage,
     )
+
+
+def _read_leaf_cloud(prim: Usd.Prim) -> LeafCloud:
+    pts = _array(prim, "points", np.float64, (-1, 3))
+    counts = _array(prim, "faceVertexCounts", np.int32)
+    if not (counts == 4).all():
+        raise SceneError("leaf cards must be quads", path=f"{prim.GetPath()}.faceVertexCounts")
+    quads = _array(prim, "faceVertexIndices", np.int32, (-1, 4))
+    if quads.size and (quads.max() >= len(pts) or quads.min() < 0):
+        raise SceneError("index out of range", path=f"{prim.GetPath()}.faceVertexIndices")
+    normals = _array(prim, "normals", np.float64, (-1, 3))
+    st = _array(prim, "primvars:st", np.float64, (-1, 2))
+    for name, arr in (("normals", normals), ("primvars:st", st)):
+        if len(arr) != len(pts):
+            raise SceneError(
+                f"{len(arr)} values for {len(pts)} points", path=f"{prim.GetPath()}.{name}"
+            )
+    if not (np.isfinite(pts).all() and np.isfinite(normals).all() and np.isfinite(st).all()):
+        raise SceneError("non-finite values", path=f"{prim.GetPath()}.points")
+    return LeafCloud(positions=pts, normals=normals, st=st, quads=quads)
+
+
+def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
+    """The foliage fields of SceneArrays. A PointInstancer (this version's scenes) gives
+    centres, sizes, bones and the leaf-cloud mesh; plain Points (older scenes) give centres
+    and sizes that do not follow the wind."""
+    prim = stage.GetPrimAtPath(FOLIAGE)
+    empty_i = np.zeros(0, np.int32)
+    out: dict[str, Any] = {
+        "foliage_positions": np.zeros((0, 3)),
+        "foliage_sizes": np.zeros(0),
+        "foliage_instance": empty_i,
+        "foliage_bone": empty_i,
+        "foliage_rest": np.zeros((0, 3)),
+        "foliage_cloud": None,
+    }
+    if not prim:
+        return out
+    if prim.IsA(UsdGeom.Points):
+        pos = _array(prim, "points", np.float64, (-1, 3))
+        k = len(pos)
+        out.update(
+            foliage_positions=pos,
+            foliage_sizes=_array(prim, "widths", np.float64, (k,)),
+            foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
+            foliage_bone=np.full(k, -1, np.int32),
+            foliage_rest=pos.copy(),
+        )
+        return out
+    if not prim.IsA(UsdGeom.PointInstancer):
+        raise SceneError("foliage must be a PointInstancer (or Points)", path=FOLIAGE)
+    targets = UsdGeom.PointInstancer(prim).GetPrototypesRel().GetTargets()
+    proto = stage.GetPrimAtPath(targets[0]) if len(targets) == 1 else None
+    if not proto or not proto.IsA(UsdGeom.Mesh):
+        raise SceneError("one leaf-cloud Mesh prototype expected", path=f"{FOLIAGE}.prototypes")
+    pos = _array(prim, "positions", np.float64, (-1, 3))
+    k = len(pos)
+    scales = _array(prim, "scales", np.float64, (k, 3))
+    offset = _array(prim, "primvars:forest:boneOffset", np.int32, (k,))
+    bone = offset + _array(prim, "primvars:forest:joint", np.int32, (k,))
+    if k and (bone.min() < 0 or bone.max() >= n_bones):
+        raise SceneError(
+            f"bones must lie in [0, {n_bones}) of the palette",
+            path=f"{FOLIAGE}.primvars:forest:boneOffset",
+        )
+    rest = _array(prim, "primvars:forest:restPosition", np.float64, (k, 3))
+    if not (np.isfinite(rest).all() and np.isfinite(scales).all()):
+        raise SceneError("non-finite values", path=f"{FOLIAGE}.primvars:forest:restPosition")
+    out.update(
+        foliage_positions=pos,
+        foliage_sizes=scales[:, 0].copy(),
+        foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
+        foliage_bone=bone.astype(np.int32),
+        foliage_rest=rest,
+        foliage_cloud=_read_leaf_cloud(proto),
+    )
+    return out

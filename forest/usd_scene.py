@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
+from forest.foliage import HUB, LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
 from forest.generate import Forest
 from forest.pieces import QUAD_ST, PieceArrays
 from forest.transforms import F64, decompose_similarity
@@ -26,6 +27,7 @@ from forest.usd_files import check_output_path, finish, new_stage_layer
 FOREST = "/World/Forest"
 PIECES = "/World/Forest/Pieces"
 FOLIAGE = "/World/Forest/Foliage"
+FOLIAGE_CLOUD = "/World/Forest/Foliage/Prototypes/LeafCloud"
 LOOKS = "/World/Looks"
 BARK_COLOR = (0.36, 0.27, 0.2)
 Progress = Callable[[str, int, int], None]
@@ -172,8 +174,14 @@ def _time_code(t: float | None, fps: float) -> Usd.TimeCode:
 
 
 def write_instancer(
-    stage: Usd.Stage, forest: Forest, material: UsdShade.Material, progress: Progress | None = None
+    stage: Usd.Stage,
+    forest: Forest,
+    material: UsdShade.Material,
+    progress: Progress | None = None,
+    on_palette: Callable[[float | None, F64], None] | None = None,
 ) -> UsdGeom.PointInstancer:
+    """The pieces' PointInstancer; ``on_palette(time, row_vector_palette)`` sees every
+    palette sample as it is written (the foliage writer takes its cloud centres from it)."""
     g = forest.graph
     inst = UsdGeom.PointInstancer.Define(stage, PIECES)
     prim = inst.GetPrim()
@@ -209,37 +217,121 @@ def write_instancer(
     _attr(prim, "forest:symbols", Sdf.ValueTypeNames.TokenArray, list(forest.grammar.rules))
     times = forest.frame_times()
     for i, time in enumerate(times):
+        palette = forest.palette(time, row_vectors=True)
         _attr(
             prim,
             "forest:bonePalette",
             Sdf.ValueTypeNames.Matrix4dArray,
-            Vt.Matrix4dArray.FromNumpy(forest.palette(time, row_vectors=True)),
+            Vt.Matrix4dArray.FromNumpy(palette),
             _time_code(time, forest.options.fps),
         )
+        if on_palette is not None:
+            on_palette(time, palette)
+        del palette
         if progress:
             progress("palette", i + 1, len(times))
     inst.CreateExtentAttr(inst.ComputeExtentAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
     return inst
 
 
-def write_foliage(stage: Usd.Stage, forest: Forest) -> None:
-    """Leaf-cloud anchors as Points (centre, diameter) with the piece each sits on."""
-    pos, size = forest.foliage_points()
-    pts = UsdGeom.Points.Define(stage, FOLIAGE)
-    pts.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pos.astype(np.float32)))
-    pts.CreateWidthsAttr(Vt.FloatArray.FromNumpy(size.astype(np.float32)))
-    pts.SetWidthsInterpolation(UsdGeom.Tokens.vertex)
-    pts.CreateDisplayColorAttr([Gf.Vec3f(0.25, 0.45, 0.18)])
+def leaf_material(stage: Usd.Stage) -> UsdShade.Material:
+    """UsdPreviewSurface leaves: a flat leaf green (the leaf texture is made by the renderer
+    from code, so no scene points at a texture file)."""
+    UsdGeom.Scope.Define(stage, LOOKS)
+    mat = UsdShade.Material.Define(stage, f"{LOOKS}/Leaf")
+    pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/Leaf/Surface")
+    pbr.CreateIdAttr("UsdPreviewSurface")
+    pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
+    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*LEAF_GREEN))
+    mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+    return mat
+
+
+def write_leaf_cloud(
+    stage: Usd.Stage, path: str, cloud: LeafCloud, material: UsdShade.Material
+) -> UsdGeom.Mesh:
+    """The leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter)."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(cloud.positions.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(cloud.n_cards, 4, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(cloud.quads.ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateDoubleSidedAttr(True)
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(cloud.normals.astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    mesh.CreateDisplayColorAttr([Gf.Vec3f(*LEAF_GREEN)])
     _primvar(
-        pts.GetPrim(),
-        "forest:instance",
-        Sdf.ValueTypeNames.IntArray,
+        mesh.GetPrim(),
+        "st",
+        Sdf.ValueTypeNames.TexCoord2fArray,
         UsdGeom.Tokens.vertex,
-        Vt.IntArray.FromNumpy(forest.foliage_instance),
+        Vt.Vec2fArray.FromNumpy(cloud.st.astype(np.float32)),
     )
-    pts.CreateExtentAttr(
-        UsdGeom.Points.ComputeExtent(pts.GetPointsAttr().Get(), pts.GetWidthsAttr().Get())
+    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    return mesh
+
+
+def write_foliage(
+    stage: Usd.Stage,
+    forest: Forest,
+    anchors: FoliageAnchors,
+    samples: list[tuple[float | None, F64]],
+) -> UsdGeom.PointInstancer:
+    """Leaf clouds as a PointInstancer of the leaf-cloud Mesh: one instance per anchor,
+    scaled by its diameter, at its centre on the posed forest (``samples``: time and
+    ``(k, 3)`` centres per palette sample, time-sampled with wind). Per instance: the piece it
+    sits on (``forest:instance``), that piece's ``forest:boneOffset`` and the joint it follows
+    (``forest:joint``), and the rest point in the piece's model space
+    (``forest:restPosition``): the centre at any frame is
+    ``palette[boneOffset + joint]`` applied to the rest point."""
+    inst = UsdGeom.PointInstancer.Define(stage, FOLIAGE)
+    prim = inst.GetPrim()
+    UsdGeom.Scope.Define(stage, f"{FOLIAGE}/Prototypes")
+    cloud = leaf_cloud()
+    mesh = write_leaf_cloud(stage, FOLIAGE_CLOUD, cloud, leaf_material(stage))
+    inst.CreatePrototypesRel().SetTargets([mesh.GetPath()])
+    k = len(anchors)
+    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(k, np.int32)))
+    inst.CreateScalesAttr(
+        Vt.Vec3fArray.FromNumpy(np.repeat(anchors.size[:, None], 3, axis=1).astype(np.float32))
     )
+    inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(k, dtype=np.int64)))
+    positions = inst.CreatePositionsAttr()
+    # the default is the first sample, so tools that read no time still see the clouds
+    positions.Set(Vt.Vec3fArray.FromNumpy(samples[0][1].astype(np.float32)))
+    for time, pos in samples:
+        if time is not None:
+            positions.Set(
+                Vt.Vec3fArray.FromNumpy(pos.astype(np.float32)),
+                _time_code(time, forest.options.fps),
+            )
+    vertex = UsdGeom.Tokens.vertex
+    ints = Sdf.ValueTypeNames.IntArray
+    _primvar(prim, "forest:instance", ints, vertex, Vt.IntArray.FromNumpy(anchors.instance))
+    _primvar(
+        prim,
+        "forest:boneOffset",
+        ints,
+        vertex,
+        Vt.IntArray.FromNumpy(forest.bones.offset[anchors.instance]),
+    )
+    _primvar(prim, "forest:joint", ints, vertex, Vt.IntArray.FromNumpy(np.full(k, HUB, np.int32)))
+    _primvar(
+        prim,
+        "forest:restPosition",
+        Sdf.ValueTypeNames.Float3Array,
+        vertex,
+        Vt.Vec3fArray.FromNumpy(anchors.rest.astype(np.float32)),
+    )
+    # extent over every sample: the clouds' boxes at every frame
+    lo_c, hi_c = (np.asarray(v, dtype=np.float64) for v in mesh.GetExtentAttr().Get())
+    pos_all = np.stack([p for _, p in samples])
+    s = anchors.size[None, :, None]
+    lo = (pos_all + s * lo_c).min(axis=(0, 1))
+    hi = (pos_all + s * hi_c).max(axis=(0, 1))
+    inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
+    return inst
 
 
 def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
@@ -302,9 +394,16 @@ def write_scene(
     try:
         setup_stage(stage, forest)
         material = bark_material(stage, tiles)
-        write_instancer(stage, forest, material, progress)
-        if len(forest.foliage_instance):
-            write_foliage(stage, forest)
+        anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
+        samples: list[tuple[float | None, F64]] = []
+
+        def foliage_sample(time: float | None, palette: F64) -> None:
+            if anchors is not None:
+                samples.append((time, anchors.positions(palette, row_vectors=True)))
+
+        write_instancer(stage, forest, material, progress, foliage_sample)
+        if anchors is not None:
+            write_foliage(stage, forest, anchors, samples)
         if skinned:
             from forest.usd_skinned import write_skinned_trees
 

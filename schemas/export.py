@@ -12,6 +12,7 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from schemas.grammar import Grammar
+from schemas.jobs import ForestRequest, Job, JobPage, PresetList, RenderRequest, TreeRequest
 from schemas.metrics import RenderMetrics
 from schemas.tileset import TileSetManifest
 
@@ -19,6 +20,12 @@ MODELS: dict[str, type[BaseModel]] = {
     "grammar": Grammar,
     "metrics": RenderMetrics,
     "tileset": TileSetManifest,
+    "tree-request": TreeRequest,
+    "forest-request": ForestRequest,
+    "render-request": RenderRequest,
+    "job": Job,
+    "job-page": JobPage,
+    "presets": PresetList,
 }
 FOLDER = Path(__file__).parent / "json"
 

@@ -27,6 +27,44 @@ class TessellationSettings(BaseModel):
     spacing: Literal["fractional_odd"] = "fractional_odd"
 
 
+class FoliagePassMetrics(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    draw_calls: Count
+    primitives: Count
+    """GL_PRIMITIVES_GENERATED of the pass (triangles)."""
+
+
+class FoliageFrameMetrics(BaseModel):
+    """The foliage passes of one frame (paper 6), also counted in the frame's totals."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    impostor_rendered: bool
+    """Whether pass 1 ran this frame: it reruns only when the view direction changed."""
+    impostor: FoliagePassMetrics
+    """Pass 1: the leaf-cloud model into the off-screen colour + distance target (zeros when
+    the picture was reused, and in geometry mode)."""
+    billboards: FoliagePassMetrics
+    """Pass 2: every camera-facing billboard in one instanced draw; in geometry mode the
+    real leaf-cloud mesh at every cloud, also in one instanced draw."""
+
+
+class FoliageSettings(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    mode: Literal["impostor", "geometry"]
+    """2.5D impostors (two passes) or the real leaf-cloud mesh instanced (for comparison)."""
+    clouds: Count
+    """Leaf clouds (foliage instances) drawn per frame."""
+    leaf_cards: Count
+    """Cards in the leaf-cloud model (two triangles each)."""
+    impostor_size: Annotated[int, Field(ge=1)] | None
+    """Side in pixels of the pass-1 target (null in geometry mode)."""
+    impostor_renders: Count
+    """Times pass 1 ran in the whole run, warm-up frames included."""
+
+
 class FrameMetrics(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
@@ -41,9 +79,12 @@ class FrameMetrics(BaseModel):
     CPU rasteriser (llvmpipe) the timer brackets command submission only: there the
     rasterisation shows in ``cpu_ms`` (which waits for it with glFinish)."""
     primitives: Count
-    """GL_PRIMITIVES_GENERATED: triangles out of the tessellator."""
+    """GL_PRIMITIVES_GENERATED: triangles out of the tessellator, plus the foliage passes'."""
     draw_calls: Count
+    """Every draw call of the frame, foliage passes included."""
     instances: Count
+    foliage: FoliageFrameMetrics | None = None
+    """The foliage passes alone; null when no foliage was drawn."""
 
 
 class MetricsSummary(BaseModel):
@@ -79,5 +120,7 @@ class RenderMetrics(BaseModel):
     tessellation: TessellationSettings
     warmup_frames: Count
     """Frames drawn before the measured ones (shader compilation, first uploads)."""
+    foliage: FoliageSettings | None = None
+    """Null when no foliage was drawn (``--no-foliage``, or a scene without foliage)."""
     frames: Annotated[list[FrameMetrics], Field(min_length=1)]
     median: MetricsSummary

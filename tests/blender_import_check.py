@@ -277,7 +277,7 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
     if not instancers:
         failures.append("no PointInstancer (Geometry Nodes instance-on-points object) imported")
     if args.instances is not None and n_inst != args.instances:
-        failures.append(f"Blender draws {n_inst} piece instances, expected {args.instances}")
+        failures.append(f"Blender draws {n_inst} instances, expected {args.instances}")
     if standalone:
         failures.append(
             f"prototypes drawn on their own (at their own place, not instanced): {standalone}"

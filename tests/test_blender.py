@@ -20,7 +20,7 @@ from pxr import Usd, UsdGeom, UsdSkel
 
 from forest.generate import Forest, ForestOptions, generate_forest
 from forest.presets import load_preset
-from forest.usd_scene import PIECES, write_scene
+from forest.usd_scene import FOLIAGE, PIECES, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
@@ -34,13 +34,17 @@ def usd_expectations(path: Path, out: Path) -> int:
     as USD computes them, column-vector convention. Returns the PointInstancer's count."""
     stage = Usd.Stage.Open(str(path))
     default = Usd.TimeCode.Default()
-    inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(PIECES))
-    l2w = np.array(inst.ComputeLocalToWorldTransform(default))
-    xf = np.array(
-        [np.array(m) @ l2w for m in inst.ComputeInstanceTransformsAtTime(default, default)]
-    ).transpose(0, 2, 1)
-    protos = inst.GetPrototypesRel().GetTargets()
-    names = np.array([protos[i].name for i in inst.GetProtoIndicesAttr().Get()])
+    xfs, names_ = [], []
+    # the pieces, and the leaf clouds (instances of the leaf-cloud mesh; their default
+    # positions are the first wind frame's)
+    for where in (PIECES, FOLIAGE):
+        inst = UsdGeom.PointInstancer(stage.GetPrimAtPath(where))
+        l2w = np.array(inst.ComputeLocalToWorldTransform(default))
+        xfs += [np.array(m) @ l2w for m in inst.ComputeInstanceTransformsAtTime(default, default)]
+        protos = inst.GetPrototypesRel().GetTargets()
+        names_ += [protos[i].name for i in inst.GetProtoIndicesAttr().Get()]
+    xf = np.array(xfs).transpose(0, 2, 1)
+    names = np.array(names_)
     data: dict[str, Any] = {
         "up_axis": np.array(str(UsdGeom.GetStageUpAxis(stage))),
         "instance_xforms": xf,
@@ -96,7 +100,7 @@ def blender_run(tmp_path_factory: pytest.TempPathFactory) -> Run | str:
             str(CHECK),
             str(scene),
             "--instances",
-            str(forest.n_instances),
+            str(forest.n_instances + len(forest.foliage_instance)),
             "--trees",
             str(TREES),
             "--frames",
@@ -129,7 +133,7 @@ def ran(blender_run: Run | str) -> Run:
 
 def test_blender_shows_every_piece_instance(blender_run: Run | str) -> None:
     forest, n_usd, report, _ = ran(blender_run)
-    assert n_usd == forest.n_instances
+    assert n_usd == forest.n_instances + len(forest.foliage_instance)  # pieces + leaf clouds
     assert report["instances"] == n_usd, report["point_instancers"]
     assert report["prototypes_drawn_standalone"] == []
     assert report["instance_transform_error"] <= 1e-3

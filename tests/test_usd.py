@@ -46,7 +46,8 @@ def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> 
     forest = generate_forest(load_preset(name), 2, ForestOptions(trees=2))
     stage = Usd.Stage.Open(str(write_scene(forest, tmp_path / "f.usdc", skinned=True)))
     meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
-    assert len(meshes) == 4 + 2 * 2  # prototypes + (bark, proxy) per tree
+    # piece prototypes + the leaf-cloud prototype + (bark, proxy) per tree
+    assert len(meshes) == 4 + 1 + 2 * 2
     for mesh in meshes:
         ok, why = UsdGeom.Mesh.ValidateTopology(
             mesh.GetFaceVertexIndicesAttr().Get(),

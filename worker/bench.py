@@ -7,6 +7,11 @@ what a worker gets. The level is the same on every edge (no distance falloff), s
 per frame are ``2 * level^2`` per quad. Frame time is the wall time around a finished frame
 (glFinish) at the median of the measured frames; GPU timer-query times are printed beside it,
 but on a CPU rasteriser such as llvmpipe they bracket command submission only.
+
+Foliage (paper 6): for the ``foliage_trees`` counts, the same frame (branches at level 1) with
+every leaf cloud drawn as 2.5D impostors (both passes every frame, as when the camera turns)
+next to the real leaf-cloud mesh instanced at the same positions: frame time and triangles
+side by side.
 """
 
 from __future__ import annotations
@@ -17,16 +22,21 @@ import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from forest.errors import ForestError
 from forest.generate import ForestOptions, generate_forest
 from forest.presets import load_preset
 from forest.usd_read import read_scene
 from forest.usd_scene import write_scene
+from worker.foliage import FOLIAGE_MODES
 from worker.gl_context import create_context, gl_info, raise_gl_error
 from worker.render_job import preview_view
 from worker.renderer import Renderer, TessSettings
 from worker.textures import procedural_tiles
+
+if TYPE_CHECKING:
+    import moderngl
 
 Echo = Callable[[str], None]
 SPACING = 6.0  # metres between trees: the area grows with the tree count
@@ -51,15 +61,13 @@ class BenchRow:
     gpu_ms: float | None
 
 
-def parse_counts(text: str) -> list[int]:
+def parse_counts(text: str, path: str = "trees") -> list[int]:
     try:
         counts = [int(x) for x in text.split(",") if x.strip()]
     except ValueError:
-        raise ForestError(
-            f"expected comma-separated integers, got {text!r}", path="trees"
-        ) from None
+        raise ForestError(f"expected comma-separated integers, got {text!r}", path=path) from None
     if not counts or min(counts) < 1:
-        raise ForestError("tree counts must be positive integers", path="trees")
+        raise ForestError("tree counts must be positive integers", path=path)
     return counts
 
 
@@ -72,7 +80,12 @@ def run_render_bench(
     naive: bool = True,
     plot: Path | None = None,
     echo: Echo = print,
+    foliage_trees: Sequence[int] = (),
+    foliage_rows: list[FoliageBenchRow] | None = None,
 ) -> list[BenchRow]:
+    """Branches: instanced against a draw call per piece (no foliage). Then, for each of
+    ``foliage_trees``, impostor foliage against the real leaf-cloud geometry (rows appended
+    to ``foliage_rows`` when given)."""
     ctx = create_context()
     info = gl_info(ctx)
     echo(f"renderer: {info.renderer} ({info.version})")
@@ -93,9 +106,9 @@ def run_render_bench(
                 path = write_scene(forest, Path(tmp) / f"bench_{n}.usdc")
                 scene = read_scene(path)
                 images = procedural_tiles(scene.manifest, scene.manifest.n_slices)
-                renderer = Renderer(ctx, scene, size, images)
+                renderer = Renderer(ctx, scene, size, images, foliage=None)
                 try:
-                    camera, _ = preview_view(scene, size, 1.0)
+                    camera, _ = preview_view(scene, size, 1.0, foliage=False)
                     for level in levels:
                         tess = TessSettings(max_level=level, lod_half=0.0)
                         for per_instance in (False, True) if naive else (False,):
@@ -124,12 +137,102 @@ def run_render_bench(
                     raise_gl_error(ctx, f"the {n}-tree forest")
                 finally:
                     renderer.release()
+            if foliage_trees:
+                found = _foliage_bench(ctx, foliage_trees, preset, size, frames, Path(tmp), echo)
+                if foliage_rows is not None:
+                    foliage_rows.extend(found)
     finally:
         ctx.release()
     _summary(rows, echo)
     if plot is not None:
         plot_rows(rows, plot, info.renderer)
         echo(f"wrote {plot}")
+    return rows
+
+
+@dataclass(frozen=True)
+class FoliageBenchRow:
+    trees: int
+    clouds: int
+    mode: str  # "impostor" (both passes every frame) or "geometry"
+    draw_calls: int  # the whole frame
+    triangles: int  # the whole frame
+    foliage_triangles: int  # the foliage passes alone
+    cpu_ms: float
+    gpu_ms: float | None
+    foliage_ms: float  # frames of the foliage alone (no branches)
+
+
+def _foliage_bench(
+    ctx: moderngl.Context,
+    trees: Sequence[int],
+    preset: str,
+    size: tuple[int, int],
+    frames: int,
+    tmp: Path,
+    echo: Echo,
+) -> list[FoliageBenchRow]:
+    """Frames of the branches (tessellation level 1) plus every leaf cloud, as impostors (pass 1
+    forced every frame, as when the camera turns) or as the real leaf-cloud mesh."""
+    grammar = load_preset(preset)
+    if not grammar.foliage:
+        echo(f"note: preset {preset} bears no foliage: no foliage rows")
+        return []
+    echo("foliage: impostors (pass 1 every frame) against the real leaf-cloud mesh")
+    echo(
+        f"{'trees':>6} {'clouds':>7} {'mode':>9} {'draws':>6} {'triangles':>11} "
+        f"{'foliage tri':>11} {'frame ms':>9} {'gpu ms':>8} {'foliage ms':>10}"
+    )
+    rows: list[FoliageBenchRow] = []
+    tess = TessSettings(max_level=1.0, lod_half=0.0)
+    for n in trees:
+        side = SPACING * math.sqrt(n)
+        forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
+        scene = read_scene(write_scene(forest, tmp / f"foliage_{n}.usdc"))
+        del forest
+        images = procedural_tiles(scene.manifest, scene.manifest.n_slices)
+        camera, _ = preview_view(scene, size, 1.0)
+        by_mode: dict[str, FoliageBenchRow] = {}
+        for mode in FOLIAGE_MODES:
+            renderer = Renderer(ctx, scene, size, images, foliage=mode)
+            try:
+                renderer.draw(camera, tess, force_impostor=True)  # warm-up
+                stats = [renderer.draw(camera, tess, force_impostor=True) for _ in range(frames)]
+                alone = [
+                    renderer.draw(camera, tess, force_impostor=True, branches=False)
+                    for _ in range(frames)
+                ]
+                raise_gl_error(ctx, f"the {n}-tree forest's foliage")
+            finally:
+                renderer.release()
+            gpu = [s.gpu_ms for s in stats if s.gpu_ms is not None]
+            f0 = stats[0].foliage
+            row = FoliageBenchRow(
+                trees=n,
+                clouds=scene.n_foliage,
+                mode=mode,
+                draw_calls=stats[0].draw_calls,
+                triangles=stats[0].primitives,
+                foliage_triangles=f0.primitives if f0 is not None else 0,
+                cpu_ms=statistics.median(s.cpu_ms for s in stats),
+                gpu_ms=statistics.median(gpu) if len(gpu) == len(stats) else None,
+                foliage_ms=statistics.median(s.cpu_ms for s in alone),
+            )
+            rows.append(row)
+            by_mode[mode] = row
+            g = f"{row.gpu_ms:8.2f}" if row.gpu_ms is not None else f"{'-':>8}"
+            echo(
+                f"{n:>6} {row.clouds:>7} {mode:>9} {row.draw_calls:>6} {row.triangles:>11} "
+                f"{row.foliage_triangles:>11} {row.cpu_ms:>9.2f} {g} {row.foliage_ms:>10.2f}"
+            )
+        imp, geo = by_mode["impostor"], by_mode["geometry"]
+        if imp.cpu_ms > 0 and imp.foliage_ms > 0 and imp.foliage_triangles > 0:
+            echo(
+                f"{n} trees: with impostors a frame is {geo.cpu_ms / imp.cpu_ms:.2f}x as fast "
+                f"(foliage alone {geo.foliage_ms / imp.foliage_ms:.2f}x) as with the real leaf "
+                f"clouds, for {geo.foliage_triangles / imp.foliage_triangles:.0f}x fewer "
+                "foliage triangles"
+            )
     return rows
 
 

@@ -8,7 +8,15 @@ from pathlib import Path
 import numpy as np
 
 from forest.errors import OutputError
-from schemas.metrics import FrameMetrics, MetricsSummary, RenderMetrics
+from schemas.metrics import (
+    FoliageFrameMetrics,
+    FoliagePassMetrics,
+    FoliageSettings,
+    FrameMetrics,
+    MetricsSummary,
+    RenderMetrics,
+)
+from worker.foliage import FoliageStats
 from worker.renderer import FrameStats, Renderer, TessSettings
 
 
@@ -52,6 +60,7 @@ def render_metrics(
         textures=renderer.images.source,
         tessellation=tess.schema(),
         warmup_frames=warmup_frames,
+        foliage=_foliage_settings(renderer),
         frames=[
             FrameMetrics(
                 frame=f.frame,
@@ -61,10 +70,38 @@ def render_metrics(
                 primitives=f.primitives,
                 draw_calls=f.draw_calls,
                 instances=f.instances,
+                foliage=_foliage_frame(f.foliage),
             )
             for f in frames
         ],
         median=summarize(frames),
+    )
+
+
+def _foliage_frame(stats: FoliageStats | None) -> FoliageFrameMetrics | None:
+    if stats is None:
+        return None
+    return FoliageFrameMetrics(
+        impostor_rendered=stats.impostor_rendered,
+        impostor=FoliagePassMetrics(
+            draw_calls=stats.impostor.draw_calls, primitives=stats.impostor.primitives
+        ),
+        billboards=FoliagePassMetrics(
+            draw_calls=stats.billboards.draw_calls, primitives=stats.billboards.primitives
+        ),
+    )
+
+
+def _foliage_settings(renderer: Renderer) -> FoliageSettings | None:
+    f = renderer.foliage
+    if f is None:
+        return None
+    return FoliageSettings(
+        mode=f.mode,
+        clouds=f.scene.n_foliage,
+        leaf_cards=f.cloud.n_cards,
+        impostor_size=f.impostor_size if f.mode == "impostor" else None,
+        impostor_renders=f.impostor_renders,
     )
 
 

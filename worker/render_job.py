@@ -18,6 +18,7 @@ from forest.errors import ForestError, OutputError
 from forest.usd_read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
 from worker.camera import Camera, frame_points
+from worker.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points
 from worker.gl_context import create_context, raise_gl_error
 from worker.metrics import render_metrics, write_metrics
 from worker.renderer import Renderer, TessSettings, auto_lod
@@ -45,6 +46,8 @@ class RenderRequest:
     tiles: Path | None = None
     per_instance: bool = False
     cull: bool = True
+    foliage: FoliageMode | None = "impostor"  # None: no foliage
+    impostor_size: int = IMPOSTOR_SIZE
 
     def check(self) -> None:
         for name, value in (("width", self.width), ("height", self.height)):
@@ -65,6 +68,14 @@ class RenderRequest:
         for path in (self.output, self.metrics):
             if path is not None and not path.parent.resolve().is_dir():
                 raise OutputError("folder does not exist", path=str(path))
+        if self.foliage is not None and self.foliage not in FOLIAGE_MODES:
+            raise ForestError(
+                f"must be one of {', '.join(FOLIAGE_MODES)}, got {self.foliage!r}", path="foliage"
+            )
+        if not 8 <= self.impostor_size <= 4096:
+            raise ForestError(
+                f"must be in [8, 4096], got {self.impostor_size}", path="impostor_size"
+            )
         if self.output.suffix.lower() != ".png":
             raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
 
@@ -97,9 +108,13 @@ def preview_view(
     frame: int = 0,
     alpha: float = 0.75,
     lod_half: float | None = None,
+    foliage: bool = True,
 ) -> tuple[Camera, TessSettings]:
-    """The automatic camera framing the forest at ``frame`` and its level-of-detail settings."""
+    """The automatic camera framing the forest at ``frame`` (its leaf clouds too, with
+    ``foliage``) and its level-of-detail settings."""
     points = scene_points(scene, frame)
+    if foliage and scene.n_foliage:
+        points = np.concatenate([points, foliage_points(scene, frame)])
     lo, hi = points.min(axis=0), points.max(axis=0)
     camera = frame_points(points, size[0] / size[1])
     tess = auto_lod(camera, lo, hi, tess_max, alpha)
@@ -123,9 +138,22 @@ def render_file(req: RenderRequest) -> RenderMetrics:
         images = tile_images(
             scene.manifest, int(scene.tile_indices.max()), req.tiles, scene_path=req.scene
         )
-        renderer = Renderer(ctx, scene, (req.width, req.height), images)
+        renderer = Renderer(
+            ctx,
+            scene,
+            (req.width, req.height),
+            images,
+            foliage=req.foliage,
+            impostor_size=req.impostor_size,
+        )
         camera, tess = preview_view(
-            scene, (req.width, req.height), req.tess_max, req.frame, req.alpha, req.lod_half
+            scene,
+            (req.width, req.height),
+            req.tess_max,
+            req.frame,
+            req.alpha,
+            req.lod_half,
+            foliage=req.foliage is not None,
         )
         for _ in range(req.warmup):
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)

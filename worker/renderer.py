@@ -16,6 +16,7 @@ from forest.usd_read import SceneArrays
 from schemas.metrics import TessellationSettings
 from worker import shaders
 from worker.camera import Camera
+from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import gl_info
 from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, check_scene
 from worker.textures import TileImages, tile_images, upload
@@ -86,18 +87,27 @@ def auto_lod(
 
 @dataclass(frozen=True)
 class FrameStats:
+    """One frame; ``primitives`` and ``draw_calls`` count every pass, foliage included
+    (``foliage`` has the foliage passes alone)."""
+
     frame: int
     cpu_ms: float
     gpu_ms: float | None
     primitives: int
     draw_calls: int
     instances: int
+    foliage: FoliageStats | None = None
 
 
 class Renderer:
     """Draws one scene into an offscreen framebuffer of ``size = (width, height)``.
 
-    ``ids=True`` adds an integer attachment holding (tile, instance id, quad, 1) per pixel.
+    ``ids=True`` adds an integer attachment holding (tile, instance id, quad, 1) per pixel
+    (undefined where foliage covers the pixel).
+
+    ``foliage`` draws the scene's leaf clouds as 2.5D impostors (``"impostor"``, the default)
+    or as the real leaf-cloud mesh (``"geometry"``); ``None`` leaves them out, as does a scene
+    without foliage (see :mod:`worker.foliage`).
     """
 
     def __init__(
@@ -107,6 +117,8 @@ class Renderer:
         size: tuple[int, int],
         images: TileImages | None = None,
         ids: bool = False,
+        foliage: FoliageMode | None = "impostor",
+        impostor_size: int = IMPOSTOR_SIZE,
     ) -> None:
         import moderngl
 
@@ -126,6 +138,11 @@ class Renderer:
         self.query = ctx.query(time=self.info.timer_query, primitives=True)
         self._variants: dict[frozenset[str], tuple[Any, list[Any]]] = {}
         self._moderngl = moderngl
+        self.foliage: FoliageRenderer | None = None
+        if foliage is not None and scene.n_foliage:
+            self.foliage = FoliageRenderer(
+                ctx, scene, foliage, impostor_size, timer_query=self.info.timer_query
+            )
 
     # -- programs -----------------------------------------------------------------------------
 
@@ -202,13 +219,21 @@ class Renderer:
         per_instance: bool = False,
         skinning: bool = True,
         cull: bool = True,
+        branches: bool = True,
+        force_impostor: bool = False,
     ) -> FrameStats:
         """Draw palette frame ``frame`` and wait for it to finish. ``cull`` drops patches
-        wholly outside the view frustum in the tessellation control shader."""
+        wholly outside the view frustum in the tessellation control shader. Foliage: pass 1
+        (when the view direction changed, or ``force_impostor``), the branches, then pass 2.
+        ``branches=False`` draws the foliage alone."""
         mgl, ctx = self._moderngl, self.ctx
         prog, vaos = self._variant(*(["ID_OUTPUT"] if self.id_texture else []))
+        fog = FOG_AT_TARGET / max(float(np.linalg.norm(camera.target - camera.eye)), 1e-6)
         t0 = time.perf_counter()
         self.buffers.use(frame)
+        pass1 = None
+        if self.foliage is not None:
+            pass1 = self.foliage.prepare(camera, SUN, SKY, force=force_impostor)
         self.fbo.use()
         self.fbo.viewport = (0, 0, *self.size)
         ctx.enable_only(mgl.DEPTH_TEST)
@@ -219,19 +244,36 @@ class Renderer:
             self.id_texture.write(np.zeros((*self.size[::-1], 4), np.int32).tobytes())
         self.texture.use(0)
         self._uniforms(prog, camera, tess, skinning, cull)
-        with self.query:
-            calls = self._draw_all(prog, vaos, per_instance)
+        calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
+        if branches:
+            with self.query:
+                calls = self._draw_all(prog, vaos, per_instance)
+            primitives = int(self.query.primitives)
+            if gpu_ms is not None:
+                gpu_ms = self.query.elapsed / 1e6
+        leaves = None
+        if self.foliage is not None and pass1 is not None:
+            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, self.fbo)
+            calls += leaves.draw_calls
+            primitives += leaves.primitives
+            gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
         ctx.finish()
         cpu_ms = (time.perf_counter() - t0) * 1e3
-        gpu_ms = self.query.elapsed / 1e6 if self.info.timer_query else None
         return FrameStats(
             frame=frame % self.buffers.n_frames,
             cpu_ms=cpu_ms,
             gpu_ms=gpu_ms,
-            primitives=int(self.query.primitives),
+            primitives=primitives,
             draw_calls=calls,
             instances=self.scene.n_instances,
+            foliage=leaves,
         )
+
+    def read_depth(self) -> NDArray[np.float32]:
+        """``(h, w)`` float32 window depth in [0, 1] (1: nothing drawn), top row first."""
+        w, h = self.size
+        raw = np.frombuffer(self.fbo.read(components=1, attachment=-1, dtype="f4"), np.float32)
+        return raw.reshape(h, w)[::-1].copy()
 
     def read_color(self) -> NDArray[np.uint8]:
         """``(h, w, 4)`` uint8, top row first."""
@@ -291,6 +333,8 @@ class Renderer:
         # moderngl rebinds the last used framebuffer after creating one: leave GL on the
         # default framebuffer, not on a deleted name (GL_INVALID_OPERATION later)
         self.ctx.detect_framebuffer(0).use()
+        if self.foliage is not None:
+            self.foliage.release()
         for obj in (self.fbo, self.color, self.depth, self.texture):
             obj.release()
         if self.id_texture is not None:

@@ -35,6 +35,10 @@ def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_pat
         (["--trees", "1,x"], "error: trees: expected comma-separated integers, got '1,x'\n"),
         (["--trees", "0"], "error: trees: tree counts must be positive integers\n"),
         (["--levels", "0.5"], "error: levels: levels must be in [1, 64]\n"),
+        (
+            ["--foliage-trees", "x"],
+            "error: foliage_trees: expected comma-separated integers, got 'x'\n",
+        ),
     ],
 )
 def test_bench_render_bad_options(args: list[str], message: str) -> None:

@@ -1,0 +1,15 @@
+# CPU worker (forest generation, queue `default`): `docker build -f deploy/worker.Dockerfile .`
+FROM python:3.11-slim-bookworm
+ENV PYTHONDONTWRITEBYTECODE=1 PYTHONUNBUFFERED=1 PIP_NO_CACHE_DIR=1
+WORKDIR /app
+COPY pyproject.toml README.md ./
+COPY forest forest
+COPY schemas schemas
+COPY service service
+COPY worker worker
+COPY shaders shaders
+RUN pip install '.[service]' && useradd --uid 10001 forest && mkdir -p /data && chown forest /data
+USER forest
+ENV FOREST_DATA_DIR=/data FOREST_ARTIFACTS_DIR=/data/artifacts
+# one task at a time per process (solo pool); scale with replicas
+CMD ["forest", "worker", "-Q", "default"]

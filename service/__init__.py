@@ -1,0 +1,1 @@
+"""The HTTP service: FastAPI app, job store (SQLAlchemy), artifact store, task dispatch."""

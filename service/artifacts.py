@@ -1,0 +1,51 @@
+"""The artifact store: one folder per job under the (shared) artifacts folder; files appear
+under their final name only once complete (temporary name, then rename)."""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import tempfile
+from pathlib import Path
+
+NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
+JOB_ID = re.compile(r"^[0-9a-f]{32}$")
+
+
+class ArtifactStore:
+    def __init__(self, root: Path) -> None:
+        self.root = Path(root)
+
+    def folder(self, job_id: str) -> Path:
+        if not JOB_ID.match(job_id):
+            raise ValueError(f"bad job id {job_id!r}")
+        return self.root / job_id
+
+    def path(self, job_id: str, name: str) -> Path | None:
+        """The finished artifact, or None (bad name, missing)."""
+        if not NAME.match(name) or not JOB_ID.match(job_id):
+            return None
+        p = self.folder(job_id) / name
+        return p if p.is_file() else None
+
+    def scratch(self, job_id: str) -> Path:
+        """A private temporary folder beside the job's folder (same file system: rename works)."""
+        self.root.mkdir(parents=True, exist_ok=True)
+        return Path(tempfile.mkdtemp(prefix=f".{job_id}.", dir=self.root))
+
+    def publish(self, job_id: str, src: Path, name: str) -> Path:
+        """Move a finished file into place atomically; an existing artifact of the same name
+        (an earlier attempt's identical output) is replaced."""
+        if not NAME.match(name):
+            raise ValueError(f"bad artifact name {name!r}")
+        dest = self.folder(job_id)
+        dest.mkdir(parents=True, exist_ok=True)
+        tmp = dest / f".{name}.{os.getpid()}.tmp"
+        shutil.move(src, tmp)
+        os.replace(tmp, dest / name)
+        return dest / name
+
+    def size(self, job_id: str, name: str) -> int:
+        p = self.path(job_id, name)
+        return p.stat().st_size if p is not None else 0

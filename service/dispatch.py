@@ -1,0 +1,66 @@
+"""Celery as delivery only: the task carries a job id; the job table holds everything else.
+
+Task kinds map to queues (CPU work on ``default``, renders on ``gpu``); the worker's registry
+(``worker/tasks.py``) maps kinds to code. The service sends tasks by name and never imports
+worker code.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from celery import Celery
+from kombu import Queue
+
+from service.settings import ServiceSettings
+
+TASK_NAME = "forest.run_job"
+KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu"}
+QUEUES = ("default", "gpu")
+SQLA_POLL_S = 0.1
+
+
+def make_celery(settings: ServiceSettings) -> Celery:
+    app = Celery("forest", broker=settings.broker, set_as_current=False)
+    args: dict[str, Any] = {"x-queue-type": "quorum"} if settings.quorum_queues else {}
+    if settings.broker.startswith("sqla+"):
+        # kombu hands every transport option of this transport to create_engine, so the
+        # poll interval (1 s by default: a second of latency per job) is set on the class
+        from kombu.transport import sqlalchemy as kombu_sqla
+
+        kombu_sqla.Transport.polling_interval = SQLA_POLL_S
+    app.conf.update(
+        task_acks_late=True,
+        task_reject_on_worker_lost=True,
+        worker_prefetch_multiplier=1,
+        task_queues=[Queue(settings.queue(q), queue_arguments=args) for q in QUEUES],
+        task_default_queue=settings.queue("default"),
+        task_ignore_result=True,
+        result_backend=None,
+        broker_connection_retry_on_startup=True,
+        worker_hijack_root_logger=False,
+        worker_send_task_events=False,
+        task_serializer="json",
+        accept_content=["json"],
+    )
+    return app
+
+
+class Dispatcher:
+    """Sends ``forest.run_job(job_id)`` to the queue of the job's kind."""
+
+    def __init__(self, settings: ServiceSettings) -> None:
+        self.settings = settings
+        self.app = make_celery(settings)
+
+    def send(self, job_id: str, kind: str, countdown: float | None = None) -> None:
+        queue = self.settings.queue(KIND_QUEUES[kind])
+        self.app.send_task(TASK_NAME, args=[job_id], queue=queue, countdown=countdown)
+
+    def ping(self) -> None:
+        """Raise unless the broker answers."""
+        with self.app.connection_for_write() as conn:
+            conn.ensure_connection(max_retries=1, timeout=2)
+
+    def close(self) -> None:
+        self.app.close()

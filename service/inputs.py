@@ -1,0 +1,47 @@
+"""Checks of tree and forest requests beyond their schema: exactly one of preset/grammar,
+a grammar that compiles, and the service's caps. Errors name the request field (422)."""
+
+from __future__ import annotations
+
+from forest.errors import ForestError, GrammarError
+from forest.grammar import CompiledGrammar, compile_grammar
+from forest.presets import load_preset
+from forest.settings import ForestSettings
+from schemas.grammar import Grammar
+from schemas.jobs import TreeRequest
+from service.errors import field_error, forest_error
+from service.settings import ServiceSettings
+
+
+def library_settings(settings: ServiceSettings, max_pieces: int) -> ForestSettings:
+    return ForestSettings(max_pieces_per_forest=max_pieces, max_frames=settings.max_frames)
+
+
+def resolve_grammar(
+    req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
+) -> tuple[Grammar, CompiledGrammar]:
+    if (req.preset is None) == (req.grammar is None):
+        raise field_error(["preset"], "give exactly one of preset (a name) or grammar (an object)")
+    if req.frames > settings.max_frames:
+        raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
+    try:
+        if req.preset is not None:
+            grammar = load_preset(req.preset)
+            prefix: list[str | int] = []
+        else:
+            assert req.grammar is not None
+            grammar = req.grammar
+            prefix = ["grammar"]
+        cg = compile_grammar(grammar, library_settings(settings, max_pieces))
+    except GrammarError as exc:
+        raise forest_error(exc, [] if exc.path == "preset" else prefix) from None
+    except ForestError as exc:
+        raise forest_error(exc) from None
+    expected = cg.expected_pieces * trees
+    if expected > max_pieces:
+        raise field_error(
+            ["trees"] if trees > 1 else ["grammar" if req.grammar is not None else "preset"],
+            f"about {expected:.0f} pieces expected; the cap is {max_pieces}",
+            "limit_error",
+        )
+    return grammar, cg

@@ -1,0 +1,74 @@
+"""``POST /v1/renders``: a render job (202) of a finished forest job's scene, or of an uploaded
+USD file (``POST /v1/renders/upload``); artifacts ``preview.png`` and ``metrics.json``."""
+
+from __future__ import annotations
+
+import hashlib
+from typing import Annotated
+
+from fastapi import APIRouter, File, Form, UploadFile
+from fastapi.responses import JSONResponse
+
+from schemas.jobs import Job, RenderRequest
+from service.deps import IdempotencyKey, ServicesDep
+from service.errors import field_error
+from service.views import ERRORS, submit
+
+router = APIRouter(prefix="/v1/renders", tags=["renders"])
+
+
+@router.post("", status_code=202, response_model=Job, responses=ERRORS)
+def create_render(
+    req: RenderRequest, services: ServicesDep, idempotency_key: IdempotencyKey = None
+) -> JSONResponse:
+    s = services.settings
+    for name, value in (("width", req.width), ("height", req.height)):
+        if value > s.max_image_size:
+            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
+    if req.frames > s.max_render_frames:
+        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
+    row = services.store.get(req.forest_job)
+    if row is None or row.kind != "forest":
+        raise field_error(["forest_job"], "no such forest job")
+    if row.state != "completed":
+        raise field_error(["forest_job"], f"the forest job is {row.state}, not completed")
+    scene = (row.result or {}).get("scene")
+    if not scene or services.artifacts.path(row.id, scene) is None:
+        raise field_error(["forest_job"], "the forest job has no scene artifact")
+    params = req.model_dump(mode="json") | {"scene": scene}
+    return submit(services, "render", params, idempotency_key)
+
+
+USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
+
+
+@router.post("/upload", status_code=202, response_model=Job, responses=ERRORS)
+def upload_render(
+    services: ServicesDep,
+    scene: Annotated[UploadFile, File(description="A USD scene: .usda, .usdc or .usdz")],
+    width: Annotated[int, Form(ge=1, le=8192)] = 640,
+    height: Annotated[int, Form(ge=1, le=8192)] = 480,
+    tess_max: Annotated[float, Form(ge=1, le=64, allow_inf_nan=False)] = 8.0,
+    frame: Annotated[int, Form(ge=0, le=10_000)] = 0,
+    frames: Annotated[int, Form(ge=1, le=10_000)] = 1,
+    idempotency_key: IdempotencyKey = None,
+) -> JSONResponse:
+    """A render job of an uploaded USD scene (multipart form: ``scene`` file + the same
+    settings as ``POST /v1/renders``); the scene must follow the forest scene contract."""
+    s = services.settings
+    for name, value in (("width", width), ("height", height)):
+        if value > s.max_image_size:
+            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
+    if frames > s.max_render_frames:
+        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
+    data = scene.file.read()
+    suffix = next((sfx for magic, sfx in USD_MAGIC.items() if data.startswith(magic)), None)
+    if suffix is None:
+        raise field_error(["scene"], "not a USD file (.usda, .usdc or .usdz)")
+    name = f"upload{suffix}"
+    params = {
+        "forest_job": None, "scene": name, "scene_sha256": hashlib.sha256(data).hexdigest(),
+        "width": width, "height": height, "tess_max": tess_max, "frame": frame, "frames": frames,
+    }
+    # the scene is in place before the job is sent, so no worker can see the job without it
+    return submit(services, "render", params, idempotency_key, inputs={name: data})

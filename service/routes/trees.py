@@ -1,0 +1,63 @@
+"""``POST /v1/trees``: one tree, answered synchronously as a USD file."""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+from typing import Any
+
+from fastapi import APIRouter
+from fastapi.responses import Response
+
+from forest.errors import ForestError
+from forest.generate import ForestOptions, generate_forest
+from forest.skeleton import Wind
+from forest.usd_scene import write_scene
+from schemas.jobs import TreeRequest
+from service.deps import ServicesDep
+from service.errors import forest_error
+from service.inputs import library_settings, resolve_grammar
+
+router = APIRouter(prefix="/v1/trees", tags=["trees"])
+
+MEDIA_TYPES = {
+    "usda": "model/vnd.usda",
+    "usdc": "model/vnd.usd",
+    "usdz": "model/vnd.usdz+zip",
+}
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+RESPONSES: dict[int | str, dict[str, Any]] = {
+    200: {
+        "description": "The tree as USD (the `format` asked for)",
+        "content": {mt: _BINARY for mt in MEDIA_TYPES.values()},
+    },
+    400: {"description": "Body that is not JSON (bytes that do not decode)"},
+    413: {"description": "Request body too large"},
+}
+
+
+@router.post("", response_class=Response, responses=RESPONSES)
+def create_tree(req: TreeRequest, services: ServicesDep) -> Response:
+    s = services.settings
+    grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
+    options = ForestOptions(
+        trees=1, frames=req.frames, fps=req.fps, segments=req.segments,
+        wind=Wind(strength_deg=req.wind_deg),
+    )
+    name = f"{req.preset or grammar.name}-{req.seed}.{req.format}"
+    with tempfile.TemporaryDirectory(prefix="forest-tree-") as tmp:
+        try:
+            forest = generate_forest(
+                grammar, req.seed, options, settings=library_settings(s, s.max_tree_pieces),
+                compiled=cg,
+            )
+            path = write_scene(forest, Path(tmp) / f"tree.{req.format}", skinned=req.skinned)
+        except ForestError as exc:
+            raise forest_error(exc) from None
+        data = path.read_bytes()
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+    return Response(
+        data,
+        media_type=MEDIA_TYPES[req.format],
+        headers={"Content-Disposition": f'attachment; filename="{safe}"'},
+    )

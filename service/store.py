@@ -1,0 +1,322 @@
+"""The job store: every state change of a job is one SQL statement on the job table.
+
+Workers claim a job with a lease (``lease_owner``, ``lease_expires``) that their heartbeat
+extends; only the lease holder may finish it, so a job delivered twice runs to completion
+once. The reaper hands expired leases back to the queue.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import uuid
+from collections.abc import Sequence
+from dataclasses import dataclass
+from datetime import timedelta
+from typing import Any
+
+from sqlalchemy import Engine, func, select, update
+from sqlalchemy.exc import IntegrityError
+from sqlalchemy.orm import Session
+
+from service.db import JobRow, engine_for, utcnow
+
+
+class IdempotencyConflict(Exception):
+    """The idempotency key was used before with a different request."""
+
+    def __init__(self, key: str) -> None:
+        super().__init__(f"Idempotency-Key {key!r} was used with a different request")
+        self.key = key
+
+
+def request_hash(kind: str, params: dict[str, Any]) -> str:
+    text = json.dumps({"kind": kind, "params": params}, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class Claim:
+    job_id: str
+    owner: str
+    attempt: int
+    kind: str
+    params: dict[str, Any]
+
+
+class JobStore:
+    def __init__(self, url: str) -> None:
+        self.engine: Engine = engine_for(url)
+
+    def session(self) -> Session:
+        return Session(self.engine, expire_on_commit=False)
+
+    # -- API side ---------------------------------------------------------------------------
+
+    def create(
+        self, kind: str, params: dict[str, Any], max_attempts: int, key: str | None = None
+    ) -> tuple[JobRow, bool]:
+        """Insert a queued job; with an idempotency key already used for the same request,
+        answer that job instead (``created`` False)."""
+        digest = request_hash(kind, params)
+        if key is not None:
+            old = self.by_key(key)
+            if old is not None:
+                if old.request_hash != digest:
+                    raise IdempotencyConflict(key)
+                return old, False
+        now = utcnow()
+        row = JobRow(
+            id=uuid.uuid4().hex,
+            kind=kind,
+            state="queued",
+            params=params,
+            attempts=0,
+            max_attempts=max_attempts,
+            progress=0.0,
+            stage="queued",
+            cancel_requested=False,
+            idempotency_key=key,
+            request_hash=digest,
+            artifacts=[],
+            created_at=now,
+        )
+        try:
+            with self.session() as s, s.begin():
+                s.add(row)
+        except IntegrityError:  # a concurrent request with the same key won the insert
+            if key is None:
+                raise
+            old = self.by_key(key)
+            if old is None or old.request_hash != digest:
+                raise IdempotencyConflict(key) from None
+            return old, False
+        return row, True
+
+    def by_key(self, key: str) -> JobRow | None:
+        with self.session() as s:
+            return s.scalars(select(JobRow).where(JobRow.idempotency_key == key)).first()
+
+    def get(self, job_id: str) -> JobRow | None:
+        with self.session() as s:
+            return s.get(JobRow, job_id)
+
+    def list_jobs(
+        self, state: str | None, kind: str | None, limit: int, offset: int
+    ) -> tuple[Sequence[JobRow], int]:
+        q = select(JobRow)
+        if state is not None:
+            q = q.where(JobRow.state == state)
+        if kind is not None:
+            q = q.where(JobRow.kind == kind)
+        with self.session() as s:
+            total = s.scalar(select(func.count()).select_from(q.subquery())) or 0
+            rows = s.scalars(
+                q.order_by(JobRow.created_at.desc(), JobRow.id).limit(limit).offset(offset)
+            ).all()
+        return rows, total
+
+    def mark_enqueued(self, job_id: str) -> None:
+        self._update(job_id, enqueued_at=utcnow())
+
+    def cancel(self, job_id: str) -> JobRow | None:
+        """Queued jobs are canceled at once; active ones get the flag their task checks."""
+        now = utcnow()
+        with self.session() as s, s.begin():
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == "queued")
+                .values(state="canceled", cancel_requested=True, finished_at=now, stage="canceled")
+            )
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == "active")
+                .values(cancel_requested=True)
+            )
+        return self.get(job_id)
+
+    def counts(self) -> dict[tuple[str, str], int]:
+        with self.session() as s:
+            rows = s.execute(
+                select(JobRow.kind, JobRow.state, func.count()).group_by(JobRow.kind, JobRow.state)
+            ).all()
+        return {(k, st): int(n) for k, st, n in rows}
+
+    def recent_finished(self, limit: int = 1000) -> Sequence[JobRow]:
+        with self.session() as s:
+            return s.scalars(
+                select(JobRow)
+                .where(JobRow.state == "completed")
+                .order_by(JobRow.finished_at.desc())
+                .limit(limit)
+            ).all()
+
+    # -- worker side ------------------------------------------------------------------------
+
+    def claim(self, job_id: str, owner: str, lease_s: float) -> Claim | None:
+        """Take the job if it is queued, or active under an expired lease; None otherwise
+        (done, canceled, or another worker holds a live lease)."""
+        now = utcnow()
+        with self.session() as s, s.begin():
+            res = s.execute(
+                update(JobRow)
+                .where(
+                    JobRow.id == job_id,
+                    JobRow.cancel_requested.is_(False),
+                    (JobRow.state == "queued")
+                    | ((JobRow.state == "active") & (JobRow.lease_expires < now)),
+                )
+                .values(
+                    state="active",
+                    lease_owner=owner,
+                    lease_expires=now + timedelta(seconds=lease_s),
+                    heartbeat_at=now,
+                    attempts=JobRow.attempts + 1,
+                    started_at=func.coalesce(JobRow.started_at, now),
+                    stage="started",
+                )
+                .execution_options(synchronize_session=False)
+            )
+            if res.rowcount != 1:  # type: ignore[attr-defined]
+                return None
+            row = s.get(JobRow, job_id)
+            assert row is not None
+            return Claim(job_id, owner, row.attempts, row.kind, dict(row.params))
+
+    def heartbeat(
+        self, claim: Claim, lease_s: float, progress: float | None = None, stage: str | None = None
+    ) -> bool | None:
+        """Extend the lease (and record progress). Answers the cancel flag, or None when the
+        lease was lost (the reaper gave the job to another worker)."""
+        now = utcnow()
+        values: dict[str, Any] = {
+            "lease_expires": now + timedelta(seconds=lease_s),
+            "heartbeat_at": now,
+        }
+        if progress is not None:
+            values["progress"] = max(0.0, min(1.0, progress))
+        if stage is not None:
+            values["stage"] = stage[:64]
+        with self.session() as s, s.begin():
+            res = s.execute(
+                update(JobRow)
+                .where(*self._held(claim))
+                .values(**values)
+                .execution_options(synchronize_session=False)
+            )
+            if res.rowcount != 1:  # type: ignore[attr-defined]
+                return None
+            return bool(s.scalar(select(JobRow.cancel_requested).where(JobRow.id == claim.job_id)))
+
+    def finish(
+        self,
+        claim: Claim,
+        state: str,
+        *,
+        artifacts: list[str] | None = None,
+        result: dict[str, Any] | None = None,
+        error: str | None = None,
+    ) -> bool:
+        """Completed, failed or canceled, by the lease holder only; False if the lease was lost."""
+        values: dict[str, Any] = {
+            "state": state,
+            "stage": state,
+            "finished_at": utcnow(),
+            "lease_owner": None,
+            "lease_expires": None,
+            "error": error,
+        }
+        if state == "completed":
+            values |= {"progress": 1.0, "artifacts": artifacts or [], "result": result}
+        return self._finish(claim, values)
+
+    def retry(self, claim: Claim, error: str) -> bool:
+        """Back to the queue after a failed attempt (the caller checked the attempt cap)."""
+        return self._finish(
+            claim,
+            {
+                "state": "queued",
+                "stage": "retrying",
+                "lease_owner": None,
+                "lease_expires": None,
+                "error": error,
+                "enqueued_at": utcnow(),
+            },
+        )
+
+    def _finish(self, claim: Claim, values: dict[str, Any]) -> bool:
+        with self.session() as s, s.begin():
+            res = s.execute(
+                update(JobRow)
+                .where(*self._held(claim))
+                .values(**values)
+                .execution_options(synchronize_session=False)
+            )
+            return res.rowcount == 1  # type: ignore[attr-defined]
+
+    @staticmethod
+    def _held(claim: Claim) -> tuple[Any, ...]:
+        return (
+            JobRow.id == claim.job_id,
+            JobRow.state == "active",
+            JobRow.lease_owner == claim.owner,
+            JobRow.attempts == claim.attempt,
+        )
+
+    # -- reaper -----------------------------------------------------------------------------
+
+    def reap(self, requeue_after_s: float) -> tuple[list[JobRow], list[JobRow]]:
+        """Expired leases go back to ``queued`` (or ``failed`` past the attempt cap; canceled
+        if cancel was asked). Answers (jobs to send to the broker again, jobs failed)."""
+        now = utcnow()
+        stale = now - timedelta(seconds=requeue_after_s)
+        resend: list[JobRow] = []
+        failed: list[JobRow] = []
+        with self.session() as s:
+            expired = s.scalars(
+                select(JobRow).where(JobRow.state == "active", JobRow.lease_expires < now)
+            ).all()
+            lost = s.scalars(
+                select(JobRow).where(
+                    JobRow.state == "queued",
+                    (JobRow.enqueued_at.is_(None) & (JobRow.created_at < stale))
+                    | (JobRow.enqueued_at < stale),
+                )
+            ).all()
+        for row in expired:
+            if row.cancel_requested:
+                values: dict[str, Any] = {"state": "canceled", "stage": "canceled"}
+            elif row.attempts >= row.max_attempts:
+                values = {
+                    "state": "failed",
+                    "stage": "failed",
+                    "error": f"worker lost {row.attempts} time(s) (lease expired)",
+                }
+            else:
+                values = {"state": "queued", "stage": "requeued", "enqueued_at": now}
+            if values["state"] != "queued":
+                values["finished_at"] = now
+            with self.session() as s, s.begin():
+                res = s.execute(
+                    update(JobRow)
+                    .where(
+                        JobRow.id == row.id,
+                        JobRow.state == "active",
+                        JobRow.lease_owner == row.lease_owner,
+                        JobRow.attempts == row.attempts,
+                        JobRow.lease_expires < now,
+                    )
+                    .values(lease_owner=None, lease_expires=None, **values)
+                    .execution_options(synchronize_session=False)
+                )
+            if res.rowcount == 1:  # type: ignore[attr-defined]
+                (resend if values["state"] == "queued" else failed).append(row)
+        for row in lost:
+            self.mark_enqueued(row.id)
+            resend.append(row)
+        return resend, failed
+
+    def _update(self, job_id: str, **values: Any) -> None:
+        with self.session() as s, s.begin():
+            s.execute(update(JobRow).where(JobRow.id == job_id).values(**values))
+

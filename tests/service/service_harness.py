@@ -1,0 +1,136 @@
+"""Harness of the service tests: real servers: ``forest serve`` in a subprocess, on the embedded
+default (SQLite job store and broker in a temporary data folder) and on a cluster backend
+(PostgreSQL in a database of its own, RabbitMQ with queue names of its own), both dropped at
+the end. A server that is not running fails the test with how to start it; `.ci/run` starts
+them."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+
+PG = ("127.0.0.1", 5432)
+RABBIT = ("127.0.0.1", 5672)
+RABBIT_URL = "amqp://guest:guest@127.0.0.1:5672//"
+START_HINT = {
+    "PostgreSQL": "pg_ctlcluster --skip-systemctl-redirect $(ls /etc/postgresql) main start",
+    "RabbitMQ": "rabbitmq-server -detached",
+}
+# short leases so a killed worker's job comes back within seconds
+FAST = {
+    "FOREST_LEASE_S": "5",
+    "FOREST_HEARTBEAT_S": "0.5",
+    "FOREST_REAPER_INTERVAL_S": "0.5",
+    "FOREST_REQUEUE_AFTER_S": "15",
+    "FOREST_RETRY_DELAY_S": "0.2",
+}
+
+
+def require_server(name: str, addr: tuple[str, int]) -> None:
+    try:
+        socket.create_connection(addr, timeout=2).close()
+    except OSError as exc:
+        pytest.fail(
+            f"{name} at {addr[0]}:{addr[1]} is unreachable ({exc}); these tests need it "
+            f"running: {START_HINT[name]} (.ci/run starts it)",
+            pytrace=False,
+        )
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+class Server:
+    """``forest serve`` in a subprocess; ``stop()`` leaves no process behind."""
+
+    def __init__(self, data: Path, env: dict[str, str], workers: int = 2) -> None:
+        self.data, self.workers = data, workers
+        self.env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
+        self.env |= {"FOREST_DATA_DIR": str(data)} | FAST | env
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.port = 0
+
+    @property
+    def url(self) -> str:
+        return f"http://127.0.0.1:{self.port}"
+
+    def start(self) -> Server:
+        self.data.mkdir(parents=True, exist_ok=True)
+        self.port = free_port()
+        log = open(self.data / "serve.log", "ab")  # noqa: SIM115
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "forest.cli", "serve", "--port", str(self.port),
+             "--workers", str(self.workers)],
+            env=self.env,
+            stdout=log,
+            stderr=subprocess.STDOUT,
+        )
+        log.close()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            if self.proc.poll() is not None:
+                pytest.fail(f"forest serve exited: {self.log()}")
+            try:
+                if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
+                    return self
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        pytest.fail(f"forest serve did not become ready: {self.log()}")
+
+    def log(self) -> str:
+        text = (self.data / "serve.log").read_text(errors="replace")
+        for f in sorted((self.data / "run").glob("worker-*.log")):
+            text += f"\n--- {f.name}\n" + f.read_text(errors="replace")[-3000:]
+        return text[-8000:]
+
+    def worker_pids(self) -> list[int]:
+        return [int(p.read_text()) for p in sorted((self.data / "run").glob("worker-*.pid"))]
+
+    def stop(self) -> None:
+        if self.proc is None:
+            return
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        for pid in self.worker_pids():  # the workers are ours: make sure none outlives us
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        self.proc = None
+
+    # -- client helpers ---------------------------------------------------------------------
+
+    def post(self, path: str, body: dict[str, Any], **kw: Any) -> httpx.Response:
+        return httpx.post(f"{self.url}{path}", json=body, timeout=60, **kw)
+
+    def get(self, path: str) -> httpx.Response:
+        return httpx.get(f"{self.url}{path}", timeout=30)
+
+    def wait(self, job_id: str, states: tuple[str, ...] = ("completed", "failed", "canceled"),
+             timeout: float = 60) -> dict[str, Any]:
+        deadline = time.monotonic() + timeout
+        job: dict[str, Any] = {}
+        while time.monotonic() < deadline:
+            job = self.get(f"/v1/jobs/{job_id}").json()
+            if job["state"] in states:
+                return job
+            time.sleep(0.1)
+        pytest.fail(f"job {job_id} still {job.get('state')} after {timeout}s: {job}\n{self.log()}")
+
+

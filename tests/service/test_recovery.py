@@ -1,0 +1,72 @@
+"""Work survives: a worker killed with SIGKILL mid-task (its job completes once, with the same
+output) and a canceled running job stops.
+``FOREST_TEST_PAUSE_S`` holds each job's first attempt in a cancel-checking, heartbeating sleep
+so the test can act while it runs. (The API restart is in ``test_restart.py``: a module of its
+own gets a database and queues of its own, away from this module's pausing workers.)"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from service_harness import Server
+
+from forest.generate import ForestOptions, generate_forest
+from forest.presets import load_preset
+from forest.usd_scene import write_scene
+
+BODY = {"preset": "shrub", "trees": 4, "seed": 31, "format": "usdc"}
+
+
+@pytest.fixture(scope="module")
+def paused(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    s = Server(tmp_path_factory.mktemp("paused"), backend | {"FOREST_TEST_PAUSE_S": "60"})
+    s.start()
+    yield s
+    s.stop()
+
+
+def wait_running(server: Server, job_id: str) -> dict[str, Any]:
+    job = server.wait(job_id, states=("active",), timeout=30)
+    deadline = time.monotonic() + 10
+    while job["stage"] != "test-pause" and time.monotonic() < deadline:
+        time.sleep(0.05)
+        job = server.get(f"/v1/jobs/{job_id}").json()
+    assert job["stage"] == "test-pause", job
+    return job
+
+
+def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
+    job_id = paused.post("/v1/forests", BODY).json()["id"]
+    job = wait_running(paused, job_id)
+    pid = int(job["worker"].split(":")[1])
+    assert pid in paused.worker_pids()
+    os.kill(pid, signal.SIGKILL)
+    done = paused.wait(job_id, timeout=60)
+    assert done["state"] == "completed", done
+    assert done["attempts"] == 2 and done["error"] is None
+    scene = paused.get(f"/v1/jobs/{job_id}/artifacts/scene.usdc").content
+    forest = generate_forest(load_preset("shrub"), 31, ForestOptions(trees=4))
+    assert scene == write_scene(forest, tmp_path / "scene.usdc").read_bytes()
+    time.sleep(3)  # a redelivered message or a reaper round must not run it again
+    again = paused.get(f"/v1/jobs/{job_id}").json()
+    assert (again["state"], again["attempts"], again["finished_at"]) == (
+        "completed", 2, done["finished_at"]
+    )
+
+
+def test_cancel_running_job(paused: Server) -> None:
+    job_id = paused.post("/v1/forests", BODY | {"seed": 32}).json()["id"]
+    wait_running(paused, job_id)
+    r = paused.get(f"/v1/jobs/{job_id}")
+    canceled = httpx.delete(f"{paused.url}/v1/jobs/{job_id}", timeout=10)
+    assert canceled.status_code == 200 and canceled.json()["cancel_requested"] is True
+    job = paused.wait(job_id, timeout=20)
+    assert job["state"] == "canceled" and job["artifacts"] == [], (r.json(), job)
+    assert job["error"] == "canceled on request"

@@ -1,0 +1,77 @@
+"""The job store's state machine on SQLite: leases, the reaper, the attempt cap, cancel and
+idempotency keys (the end-to-end tests run the same code on PostgreSQL)."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import pytest
+
+from service.db import migrate
+from service.store import IdempotencyConflict, JobStore
+
+
+@pytest.fixture
+def store(tmp_path: Path) -> JobStore:
+    url = f"sqlite:///{tmp_path / 'jobs.sqlite'}"
+    migrate(url)
+    migrate(url)  # idempotent
+    return JobStore(url)
+
+
+def test_one_lease_holder_finishes(store: JobStore) -> None:
+    row, created = store.create("forest", {"seed": 1}, max_attempts=3)
+    assert created and row.state == "queued"
+    first = store.claim(row.id, "a", lease_s=60)
+    assert first is not None and first.attempt == 1
+    assert store.claim(row.id, "b", lease_s=60) is None  # a live lease: not twice
+    assert store.heartbeat(first, 60, 0.5, "grow") is False
+    assert store.finish(first, "completed", artifacts=["scene.usdc"], result={"n": 1})
+    assert store.claim(row.id, "b", lease_s=60) is None  # done: never again
+    done = store.get(row.id)
+    assert done is not None and (done.state, done.progress, done.artifacts) == (
+        "completed", 1.0, ["scene.usdc"]
+    )
+
+
+def test_expired_lease_is_requeued_then_failed_at_the_cap(store: JobStore) -> None:
+    row, _ = store.create("forest", {"seed": 2}, max_attempts=2)
+    dead = store.claim(row.id, "a", lease_s=0.05)
+    assert dead is not None
+    time.sleep(0.1)
+    resend, failed = store.reap(requeue_after_s=3600)
+    assert [r.id for r in resend] == [row.id] and failed == []
+    assert store.heartbeat(dead, 60) is None  # the dead worker's lease is gone
+    assert not store.finish(dead, "completed")
+    second = store.claim(row.id, "b", lease_s=0.05)
+    assert second is not None and second.attempt == 2
+    time.sleep(0.1)
+    resend, failed = store.reap(requeue_after_s=3600)
+    assert resend == [] and [r.id for r in failed] == [row.id]
+    job = store.get(row.id)
+    assert job is not None and job.state == "failed" and "lease expired" in (job.error or "")
+
+
+def test_cancel(store: JobStore) -> None:
+    queued, _ = store.create("forest", {"seed": 3}, max_attempts=3)
+    after = store.cancel(queued.id)
+    assert after is not None and after.state == "canceled"
+    assert store.claim(queued.id, "a", 60) is None
+    active, _ = store.create("forest", {"seed": 4}, max_attempts=3)
+    claim = store.claim(active.id, "a", 60)
+    assert claim is not None
+    flagged = store.cancel(active.id)
+    assert flagged is not None and flagged.state == "active" and flagged.cancel_requested
+    assert store.heartbeat(claim, 60) is True
+    assert store.cancel("0" * 32) is None
+
+
+def test_idempotency_key(store: JobStore) -> None:
+    a, created_a = store.create("forest", {"seed": 5}, 3, key="k")
+    b, created_b = store.create("forest", {"seed": 5}, 3, key="k")
+    assert (a.id, created_a, created_b) == (b.id, True, False)
+    with pytest.raises(IdempotencyConflict):
+        store.create("forest", {"seed": 6}, 3, key="k")
+    rows, total = store.list_jobs(None, "forest", 10, 0)
+    assert total == 1 and rows[0].id == a.id

@@ -1,0 +1,396 @@
+"""Foliage as 2.5D impostors (paper 6), and the real leaf-cloud geometry to compare with.
+
+Every foliage instance shows the same leaf cloud (the scene's prototype mesh, unit diameter,
+never rotated), scaled by its diameter, at its centre: the palette entry of its piece's hub
+bone applied to its rest point, so clouds follow the wind with their branches.
+
+``impostor`` mode, two passes:
+
+1. the cloud alone, in model space, through an orthographic camera looking along the main
+   camera's view direction (with the main camera's right and up) into an RGBA32F target: the
+   linear lit colour, and in alpha where the nearest leaf lies between the front (0) and the
+   back (1) of the cloud's bounding sphere, -1 where no leaf is. It reruns only when the view
+   direction (the camera's rotation) changes: wind and camera moves along the same direction
+   reuse the picture.
+2. one camera-facing billboard per cloud in one instanced draw call; the fragment shader
+   discards empty texels and writes ``gl_FragDepth`` of the point at the stored distance from
+   the billboard plane along the pixel's view ray, so billboards depth-test against the
+   branches and each other.
+
+``geometry`` mode draws the leaf-cloud mesh itself at every cloud, in one instanced draw call
+(the reference for tests, and the benchmark's baseline).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Literal, cast
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.errors import LimitError
+from forest.foliage import LeafCloud, leaf_cloud, leaf_texture
+from forest.transforms import F64
+from forest.usd_read import SceneArrays
+from forest.usd_scene import FOLIAGE
+from worker import shaders
+from worker.camera import Camera
+
+if TYPE_CHECKING:
+    import moderngl
+
+FoliageMode = Literal["impostor", "geometry"]
+FOLIAGE_MODES: tuple[FoliageMode, ...] = ("impostor", "geometry")
+# std430 ``struct Cloud`` in shaders/leaves.vert and billboard.vert
+CLOUD_DTYPE = np.dtype([("rest_size", "<f4", 4), ("bone", "<i4", 4)])
+LEAF_DTYPE = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("st", "<f4", 2)])
+LEAF_FORMAT = "3f 3f 2f"
+LEAF_ATTRIBUTES = ("in_position", "in_normal", "in_st")
+IMPOSTOR_SIZE = 256
+CAPTURE_BINDING = 3
+# largest change of a camera rotation entry that keeps the pass-1 picture (about 1e-6 rad:
+# far below a texel; float noise of look_at for a camera moved along its view direction)
+VIEW_TOLERANCE = 1e-6
+CLOUD_BINDING = 4
+
+
+@dataclass(frozen=True)
+class PassStats:
+    draw_calls: int = 0
+    primitives: int = 0
+    gpu_ms: float | None = None
+
+
+@dataclass(frozen=True)
+class FoliageStats:
+    """One frame's foliage work: pass 1 (``impostor``, zero when the picture was reused and
+    in geometry mode) and pass 2 (``billboards``: the instanced billboards, or in geometry mode
+    the instanced leaf clouds)."""
+
+    mode: FoliageMode
+    clouds: int
+    impostor_rendered: bool
+    impostor: PassStats
+    billboards: PassStats
+
+    @property
+    def draw_calls(self) -> int:
+        return self.impostor.draw_calls + self.billboards.draw_calls
+
+    @property
+    def primitives(self) -> int:
+        return self.impostor.primitives + self.billboards.primitives
+
+    @property
+    def gpu_ms(self) -> float | None:
+        times = [p.gpu_ms for p in (self.impostor, self.billboards) if p.draw_calls]
+        if any(t is None for t in times):
+            return None
+        return float(sum(t for t in times if t is not None))
+
+
+def cloud_records(scene: SceneArrays) -> NDArray[np.void]:
+    """``(k,)`` CLOUD_DTYPE: rest point and diameter, palette entry of every cloud."""
+    rec = np.zeros(scene.n_foliage, CLOUD_DTYPE)
+    rec["rest_size"][:, :3] = scene.foliage_rest
+    rec["rest_size"][:, 3] = scene.foliage_sizes
+    rec["bone"][:, 0] = scene.foliage_bone
+    return rec
+
+
+def leaf_vertices(cloud: LeafCloud) -> tuple[NDArray[np.void], NDArray[np.int32]]:
+    """Interleaved vertices and triangle indices of the leaf cloud."""
+    v = np.zeros(len(cloud.positions), LEAF_DTYPE)
+    v["position"] = cloud.positions
+    v["normal"] = cloud.normals
+    v["st"] = cloud.st
+    return v, cloud.triangles()
+
+
+def impostor_basis(camera: Camera) -> tuple[F64, F64, F64]:
+    """The camera's right, up and forward (unit world vectors): pass 1 looks along forward
+    with this right and up, and the billboards span right and up."""
+    r = camera.view()[:3, :3]
+    return r[0].copy(), r[1].copy(), -r[2]
+
+
+def impostor_view_projection(camera: Camera, radius: float) -> F64:
+    """Pass 1's camera for the unit cloud at the origin: the main camera's rotation, the eye
+    ``2 radius`` back along the view direction, orthographic over the bounding sphere (x, y in
+    ``[-radius, radius]``, depth from ``radius`` to ``3 radius``)."""
+    view = np.eye(4)
+    view[:3, :3] = camera.view()[:3, :3]
+    view[2, 3] = -2.0 * radius
+    proj = np.diag([1.0 / radius, 1.0 / radius, -1.0 / radius, 1.0])
+    proj[2, 3] = -2.0
+    return proj @ view
+
+
+def foliage_points(scene: SceneArrays, frame: int = 0) -> F64:
+    """``(8 k, 3)`` corners of every cloud's box at ``frame`` (for framing the camera)."""
+    if scene.n_foliage == 0:
+        return np.zeros((0, 3))
+    cloud = scene.foliage_cloud or leaf_cloud()
+    lo, hi = cloud.positions.min(axis=0), cloud.positions.max(axis=0)
+    sel = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T
+    corners = np.where(sel == 1, hi, lo)
+    c = scene.foliage_at(frame)
+    return (c[:, None] + scene.foliage_sizes[:, None, None] * corners[None]).reshape(-1, 3)
+
+
+def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:
+    return cast("moderngl.Uniform", prog[name])
+
+
+def _set(prog: moderngl.Program, values: dict[str, Any]) -> None:
+    for name, value in values.items():
+        if name not in prog:
+            continue
+        if isinstance(value, np.ndarray) and value.shape == (4, 4):
+            _uniform(prog, name).write(value.T.astype("f4").tobytes())
+        elif isinstance(value, np.ndarray):
+            _uniform(prog, name).value = tuple(float(x) for x in value)
+        else:
+            _uniform(prog, name).value = value
+
+
+class FoliageRenderer:
+    """The foliage of one scene on one context. The palette storage buffer (binding 1) must
+    be bound by the caller (``SceneBuffers.use``) before drawing."""
+
+    def __init__(
+        self,
+        ctx: moderngl.Context,
+        scene: SceneArrays,
+        mode: FoliageMode = "impostor",
+        impostor_size: int = IMPOSTOR_SIZE,
+        timer_query: bool = True,
+    ) -> None:
+        import moderngl
+
+        if mode not in FOLIAGE_MODES:
+            raise ValueError(f"foliage mode must be one of {FOLIAGE_MODES}, got {mode!r}")
+        self._mgl = moderngl
+        self.ctx = ctx
+        self.scene = scene
+        self.mode: FoliageMode = mode
+        self.cloud = scene.foliage_cloud or leaf_cloud()
+        self.radius = self.cloud.radius
+        records = cloud_records(scene)
+        limit = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE", 2**27))
+        if records.nbytes > limit:
+            raise LimitError(
+                f"{scene.n_foliage} leaf clouds need {records.nbytes / 2**20:.3g} MiB, more than "
+                f"this driver's storage block limit of {limit / 2**20:.3g} MiB",
+                path=f"{FOLIAGE}.positions",
+                limit=limit,
+            )
+        self.records = ctx.buffer(records.tobytes() if len(records) else b"\0" * 32)
+        verts, tris = leaf_vertices(self.cloud)
+        self.n_triangles = len(tris)
+        self.vbo = ctx.buffer(verts.tobytes())
+        self.ibo = ctx.buffer(tris.astype(np.int32).tobytes())
+        tex = leaf_texture()
+        self.leaf = ctx.texture(tex.shape[1::-1], 4, np.ascontiguousarray(tex).tobytes())
+        self.leaf.build_mipmaps()
+        self.leaf.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self.leaf.repeat_x = self.leaf.repeat_y = False
+        self._programs: dict[str, Any] = {}
+        self._vaos: dict[str, Any] = {}
+        self.impostor_size = impostor_size
+        self.impostor: moderngl.Texture | None = None
+        self.impostor_fbo: moderngl.Framebuffer | None = None
+        self._impostor_depth: moderngl.Renderbuffer | None = None
+        if mode == "impostor":
+            n = impostor_size
+            self.impostor = ctx.texture((n, n), 4, dtype="f4")
+            self.impostor.filter = (moderngl.NEAREST, moderngl.NEAREST)
+            self.impostor.repeat_x = self.impostor.repeat_y = False
+            self._impostor_depth = ctx.depth_renderbuffer((n, n))
+            self.impostor_fbo = ctx.framebuffer([self.impostor], self._impostor_depth)
+        self._rotation: F64 | None = None
+        self.impostor_renders = 0
+        self._timer = timer_query
+        self.queries = [ctx.query(time=timer_query, primitives=True) for _ in range(2)]
+
+    # -- programs ---------------------------------------------------------------------------
+
+    def _program(self, stem: str, *defines: str) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        key = "/".join((stem, *sorted(defines)))
+        if key not in self._programs:
+            make: Any = self.ctx.program
+            prog = make(**shaders.sources(stem, dict.fromkeys(defines, True)))
+            if stem == "leaves":
+                vao = self.ctx.vertex_array(
+                    prog, [(self.vbo, LEAF_FORMAT, *LEAF_ATTRIBUTES)], index_buffer=self.ibo
+                )
+            else:
+                vao = self.ctx.vertex_array(prog, [])
+            self._programs[key], self._vaos[key] = prog, vao
+        return self._programs[key], self._vaos[key]
+
+    # -- passes -----------------------------------------------------------------------------
+
+    def needs_update(self, camera: Camera) -> bool:
+        """Whether pass 1 must run for ``camera``: its rotation (view direction, right and
+        up) differs from the last picture's by more than VIEW_TOLERANCE, or there is none.
+        A camera moving along its view direction keeps the picture."""
+        if self._rotation is None:
+            return True
+        return bool(np.abs(camera.view()[:3, :3] - self._rotation).max() > VIEW_TOLERANCE)
+
+    def prepare(self, camera: Camera, sun: F64, sky: F64, force: bool = False) -> PassStats:
+        """Pass 1, if the view direction changed since the last one (or ``force``): the
+        cloud's picture and distances for this view. Leaves the impostor framebuffer bound."""
+        if self.mode != "impostor" or self.scene.n_foliage == 0:
+            return PassStats()
+        if not (force or self.needs_update(camera)):
+            return PassStats()
+        assert self.impostor_fbo is not None
+        mgl, ctx = self._mgl, self.ctx
+        prog, vao = self._program("leaves", "IMPOSTOR")
+        forward = impostor_basis(camera)[2]
+        self.impostor_fbo.use()
+        self.impostor_fbo.viewport = (0, 0, self.impostor_size, self.impostor_size)
+        self.impostor_fbo.clear(0.0, 0.0, 0.0, -1.0, depth=1.0)
+        ctx.enable_only(mgl.DEPTH_TEST)
+        self.leaf.use(0)
+        _set(
+            prog,
+            {
+                "u_view_projection": impostor_view_projection(camera, self.radius),
+                "u_forward": forward,
+                "u_radius": self.radius,
+                "u_sun": np.asarray(sun),
+                "u_sky": np.asarray(sky),
+                "u_leaf": 0,
+            },
+        )
+        q = self.queries[0]
+        with q:
+            vao.render(mgl.TRIANGLES)
+        self._rotation = camera.view()[:3, :3].copy()
+        self.impostor_renders += 1
+        return PassStats(
+            draw_calls=1,
+            primitives=int(q.primitives),
+            gpu_ms=q.elapsed / 1e6 if self._timer else None,
+        )
+
+    def draw(
+        self, camera: Camera, sun: F64, sky: F64, fog: float, capture: Any = None
+    ) -> PassStats:
+        """Pass 2 (or the real clouds) into the framebuffer bound now, depth test on."""
+        k = self.scene.n_foliage
+        if k == 0:
+            return PassStats()
+        mgl = self._mgl
+        self.records.bind_to_storage_buffer(CLOUD_BINDING)
+        right, up, forward = impostor_basis(camera)
+        common: dict[str, Any] = {
+            "u_view_projection": camera.view_projection(),
+            "u_camera": np.asarray(camera.eye),
+            "u_sun": np.asarray(sun),
+            "u_sky": np.asarray(sky),
+            "u_fog": fog,
+        }
+        q = self.queries[1]
+        if self.mode == "impostor":
+            assert self.impostor is not None
+            if self._rotation is None and capture is None:
+                raise RuntimeError("pass 1 (prepare) must run before the billboards")
+            defines = ("CAPTURE",) if capture is not None else ()
+            prog, vao = self._program("billboard", *defines)
+            if capture is not None:
+                capture.bind_to_storage_buffer(CAPTURE_BINDING)
+            self.impostor.use(1)
+            _set(
+                prog,
+                {
+                    **common,
+                    "u_right": right,
+                    "u_up": up,
+                    "u_forward": forward,
+                    "u_radius": self.radius,
+                    "u_impostor": 1,
+                },
+            )
+            with q:
+                vao.render(mgl.TRIANGLE_STRIP, vertices=4, instances=k)
+        else:
+            prog, vao = self._program("leaves")
+            self.leaf.use(0)
+            _set(prog, {**common, "u_leaf": 0})
+            with q:
+                vao.render(mgl.TRIANGLES, instances=k)
+        return PassStats(
+            draw_calls=1,
+            primitives=int(q.primitives),
+            gpu_ms=q.elapsed / 1e6 if self._timer else None,
+        )
+
+    def frame(
+        self,
+        camera: Camera,
+        sun: F64,
+        sky: F64,
+        fog: float,
+        pass1: PassStats,
+        target: moderngl.Framebuffer,
+    ) -> FoliageStats:
+        """Pass 2 into ``target`` after ``prepare`` gave ``pass1``."""
+        target.use()
+        self.ctx.enable_only(self._mgl.DEPTH_TEST)
+        pass2 = self.draw(camera, sun, sky, fog)
+        return FoliageStats(
+            mode=self.mode,
+            clouds=self.scene.n_foliage,
+            impostor_rendered=pass1.draw_calls > 0,
+            impostor=pass1,
+            billboards=pass2,
+        )
+
+    def read_impostor(self) -> NDArray[np.float32]:
+        """``(n, n, 4)`` float32 pass-1 picture, bottom row (t = 0) first."""
+        if self.impostor is None:
+            raise ValueError("no impostor target in geometry mode")
+        n = self.impostor_size
+        return np.frombuffer(self.impostor.read(), np.float32).reshape(n, n, 4).copy()
+
+    def capture_centres(self, camera: Camera) -> NDArray[np.float32]:
+        """``(k, 4)`` every cloud's centre and diameter as the billboard shader computed them
+        (with the palette bound now), rasteriser off."""
+        if self.mode != "impostor":
+            raise ValueError("capture needs the impostor mode")
+        mgl, ctx = self._mgl, self.ctx
+        k = self.scene.n_foliage
+        buf = ctx.buffer(reserve=max(k, 1) * 16)
+        try:
+            assert self.impostor_fbo is not None
+            self.impostor_fbo.use()  # a complete framebuffer, or the driver may skip the draw
+            ctx.enable_only(mgl.RASTERIZER_DISCARD)
+            self.draw(camera, np.zeros(3), np.zeros(3), 0.0, capture=buf)
+            ctx.memory_barrier(mgl.SHADER_STORAGE_BARRIER_BIT)
+            data = np.frombuffer(buf.read(k * 16), np.float32).reshape(k, 4).copy()
+        finally:
+            ctx.disable(mgl.RASTERIZER_DISCARD)
+            buf.release()
+        return data
+
+    def release(self) -> None:
+        for vao in self._vaos.values():
+            vao.release()
+        for prog in self._programs.values():
+            prog.release()
+        self._vaos.clear()
+        self._programs.clear()
+        if self.impostor_fbo is not None:
+            self.impostor_fbo.release()
+        if self.impostor is not None:
+            self.impostor.release()
+        if self._impostor_depth is not None:
+            self._impostor_depth.release()
+        for buf in (self.records, self.vbo, self.ibo):
+            buf.release()
+        self.leaf.release()

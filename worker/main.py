@@ -1,0 +1,46 @@
+"""``forest worker``: one Celery worker process (solo pool: one task at a time, one GL context)
+consuming the given queues, plus a reaper thread. Scale with more processes or replicas."""
+
+from __future__ import annotations
+
+import os
+import socket
+
+from service.db import migrate
+from service.dispatch import QUEUES
+from service.reaper import Reaper
+from service.settings import get_settings
+from service.store import JobStore
+
+
+def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
+    unknown = [q for q in queues if q not in QUEUES]
+    if unknown or not queues:
+        raise ValueError(f"unknown queue(s) {', '.join(unknown)}; the queues are {QUEUES}")
+    import forest.usd_scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
+    from forest.pieces import piece_library
+    from worker.tasks import app, runtime
+
+    piece_library(1)  # built once per process (about a second): not inside the first job
+    settings = get_settings()
+    migrate(settings.db_url)
+    settings.artifacts.mkdir(parents=True, exist_ok=True)
+    rt = runtime()
+    reaper = Reaper(
+        JobStore(settings.db_url), rt.dispatcher, settings.reaper_interval_s,
+        settings.requeue_after_s,
+    )
+    reaper.start()
+    node = name or f"forest-{os.getpid()}@{socket.gethostname()}"
+    app.worker_main(
+        [
+            "worker",
+            "-Q", ",".join(settings.queue(q) for q in queues),
+            "--pool", "solo",
+            "-n", node,
+            "-l", loglevel,
+            "--without-gossip",
+            "--without-mingle",
+            "--without-heartbeat",
+        ]
+    )
