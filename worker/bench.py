@@ -24,7 +24,6 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from forest.errors import ForestError
 from forest.generate import ForestOptions, generate_forest
 from forest.presets import load_preset
 from forest.usd_read import read_scene
@@ -59,16 +58,6 @@ class BenchRow:
     triangles: int
     cpu_ms: float
     gpu_ms: float | None
-
-
-def parse_counts(text: str, path: str = "trees") -> list[int]:
-    try:
-        counts = [int(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise ForestError(f"expected comma-separated integers, got {text!r}", path=path) from None
-    if not counts or min(counts) < 1:
-        raise ForestError("tree counts must be positive integers", path=path)
-    return counts
 
 
 def run_render_bench(

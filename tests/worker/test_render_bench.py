@@ -10,7 +10,8 @@ import pytest
 from click.testing import CliRunner
 
 from forest.cli import main
-from worker.bench import parse_counts, run_render_bench
+from forest.cli.app import parse_counts
+from worker.bench import run_render_bench
 
 
 def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_path: Path) -> None:
@@ -33,7 +34,7 @@ def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_pat
     ("args", "message"),
     [
         (["--trees", "1,x"], "error: trees: expected comma-separated integers, got '1,x'\n"),
-        (["--trees", "0"], "error: trees: tree counts must be positive integers\n"),
+        (["--trees", "0"], "error: trees: counts must be positive integers\n"),
         (["--levels", "0.5"], "error: levels: levels must be in [1, 64]\n"),
         (
             ["--foliage-trees", "x"],
@@ -48,4 +49,4 @@ def test_bench_render_bad_options(args: list[str], message: str) -> None:
 
 
 def test_parse_counts() -> None:
-    assert parse_counts("1, 10,50") == [1, 10, 50]
+    assert parse_counts("1, 10,50", "trees") == [1, 10, 50]

@@ -1,0 +1,3 @@
+from forest.cli import main
+
+main()

@@ -1,0 +1,84 @@
+"""The ``forest`` command group, shared error handling and progress bars. The commands live
+in the sibling modules, one per concern, and register themselves on import."""
+
+from __future__ import annotations
+
+import functools
+import sys
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+import click
+
+from forest.errors import ForestError
+
+F = TypeVar("F", bound=Callable[..., Any])
+EXIT_INPUT = 2
+# forests at least this big get a progress bar on stderr
+PROGRESS_TREES = 200
+
+
+def input_errors(fn: F) -> F:
+    """Turn a ForestError into ``error: <path>: <message>`` and exit code 2."""
+
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except ForestError as exc:
+            click.echo(f"error: {exc}", err=True)
+            sys.exit(EXIT_INPUT)
+
+    return wrapper  # type: ignore[return-value]
+
+
+@contextmanager
+def stage_progress(enabled: bool, label: str) -> Iterator[Callable[[str, int, int], None]]:
+    """A progress callback ``(stage, done, total)`` drawing one bar per stage on stderr."""
+    if not enabled:
+        yield lambda stage, done, total: None
+        return
+    bars: dict[str, Any] = {}
+
+    def update(stage: str, done: int, total: int) -> None:
+        bar = bars.get(stage)
+        if bar is None:
+            for old in bars.values():
+                old.render_finish()
+            bar = bars[stage] = click.progressbar(
+                length=total, label=f"{label}: {stage:<14}", file=sys.stderr
+            )
+            bar.__enter__()
+        bar.update(done - bar.pos)
+
+    try:
+        yield update
+    finally:
+        for bar in bars.values():
+            bar.__exit__(None, None, None)
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(package_name="interlocking-forest", prog_name="forest")
+def main() -> None:
+    """Procedural forests from interlocking quad-mesh pieces, written as USD scenes."""
+    from forest.memory import keep_freed_memory
+
+    keep_freed_memory()
+
+
+@main.group()
+def bench() -> None:
+    """Benchmarks: figures and ratios against a baseline run side by side."""
+
+
+def parse_counts(text: str, path: str) -> list[int]:
+    """``"1,10,50"`` -> ``[1, 10, 50]``; anything else is an input error naming ``path``."""
+    try:
+        counts = [int(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise ForestError(f"expected comma-separated integers, got {text!r}", path=path) from None
+    if not counts or min(counts) < 1:
+        raise ForestError("counts must be positive integers", path=path)
+    return counts

@@ -1,0 +1,217 @@
+"""Commands that draw scenes: ``render``, ``inspect``, ``bench render``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from forest.cli.app import bench, input_errors, main, parse_counts
+from forest.errors import ForestError
+
+
+@main.command()
+@click.argument("scene", type=click.Path(path_type=Path))
+@click.option("-o", "--output", type=click.Path(path_type=Path), required=True, help="Preview PNG.")
+@click.option(
+    "--metrics", type=click.Path(path_type=Path), help="Frame-time metrics JSON to write."
+)
+@click.option("--width", type=int, default=640, show_default=True)
+@click.option("--height", type=int, default=480, show_default=True)
+@click.option(
+    "--tess-max",
+    type=float,
+    default=8.0,
+    show_default=True,
+    help="Highest tessellation level (nearest edges); it halves every --lod-half metres.",
+)
+@click.option(
+    "--lod-half",
+    type=float,
+    help="Metres over which the level halves (0: every edge at --tess-max). "
+    "Default: a quarter of the forest's diagonal.",
+)
+@click.option("--alpha", type=float, default=0.75, show_default=True, help="Phong shape factor.")
+@click.option(
+    "--frame", type=int, default=0, show_default=True, help="First palette (wind) sample."
+)
+@click.option(
+    "--frames", type=int, default=1, show_default=True, help="Frames to draw and measure."
+)
+@click.option(
+    "--tiles",
+    "tiles_dir",
+    type=click.Path(path_type=Path),
+    help="Tile-set folder (default: the one the scene's material names, else a placeholder).",
+)
+@click.option(
+    "--per-instance", is_flag=True, help="One draw call per piece instance (for comparison)."
+)
+@click.option("--no-cull", is_flag=True, help="Keep patches outside the view (for comparison).")
+@click.option("--no-foliage", is_flag=True, help="Leave the leaf clouds out.")
+@click.option(
+    "--foliage-geometry",
+    is_flag=True,
+    help="Draw the real leaf-cloud mesh at every cloud instead of 2.5D impostors (comparison).",
+)
+@input_errors
+def render(
+    scene: Path,
+    output: Path,
+    metrics: Path | None,
+    width: int,
+    height: int,
+    tess_max: float,
+    lod_half: float | None,
+    alpha: float,
+    frame: int,
+    frames: int,
+    tiles_dir: Path | None,
+    per_instance: bool,
+    no_cull: bool,
+    no_foliage: bool = False,
+    foliage_geometry: bool = False,
+) -> None:
+    """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
+    from worker.render_job import RenderRequest, render_file
+
+    m = render_file(
+        RenderRequest(
+            scene=scene,
+            output=output,
+            metrics=metrics,
+            width=width,
+            height=height,
+            tess_max=tess_max,
+            alpha=alpha,
+            lod_half=lod_half,
+            frame=frame,
+            frames=frames,
+            tiles=tiles_dir,
+            per_instance=per_instance,
+            cull=not no_cull,
+            foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
+        )
+    )
+    med = m.median
+    gpu = f", GPU {med.gpu_ms:.2f} ms" if med.gpu_ms is not None else ""
+    click.echo(
+        f"wrote {output}: {m.width}x{m.height}, {m.instances} pieces in "
+        f"{m.frames[0].draw_calls} draw call(s), {med.primitives:.0f} triangles; median of "
+        f"{len(m.frames)} frame(s): CPU {med.cpu_ms:.2f} ms{gpu}"
+    )
+    if m.foliage is not None and m.frames[0].foliage is not None:
+        fo, f0 = m.foliage, m.frames[0].foliage
+        click.echo(
+            f"foliage: {fo.clouds} leaf clouds as {fo.mode}"
+            + (
+                f" ({fo.impostor_size} px, pass 1 ran {fo.impostor_renders} time(s))"
+                if fo.mode == "impostor"
+                else ""
+            )
+            + f"; pass 2: {f0.billboards.draw_calls} draw call(s), {f0.billboards.primitives} "
+            "triangles"
+        )
+    click.echo(f"renderer: {m.renderer}")
+    if metrics is not None:
+        click.echo(f"wrote {metrics}")
+
+
+@main.command()
+@click.argument("scene", type=click.Path(path_type=Path))
+@click.option(
+    "-o", "--output", type=click.Path(path_type=Path), required=True, help="Contact sheet PNG."
+)
+@click.option("--frame", type=int, default=0, show_default=True, help="Palette (wind) sample.")
+@click.option("--width", type=click.IntRange(200, 8192), default=1400, show_default=True)
+@click.option("--height", type=click.IntRange(150, 8192), default=1050, show_default=True)
+@input_errors
+def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> None:
+    """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
+    indices, piece types."""
+    from forest.errors import OutputError
+    from forest.usd_read import read_scene
+    from worker.inspect_sheet import contact_sheet
+
+    if output.suffix.lower() != ".png":
+        raise OutputError("the contact sheet is a PNG: name it *.png", path=str(output))
+    if not output.parent.resolve().is_dir():
+        raise OutputError("folder does not exist", path=str(output))
+    s = read_scene(scene)
+    if not 0 <= frame < len(s.palettes):
+        raise ForestError(
+            f"the scene has {len(s.palettes)} palette sample(s), got {frame}", path="frame"
+        )
+    contact_sheet(s, output, frame, (width, height))
+    click.echo(f"wrote {output}: {s.n_instances} pieces, frame {frame}")
+
+
+@bench.command("render")
+@click.option(
+    "--trees",
+    "trees_text",
+    default="1,10,50",
+    show_default=True,
+    help="Comma-separated tree counts, e.g. 1,10,50,100,250,500,1000 (the paper's).",
+)
+@click.option(
+    "--levels",
+    "levels_text",
+    default="1,10",
+    show_default=True,
+    help="Comma-separated tessellation levels, the same on every edge.",
+)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--width", type=click.IntRange(16, 8192), default=320, show_default=True)
+@click.option("--height", type=click.IntRange(16, 8192), default=240, show_default=True)
+@click.option("--frames", type=click.IntRange(1, 1000), default=3, show_default=True)
+@click.option("--no-naive", is_flag=True, help="Skip the one-draw-call-per-piece baseline.")
+@click.option(
+    "--foliage-trees",
+    "foliage_text",
+    default="100,1000",
+    show_default=True,
+    help="Tree counts for impostor foliage against the real leaf-cloud mesh ('none': skip).",
+)
+@click.option(
+    "--plot",
+    type=click.Path(path_type=Path),
+    default=Path("bench-render.png"),
+    show_default=True,
+    help="PNG plot of frame time against tree count.",
+)
+@input_errors
+def bench_render(
+    trees_text: str,
+    levels_text: str,
+    preset: str,
+    width: int,
+    height: int,
+    frames: int,
+    no_naive: bool,
+    plot: Path,
+    foliage_text: str = "none",
+) -> None:
+    """Frame time against tree count, instanced against one draw call per piece, at fixed
+    tessellation levels (the paper's Figure 16 and its levels 1 and 10)."""
+    from worker.bench import run_render_bench
+
+    try:
+        levels = [float(x) for x in levels_text.split(",") if x.strip()]
+    except ValueError:
+        raise ForestError(f"expected numbers, got {levels_text!r}", path="levels") from None
+    if not levels or not all(1.0 <= lv <= 64.0 for lv in levels):
+        raise ForestError("levels must be in [1, 64]", path="levels")
+    run_render_bench(
+        parse_counts(trees_text, "trees"),
+        levels,
+        preset=preset,
+        size=(width, height),
+        frames=frames,
+        naive=not no_naive,
+        plot=plot,
+        echo=click.echo,
+        foliage_trees=(
+            [] if foliage_text.strip() == "none" else parse_counts(foliage_text, "foliage_trees")
+        ),
+    )

@@ -1,0 +1,89 @@
+"""Commands of the service: ``serve``, ``worker``, ``bench service``."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from forest.cli.app import EXIT_INPUT, bench, input_errors, main, parse_counts
+
+
+@main.command()
+@click.option(
+    "--data",
+    "data_dir",
+    type=click.Path(path_type=Path),
+    default=Path("forest-data"),
+    show_default=True,
+    envvar="FOREST_DATA_DIR",
+    help="Folder of the embedded job store, broker and artifacts.",
+)
+@click.option("--host", default="127.0.0.1", show_default=True)
+@click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
+@click.option("--workers", type=click.IntRange(0, 64), default=2, show_default=True)
+def serve(data_dir: Path, host: str, port: int, workers: int) -> None:
+    """The HTTP API plus local worker processes. With no FOREST_DATABASE_URL /
+    FOREST_BROKER_URL / FOREST_ARTIFACTS_DIR set, everything lives in --data (SQLite)."""
+    import os
+
+    from service.embedded import serve as run_serve
+    from service.settings import get_settings, override_settings
+
+    os.environ["FOREST_DATA_DIR"] = str(data_dir.resolve())
+    override_settings(None)
+    s = get_settings()
+    click.echo(f"forest serve: http://{host}:{port} (docs at /docs), {workers} worker(s)")
+    click.echo(f"  jobs {s.db_url.split('@')[-1]}, broker {s.broker.split('@')[-1]}")
+    run_serve(s, host, port, workers)
+
+
+@main.command("worker")
+@click.option("-Q", "--queues", default="default,gpu", show_default=True, help="Queues to consume.")
+@click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
+@click.option("--loglevel", default="info", show_default=True)
+@click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
+def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -> None:
+    """Join a cluster: consume jobs from the broker and job store in the settings
+    (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
+    if list_kinds:
+        from service.dispatch import KIND_QUEUES
+        from worker.tasks import KINDS
+
+        for kind in KINDS:
+            click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}")
+        return
+    from worker.main import run_worker
+
+    try:
+        run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
+    except ValueError as exc:
+        click.echo(f"error: queues: {exc}", err=True)
+        sys.exit(EXIT_INPUT)
+
+
+@bench.command("service")
+@click.option("--preset", default="almond", show_default=True)
+@click.option("--concurrency", default="1,8,32", show_default=True, help="Client counts.")
+@click.option("--requests", type=click.IntRange(1, 100_000), default=200, show_default=True)
+@click.option("--workers", default="1,2", show_default=True, help="Worker counts for jobs.")
+@click.option("--jobs", type=click.IntRange(1, 10_000), default=16, show_default=True)
+@click.option("--trees", type=click.IntRange(1, 10_000), default=200, show_default=True)
+@input_errors
+def bench_service(
+    preset: str, concurrency: str, requests: int, workers: str, jobs: int, trees: int
+) -> None:
+    """Latency (p50, p99) and req/s of POST /v1/trees at several client counts, and
+    forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server."""
+    from service.bench import run_service_bench
+
+    run_service_bench(
+        preset,
+        parse_counts(concurrency, "concurrency"),
+        requests,
+        parse_counts(workers, "workers"),
+        jobs,
+        trees,
+        echo=click.echo,
+    )

@@ -1,0 +1,181 @@
+"""Commands that make forests: ``presets``, ``generate``, ``demo``, ``bench generate``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import click
+
+from forest.cli.app import PROGRESS_TREES, bench, input_errors, main, stage_progress
+from forest.errors import ForestError
+
+
+@main.command()
+@input_errors
+def presets() -> None:
+    """List the grammar presets shipped with the package."""
+    from forest.grammar import compile_grammar
+    from forest.presets import load_preset, preset_names
+
+    for name in preset_names():
+        g = load_preset(name)
+        cg = compile_grammar(g)
+        click.echo(f"{name:<12} ~{cg.expected_pieces:6.0f} pieces/tree  {g.description}")
+
+
+def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
+    from forest.grammar import load_grammar
+    from forest.presets import load_preset
+
+    if (preset is None) == (grammar is None):
+        raise ForestError("give exactly one of --preset NAME or --grammar FILE", path="grammar")
+    return load_preset(preset) if preset is not None else load_grammar(grammar)  # type: ignore[arg-type]
+
+
+@main.command()
+@click.option("--preset", help="Name of a shipped grammar (see `forest presets`).")
+@click.option("--grammar", type=click.Path(path_type=Path), help="A grammar JSON file.")
+@click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
+@click.option("--trees", type=int, default=1, show_default=True)
+@click.option(
+    "--area",
+    type=(float, float),
+    default=(20.0, 20.0),
+    show_default=True,
+    metavar="W D",
+    help="Width and depth in metres of the area the trees stand in.",
+)
+@click.option(
+    "--placement", type=click.Choice(["poisson", "grid"]), default="poisson", show_default=True
+)
+@click.option(
+    "--frames",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Wind frames to sample (0: a still, posed forest).",
+)
+@click.option("--fps", type=float, default=24.0, show_default=True)
+@click.option(
+    "--wind",
+    "wind_deg",
+    type=float,
+    default=4.0,
+    show_default=True,
+    help="Wind sway at the tips, degrees.",
+)
+@click.option(
+    "--segments",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Piece resolution: quad rings per tube section.",
+)
+@click.option("--skinned", is_flag=True, help="Also bake each tree as SkelRoot + skinned Mesh.")
+@click.option(
+    "--tiles",
+    "tiles_dir",
+    metavar="DIR",
+    help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
+    "and tile indices follow its manifest.json.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="OUT.usda, OUT.usdc or OUT.usdz",
+)
+@input_errors
+def generate(
+    preset: str | None,
+    grammar: Path | None,
+    seed: int,
+    trees: int,
+    area: tuple[float, float],
+    placement: str,
+    frames: int,
+    fps: float,
+    wind_deg: float,
+    segments: int,
+    skinned: bool,
+    tiles_dir: str | None,
+    output: Path,
+) -> None:
+    """Generate a forest from a grammar and a seed and write it as USD."""
+    from forest.generate import ForestOptions, generate_forest
+    from forest.skeleton import Wind
+    from forest.tiles import manifest_for
+    from forest.usd_files import check_output_path
+    from forest.usd_scene import write_scene
+    from schemas.tileset import DEFAULT_MANIFEST
+
+    check_output_path(output)
+    g = _load_grammar(preset, grammar)
+    manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
+    options = ForestOptions(
+        trees=trees,
+        area=area,
+        frames=frames,
+        fps=fps,
+        placement=placement,  # type: ignore[arg-type]
+        segments=segments,
+        wind=Wind(strength_deg=wind_deg),
+    )
+    with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
+        forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
+        write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+    click.echo(
+        f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
+        f"{len(forest.bones)} bones, {frames} frame(s)" + (", skinned" if skinned else "")
+    )
+
+
+@main.command()
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    default=Path("demo"),
+    show_default=True,
+    help="Folder to write into.",
+)
+@input_errors
+def demo(output: Path) -> None:
+    """Write a small forest (and one skinned, animated tree) into a folder."""
+    from forest.generate import ForestOptions, generate_forest
+    from forest.presets import load_preset
+    from forest.usd_scene import write_scene
+
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ForestError(f"cannot create folder: {exc.strerror}", path=str(output)) from None
+    jobs = [
+        ("forest.usdc", "almond", ForestOptions(trees=25, area=(30.0, 30.0), frames=48), False),
+        ("conifers.usda", "conifer", ForestOptions(trees=6, area=(12.0, 12.0)), False),
+        ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
+    ]
+    for name, preset, options, skinned in jobs:
+        forest = generate_forest(load_preset(preset), 1, options)
+        path = write_scene(forest, output / name, skinned=skinned)
+        kind = "skinned + instanced" if skinned else "instanced"
+        click.echo(
+            f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
+            f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
+        )
+    click.echo("open them in usdview, Blender (File > Import > USD) or any USD tool")
+
+
+@bench.command("generate")
+@click.option("--trees", type=int, default=10_000, show_default=True)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--repeat", type=int, default=3, show_default=True)
+@input_errors
+def bench_generate(trees: int, preset: str, repeat: int) -> None:
+    """Pieces/s of expansion + assembly + pose + tiles against a per-piece Python loop, and
+    seconds to write the forest as .usdc."""
+    from forest.bench import run_generate_bench
+
+    run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)
