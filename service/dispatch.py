@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from celery import Celery
-from kombu import Queue
+from kombu import Exchange, Queue
 
 from service.settings import ServiceSettings
 
@@ -18,6 +18,14 @@ TASK_NAME = "forest.run_job"
 KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu"}
 QUEUES = ("default", "gpu")
 SQLA_POLL_S = 0.1
+
+
+def queue(name: str, args: dict[str, Any]) -> Queue:
+    """A queue on a direct exchange of its own, bound by its own name. (Celery binds a bare
+    ``Queue(name)`` to the default queue's exchange and key, so ``gpu`` showed up bound to
+    ``default``'s exchange; tasks are sent by queue name, so that sent nothing astray, but any
+    publish to that exchange would have copied into both.)"""
+    return Queue(name, Exchange(name, type="direct"), routing_key=name, queue_arguments=args)
 
 
 def make_celery(settings: ServiceSettings) -> Celery:
@@ -29,11 +37,20 @@ def make_celery(settings: ServiceSettings) -> Celery:
         from kombu.transport import sqlalchemy as kombu_sqla
 
         kombu_sqla.Transport.polling_interval = SQLA_POLL_S
+    if settings.is_redis:
+        # Redis redelivers an unacknowledged message only after the visibility timeout (a
+        # killed worker's message waits in the ``unacked`` hash until then), so the reaper,
+        # which acts after one lease, is what recovers; the key prefix keeps clusters (or test
+        # runs) sharing a Redis database apart: queues, the unacked hash, bindings, pidbox
+        options: dict[str, Any] = {"visibility_timeout": settings.broker_visibility_timeout_s}
+        if settings.queue_prefix:
+            options["global_keyprefix"] = settings.queue_prefix
+        app.conf.broker_transport_options = options
     app.conf.update(
         task_acks_late=True,
         task_reject_on_worker_lost=True,
         worker_prefetch_multiplier=1,
-        task_queues=[Queue(settings.queue(q), queue_arguments=args) for q in QUEUES],
+        task_queues=[queue(settings.queue(q), args) for q in QUEUES],
         task_default_queue=settings.queue("default"),
         task_ignore_result=True,
         result_backend=None,

@@ -9,7 +9,7 @@ from __future__ import annotations
 from functools import cache
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, model_validator
 from pydantic_settings import BaseSettings, SettingsConfigDict
 
 
@@ -29,6 +29,11 @@ class ServiceSettings(BaseSettings):
     broker."""
     quorum_queues: bool = False
     """Declare RabbitMQ quorum queues (replicated, survive a broker node)."""
+    broker_visibility_timeout_s: float = Field(3600.0, gt=0)
+    """Redis broker: a delivered message not acknowledged within this long goes back to its
+    queue (Redis has no connection-bound redelivery). It must outlast the reaper's recovery
+    (lease, then the requeue delay), so a dead worker's job is recovered by the reaper; a job
+    that runs longer than this is delivered again and the copy skipped (the lease is held)."""
 
     lease_s: float = Field(30.0, gt=0)
     """A claimed job whose heartbeat is older than this is handed to another worker."""
@@ -50,6 +55,22 @@ class ServiceSettings(BaseSettings):
     test_pause_s: float = Field(0.0, ge=0)
     """Test hook: a job's first attempt pauses this long after it is claimed (heartbeating,
     checking cancel), so a test can kill or cancel it mid-task. 0 in production."""
+
+    @model_validator(mode="after")
+    def _reaper_recovers_first(self) -> ServiceSettings:
+        floor = self.lease_s + self.requeue_after_s + self.reaper_interval_s
+        if self.is_redis and self.broker_visibility_timeout_s <= floor:
+            raise ValueError(
+                f"broker_visibility_timeout_s ({self.broker_visibility_timeout_s:g}) must "
+                f"exceed lease_s + requeue_after_s + reaper_interval_s ({floor:g}): the "
+                "reaper, not the broker's redelivery, recovers a dead worker's job"
+            )
+        return self
+
+    @property
+    def is_redis(self) -> bool:
+        """The broker is Redis (``redis://``, ``rediss://``, ``redis+socket://``, ``sentinel://``)."""
+        return self.broker.split(":", 1)[0].split("+", 1)[0] in ("redis", "rediss", "sentinel")
 
     @property
     def db_url(self) -> str:

@@ -1,8 +1,8 @@
-"""Service tests run against real servers: ``forest serve`` in a subprocess, on the embedded
-default (SQLite job store and broker in a temporary data folder) and on a cluster backend
-(PostgreSQL in a database of its own, RabbitMQ with queue names of its own), both dropped at
-the end. A server that is not running fails the test with how to start it; `.ci/run` starts
-them."""
+"""Service tests run against real servers: ``forest serve`` in a subprocess, on three backends:
+the embedded default (SQLite job store and broker in a temporary data folder), PostgreSQL +
+RabbitMQ, and PostgreSQL + Redis (a database, queue names and Redis keys of the module's own,
+all dropped at the end). A server that is not running fails the test with how to start it
+(never a skip); `.ci/run` starts them."""
 
 from __future__ import annotations
 
@@ -12,44 +12,46 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from service_harness import PG, RABBIT, RABBIT_URL, Server, require_server
+from service_harness import (
+    PG,
+    RABBIT,
+    RABBIT_URL,
+    REDIS,
+    REDIS_URL,
+    Server,
+    delete_rabbit_queues,
+    delete_redis_keys,
+    pg_database,
+    require_server,
+)
+
+BACKENDS = ["embedded", "pg-rabbitmq", "pg-redis"]
 
 
-@pytest.fixture(scope="module", params=["embedded", "cluster"])
+@pytest.fixture(scope="module", params=BACKENDS)
 def backend(request: pytest.FixtureRequest) -> Iterator[dict[str, str]]:
-    """Environment of a backend: {} for the embedded default; PostgreSQL + RabbitMQ URLs with
-    a database and queue names of this run's own for the cluster."""
+    """Environment of a backend: {} for the embedded default; for the others PostgreSQL with a
+    database of this module's own, and RabbitMQ queue names or Redis keys of its own."""
     if request.param == "embedded":
         yield {}
         return
     require_server("PostgreSQL", PG)
-    require_server("RabbitMQ", RABBIT)
-    import psycopg
-    from kombu import Connection
-
+    broker = {"pg-rabbitmq": ("RabbitMQ", RABBIT), "pg-redis": ("Redis", REDIS)}[request.param]
+    require_server(*broker)
     tag = uuid.uuid4().hex[:12]
-    db = f"forest_test_{tag}"
-    with psycopg.connect("host=127.0.0.1 port=5432 user=postgres dbname=test",
-                         autocommit=True) as conn:
-        conn.execute(f'CREATE DATABASE "{db}"')
     prefix = f"forest-test-{tag}."
-    try:
-        yield {
-            "FOREST_DATABASE_URL": f"postgresql+psycopg://postgres@127.0.0.1:5432/{db}",
-            "FOREST_BROKER_URL": RABBIT_URL,
-            "FOREST_QUEUE_PREFIX": prefix,
-        }
-    finally:
-        with psycopg.connect("host=127.0.0.1 port=5432 user=postgres dbname=test",
-                             autocommit=True) as conn:
-            conn.execute(f'DROP DATABASE IF EXISTS "{db}" WITH (FORCE)')
-        with Connection(RABBIT_URL) as conn:
-            channel = conn.channel()
-            for q in ("default", "gpu"):
-                try:
-                    channel.queue_delete(prefix + q)
-                except Exception:  # never declared: nothing to delete
-                    channel = conn.channel()
+    with pg_database(tag) as db_url:
+        env = {"FOREST_DATABASE_URL": db_url, "FOREST_QUEUE_PREFIX": prefix}
+        if request.param == "pg-rabbitmq":
+            try:
+                yield env | {"FOREST_BROKER_URL": RABBIT_URL}
+            finally:
+                delete_rabbit_queues(prefix)
+        else:
+            try:
+                yield env | {"FOREST_BROKER_URL": REDIS_URL}
+            finally:
+                delete_redis_keys(prefix)
 
 
 @pytest.fixture

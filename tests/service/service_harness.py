@@ -1,8 +1,8 @@
 """Harness of the service tests: real servers: ``forest serve`` in a subprocess, on the embedded
-default (SQLite job store and broker in a temporary data folder) and on a cluster backend
-(PostgreSQL in a database of its own, RabbitMQ with queue names of its own), both dropped at
-the end. A server that is not running fails the test with how to start it; `.ci/run` starts
-them."""
+default (SQLite job store and broker in a temporary data folder) and on two cluster backends
+(PostgreSQL in a database of its own, with RabbitMQ queue names or Redis keys of its own), all
+dropped at the end. A server that is not running fails the test with how to start it; `.ci/run`
+starts them."""
 
 from __future__ import annotations
 
@@ -13,6 +13,7 @@ import socket
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -22,9 +23,13 @@ import pytest
 PG = ("127.0.0.1", 5432)
 RABBIT = ("127.0.0.1", 5672)
 RABBIT_URL = "amqp://guest:guest@127.0.0.1:5672//"
+REDIS = ("127.0.0.1", 6379)
+REDIS_URL = "redis://127.0.0.1:6379/0"  # each run's keys carry a prefix of its own
 START_HINT = {
     "PostgreSQL": "pg_ctlcluster --skip-systemctl-redirect $(ls /etc/postgresql) main start",
     "RabbitMQ": "rabbitmq-server -detached",
+    "Redis": "redis-server --daemonize yes --bind 127.0.0.1 -::1 --port 6379 --save '' "
+    "--appendonly no",
 }
 # short leases so a killed worker's job comes back within seconds
 FAST = {
@@ -45,6 +50,70 @@ def require_server(name: str, addr: tuple[str, int]) -> None:
             f"running: {START_HINT[name]} (.ci/run starts it)",
             pytrace=False,
         )
+
+
+@contextlib.contextmanager
+def pg_database(tag: str) -> Iterator[str]:
+    """A PostgreSQL database of its own; its SQLAlchemy URL."""
+    import psycopg
+
+    db = f"forest_test_{tag}"
+    admin = "host=127.0.0.1 port=5432 user=postgres dbname=test"
+    with psycopg.connect(admin, autocommit=True) as conn:
+        conn.execute(f'CREATE DATABASE "{db}"')
+    try:
+        yield f"postgresql+psycopg://postgres@127.0.0.1:5432/{db}"
+    finally:
+        with psycopg.connect(admin, autocommit=True) as conn:
+            conn.execute(f'DROP DATABASE IF EXISTS "{db}" WITH (FORCE)')
+
+
+def delete_rabbit_queues(prefix: str) -> None:
+    from kombu import Connection
+
+    with Connection(RABBIT_URL) as conn:
+        channel = conn.channel()
+        for q in ("default", "gpu"):
+            try:
+                channel.queue_delete(prefix + q)
+                channel.exchange_delete(prefix + q)
+            except Exception:  # never declared: nothing to delete
+                channel = conn.channel()
+
+
+def delete_redis_keys(prefix: str) -> int:
+    """Every key of the run (queues, unacked hash, bindings: all carry the prefix)."""
+    import redis
+
+    client = redis.Redis.from_url(REDIS_URL)
+    try:
+        keys = list(client.scan_iter(match=f"{prefix}*", count=1000))
+        if keys:
+            client.delete(*keys)
+        return len(keys)
+    finally:
+        client.close()
+
+
+def redis_unacked(prefix: str) -> int:
+    """How many delivered messages no worker has acknowledged (Redis broker)."""
+    import redis
+
+    client = redis.Redis.from_url(REDIS_URL)
+    try:
+        return int(client.hlen(f"{prefix}unacked"))
+    finally:
+        client.close()
+
+
+def redis_redeliver_now(prefix: str) -> None:
+    """What Redis does once the visibility timeout is past: every unacknowledged message of the
+    run goes back to its queue."""
+    from kombu import Connection
+
+    options = {"global_keyprefix": prefix, "visibility_timeout": 0}
+    with Connection(REDIS_URL, transport_options=options) as conn:
+        conn.default_channel.qos.restore_visible(num=1000)
 
 
 def free_port() -> int:

@@ -6,6 +6,7 @@ import asyncio
 from pathlib import Path
 
 import httpx
+import pytest
 from click.testing import CliRunner
 
 from forest.cli import main
@@ -13,8 +14,9 @@ from service.app import create_app
 from service.settings import ServiceSettings
 
 
-def test_readyz_is_503_when_the_broker_is_unreachable(tmp_path: Path) -> None:
-    settings = ServiceSettings(data_dir=tmp_path, broker_url="amqp://guest:guest@127.0.0.1:9//")
+@pytest.mark.parametrize("broker", ["amqp://guest:guest@127.0.0.1:9//", "redis://127.0.0.1:9/0"])
+def test_readyz_is_503_when_the_broker_is_unreachable(tmp_path: Path, broker: str) -> None:
+    settings = ServiceSettings(data_dir=tmp_path, broker_url=broker)
     app = create_app(settings, reaper=False)
 
     async def probe() -> tuple[httpx.Response, httpx.Response]:

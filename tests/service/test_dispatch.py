@@ -1,0 +1,92 @@
+"""Celery configuration per broker: Redis gets a visibility timeout that leaves recovery to the
+reaper and a key prefix that keeps clusters sharing a database apart; the others get neither.
+On the real brokers (RabbitMQ, Redis on loopback) a job's message lands on its kind's queue
+only."""
+
+from __future__ import annotations
+
+import uuid
+from pathlib import Path
+
+import pytest
+from pydantic import ValidationError
+from service_harness import (
+    RABBIT,
+    RABBIT_URL,
+    REDIS,
+    REDIS_URL,
+    delete_rabbit_queues,
+    delete_redis_keys,
+    require_server,
+)
+
+from service.dispatch import Dispatcher, make_celery
+from service.settings import ServiceSettings
+
+
+@pytest.mark.parametrize(
+    "url", ["redis://127.0.0.1:6379/3", "rediss://h:6380/0", "redis+socket:///tmp/redis.sock"]
+)
+def test_redis_broker_options(tmp_path: Path, url: str) -> None:
+    s = ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
+    assert s.is_redis
+    app = make_celery(s)
+    assert app.conf.broker_transport_options == {
+        "visibility_timeout": 3600.0,
+        "global_keyprefix": "blue.",
+    }
+    assert app.conf.task_acks_late and app.conf.task_reject_on_worker_lost
+    assert app.conf.worker_prefetch_multiplier == 1
+    assert [q.name for q in app.conf.task_queues] == ["blue.default", "blue.gpu"]
+    unprefixed = make_celery(ServiceSettings(data_dir=tmp_path, broker_url=url))
+    assert unprefixed.conf.broker_transport_options == {"visibility_timeout": 3600.0}
+
+
+@pytest.mark.parametrize("url", [None, "amqp://guest:guest@127.0.0.1:5672//"])
+def test_other_brokers_get_no_redis_options(tmp_path: Path, url: str | None) -> None:
+    s = ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
+    assert not s.is_redis
+    assert not make_celery(s).conf.broker_transport_options
+
+
+def test_redis_visibility_timeout_must_outlast_the_reaper(tmp_path: Path) -> None:
+    redis = "redis://127.0.0.1:6379/0"
+    with pytest.raises(ValidationError, match="broker_visibility_timeout_s"):  # 30 + 60 + 5
+        ServiceSettings(data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60)
+    ok = ServiceSettings(
+        data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60, lease_s=5,
+        requeue_after_s=15,
+    )
+    assert ok.broker_visibility_timeout_s == 60
+    # no other broker has a visibility timeout: nothing to check
+    assert ServiceSettings(data_dir=tmp_path, broker_visibility_timeout_s=60)
+
+
+@pytest.mark.parametrize("broker", ["RabbitMQ", "Redis"])
+def test_each_kind_reaches_its_own_queue_only(tmp_path: Path, broker: str) -> None:
+    addr, url = {"RabbitMQ": (RABBIT, RABBIT_URL), "Redis": (REDIS, REDIS_URL)}[broker]
+    require_server(broker, addr)
+    prefix = f"forest-test-{uuid.uuid4().hex[:12]}."
+    d = Dispatcher(ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix=prefix))
+    try:
+        with d.app.connection_for_write() as conn:
+            channel = conn.default_channel
+            # the queues as Celery completes them, which a worker declares when it starts
+            queues = [d.app.amqp.queues[prefix + name](channel) for name in ("default", "gpu")]
+            for q in queues:
+                q.declare()
+            d.send("a" * 32, "forest")
+            d.send("b" * 32, "forest")
+            d.send("c" * 32, "render")
+            # (Redis has no empty queue to find passively: declare again, which counts too)
+            counts = {
+                q.name[len(prefix):]: q.queue_declare(passive=broker == "RabbitMQ").message_count
+                for q in queues
+            }
+        assert counts == {"default": 2, "gpu": 1}
+    finally:
+        d.close()
+        if broker == "Redis":
+            delete_redis_keys(prefix)
+        else:
+            delete_rabbit_queues(prefix)
