@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -29,6 +29,7 @@ from forest.skeleton import (
 from forest.tiles import draw_tile_indices
 from forest.transforms import F64
 from schemas.grammar import Grammar
+from schemas.jobs import ForestRequest, TreeRequest
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
 
 Progress = Callable[[str, int, int], None]
@@ -71,6 +72,16 @@ class ForestOptions:
             raise LimitError(
                 f"segments must be in [1, 8], got {self.segments}", path="segments", limit=8
             )
+
+
+def options_from_request(req: TreeRequest) -> ForestOptions:
+    """The generation options of an API request (a ForestRequest adds trees, area, placement)."""
+    options = ForestOptions(
+        frames=req.frames, fps=req.fps, segments=req.segments, wind=Wind(strength_deg=req.wind_deg)
+    )
+    if isinstance(req, ForestRequest):
+        options = replace(options, trees=req.trees, area=req.area, placement=req.placement)
+    return options
 
 
 @dataclass(frozen=True, eq=False)

@@ -78,23 +78,14 @@ class TaskKind(Protocol):
 
 def run_forest(ctx: JobContext) -> Outcome:
     """A forest job: generate, write the scene (``scene.<format>``)."""
-    from forest.generate import ForestOptions, generate_forest
+    from forest.generate import generate_forest, options_from_request
     from forest.presets import load_preset
-    from forest.skeleton import Wind
     from forest.usd_scene import write_scene
     from schemas.jobs import ForestRequest
 
     req = ForestRequest.model_validate(ctx.params)
     grammar = req.grammar if req.grammar is not None else load_preset(req.preset or "")
-    options = ForestOptions(
-        trees=req.trees,
-        area=req.area,
-        frames=req.frames,
-        fps=req.fps,
-        placement=req.placement,
-        segments=req.segments,
-        wind=Wind(strength_deg=req.wind_deg),
-    )
+    options = options_from_request(req)
 
     def note(stage: str, done: int, total: int) -> None:
         ctx.report(stage, 0.7 * done / max(total, 1))

@@ -10,8 +10,7 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 
 from forest.errors import ForestError
-from forest.generate import ForestOptions, generate_forest
-from forest.skeleton import Wind
+from forest.generate import generate_forest, options_from_request
 from forest.usd_scene import write_scene
 from schemas.jobs import TreeRequest
 from service.deps import ServicesDep
@@ -40,10 +39,7 @@ RESPONSES: dict[int | str, dict[str, Any]] = {
 def create_tree(req: TreeRequest, services: ServicesDep) -> Response:
     s = services.settings
     grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
-    options = ForestOptions(
-        trees=1, frames=req.frames, fps=req.fps, segments=req.segments,
-        wind=Wind(strength_deg=req.wind_deg),
-    )
+    options = options_from_request(req)
     name = f"{req.preset or grammar.name}-{req.seed}.{req.format}"
     with tempfile.TemporaryDirectory(prefix="forest-tree-") as tmp:
         try:
