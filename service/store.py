@@ -198,13 +198,7 @@ class JobStore:
         if stage is not None:
             values["stage"] = stage[:64]
         with self.session() as s, s.begin():
-            res = s.execute(
-                update(JobRow)
-                .where(*self._held(claim))
-                .values(**values)
-                .execution_options(synchronize_session=False)
-            )
-            if res.rowcount != 1:  # type: ignore[attr-defined]
+            if not self._update_held(s, claim, values):
                 return None
             return bool(s.scalar(select(JobRow.cancel_requested).where(JobRow.id == claim.job_id)))
 
@@ -246,13 +240,17 @@ class JobStore:
 
     def _finish(self, claim: Claim, values: dict[str, Any]) -> bool:
         with self.session() as s, s.begin():
-            res = s.execute(
-                update(JobRow)
-                .where(*self._held(claim))
-                .values(**values)
-                .execution_options(synchronize_session=False)
-            )
-            return res.rowcount == 1  # type: ignore[attr-defined]
+            return self._update_held(s, claim, values)
+
+    def _update_held(self, s: Session, claim: Claim, values: dict[str, Any]) -> bool:
+        """Update the job only while ``claim`` still holds its lease; whether it did."""
+        res = s.execute(
+            update(JobRow)
+            .where(*self._held(claim))
+            .values(**values)
+            .execution_options(synchronize_session=False)
+        )
+        return res.rowcount == 1  # type: ignore[attr-defined]
 
     @staticmethod
     def _held(claim: Claim) -> tuple[Any, ...]:
