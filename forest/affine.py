@@ -108,8 +108,10 @@ def cos_sin(angle: F64) -> tuple[F64, F64]:
     a = angle.astype(np.float32)
     c = np.cos(a).astype(np.float64)
     s = np.sin(a).astype(np.float64)
-    r = np.hypot(c, s)
-    return c / r, s / r
+    inv = 1.0 / np.sqrt(c * c + s * s)  # c, s are far from overflow: no need for hypot
+    c *= inv
+    s *= inv
+    return c, s
 
 
 def axis_angle(axis: F64, angle: F64) -> F64:
@@ -138,6 +140,17 @@ def horizontal_rotation(azimuth: F64, angle: F64) -> F64:
     """``(9, n)`` rotations by ``angle`` about the horizontal axis ``(cos az, 0, sin az)``."""
     x, z = cos_sin(azimuth)
     c, s = cos_sin(angle)
-    k = 1.0 - c
-    xz = x * z * k
-    return np.stack([c + x * x * k, -z * s, xz, z * s, c, -x * s, xz, x * s, c + z * z * k])
+    out = np.empty((9, len(c)))
+    xk = x * (1.0 - c)
+    np.multiply(x, xk, out=out[0])
+    out[0] += c  # c + x x k
+    np.multiply(z, s, out=out[3])  # z s
+    np.negative(out[3], out=out[1])
+    np.multiply(xk, z, out=out[2])  # x z k
+    out[6] = out[2]
+    out[4] = c
+    np.multiply(x, s, out=out[7])  # x s
+    np.negative(out[7], out=out[5])
+    np.multiply(z, z * (1.0 - c), out=out[8])
+    out[8] += c  # c + z z k
+    return out
