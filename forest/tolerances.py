@@ -1,10 +1,5 @@
 """Every numeric tolerance of the library, in one place, with the reason for its value."""
 
-# Rims are compared after float64 composition of up to ~64 similarity transforms; each
-# product loses a few ulps, so 1e-9 relative is far above the noise and far below any gap
-# a renderer could show.
-RIM_POSITION_REL = 1e-9
-
 # Tests compare rims relative to the tree's size (the issue's contract): 1e-5 of the size for
 # positions and 1e-4 for normals leave room for float32 storage in USD (about 6e-8 relative).
 TEST_RIM_POSITION_REL = 1e-5

@@ -12,13 +12,6 @@ from numpy.typing import ArrayLike, NDArray
 F64 = NDArray[np.float64]
 
 
-def identity(n: int | None = None) -> F64:
-    """``(4, 4)`` or ``(n, 4, 4)`` float64 identity."""
-    if n is None:
-        return np.eye(4)
-    return np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
-
-
 def translation(t_in: ArrayLike) -> F64:
     """``t : (..., 3)`` -> ``(..., 4, 4)`` translation matrices."""
     t = np.asarray(t_in, dtype=np.float64)
@@ -139,7 +132,6 @@ def matrix_to_quat(r_in: ArrayLike) -> F64:
         axis=-1,
     )
     pick = np.argmax(cand, axis=-1)
-    q = np.empty((*r.shape[:-2], 4))
     # each candidate column gives the full quaternion up to a common factor
     qx = np.stack(
         [
@@ -182,12 +174,3 @@ def matrix_to_quat(r_in: ArrayLike) -> F64:
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
     q *= np.where(q[..., 3:] < 0, -1.0, 1.0)
     return q
-
-
-def quat_axis_angle(axis_in: ArrayLike, angle_in: ArrayLike) -> F64:
-    """Quaternion xyzw for a rotation about unit ``axis`` by ``angle`` radians."""
-    axis = np.asarray(axis_in, dtype=np.float64)
-    angle = np.asarray(angle_in, dtype=np.float64)
-    axis = axis / np.linalg.norm(axis, axis=-1, keepdims=True)
-    h = 0.5 * angle
-    return np.concatenate([axis * np.sin(h)[..., None], np.cos(h)[..., None]], axis=-1)

@@ -141,8 +141,16 @@ class Server:
         self.port = free_port()
         log = open(self.data / "serve.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "forest.cli", "serve", "--port", str(self.port),
-             "--workers", str(self.workers)],
+            [
+                sys.executable,
+                "-m",
+                "forest.cli",
+                "serve",
+                "--port",
+                str(self.port),
+                "--workers",
+                str(self.workers),
+            ],
             env=self.env,
             stdout=log,
             stderr=subprocess.STDOUT,
@@ -191,8 +199,12 @@ class Server:
     def get(self, path: str) -> httpx.Response:
         return httpx.get(f"{self.url}{path}", timeout=30)
 
-    def wait(self, job_id: str, states: tuple[str, ...] = ("completed", "failed", "canceled"),
-             timeout: float = 60) -> dict[str, Any]:
+    def wait(
+        self,
+        job_id: str,
+        states: tuple[str, ...] = ("completed", "failed", "canceled"),
+        timeout: float = 60,
+    ) -> dict[str, Any]:
         deadline = time.monotonic() + timeout
         job: dict[str, Any] = {}
         while time.monotonic() < deadline:
@@ -203,3 +215,23 @@ class Server:
         pytest.fail(f"job {job_id} still {job.get('state')} after {timeout}s: {job}\n{self.log()}")
 
 
+def served(data: Path, env: dict[str, str]) -> Iterator[Server]:
+    """A started server for a fixture (``yield from served(...)``), stopped afterwards."""
+    server = Server(data, env).start()
+    try:
+        yield server
+    finally:
+        server.stop()
+
+
+def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> bytes:
+    """The library's own output for a forest or tree request body (a .usdz names its inner
+    layer by stem)."""
+    from forest.generate import ForestOptions, generate_forest
+    from forest.presets import load_preset
+    from forest.usd_scene import write_scene
+
+    opts = ForestOptions(trees=int(body["trees"]), frames=int(body.get("frames", 0)))
+    forest = generate_forest(load_preset(str(body["preset"])), int(body["seed"]), opts)
+    (tmp / "ref").mkdir(exist_ok=True)
+    return write_scene(forest, tmp / "ref" / f"{stem}.{body['format']}").read_bytes()

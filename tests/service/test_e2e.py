@@ -12,12 +12,9 @@ from pathlib import Path
 
 import httpx
 import pytest
-from service_harness import Server
+from service_harness import Server, reference_scene, served
 
-from forest.generate import ForestOptions, generate_forest
-from forest.presets import load_preset
 from forest.usd_read import read_scene
-from forest.usd_scene import write_scene
 from schemas.metrics import RenderMetrics
 
 FOREST = {"preset": "almond", "trees": 3, "seed": 7, "format": "usdc", "frames": 2}
@@ -25,18 +22,7 @@ FOREST = {"preset": "almond", "trees": 3, "seed": 7, "format": "usdc", "frames":
 
 @pytest.fixture(scope="module")
 def server(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    s = Server(tmp_path_factory.mktemp("serve"), backend | {"FOREST_MAX_IMAGE_SIZE": "1024"})
-    s.start()
-    yield s
-    s.stop()
-
-
-def reference_scene(tmp: Path, body: dict[str, object], stem: str = "scene") -> bytes:
-    """The library's own output for the request (a .usdz names its inner layer by stem)."""
-    opts = ForestOptions(trees=int(body["trees"]), frames=int(body.get("frames", 0)))  # type: ignore[call-overload]
-    forest = generate_forest(load_preset(str(body["preset"])), int(body["seed"]), opts)  # type: ignore[call-overload]
-    (tmp / "ref").mkdir(exist_ok=True)
-    return write_scene(forest, tmp / "ref" / f"{stem}.{body['format']}").read_bytes()
+    yield from served(tmp_path_factory.mktemp("serve"), backend | {"FOREST_MAX_IMAGE_SIZE": "1024"})
 
 
 def test_forest_job_then_render(server: Server, tmp_path: Path) -> None:
@@ -129,8 +115,10 @@ def test_idempotency_key_gives_one_job(server: Server) -> None:
 
 
 def test_list_filters_and_pages(server: Server) -> None:
-    ids = [server.post("/v1/forests", FOREST | {"seed": 200 + i, "trees": 1}).json()["id"]
-           for i in range(3)]
+    ids = [
+        server.post("/v1/forests", FOREST | {"seed": 200 + i, "trees": 1}).json()["id"]
+        for i in range(3)
+    ]
     for i in ids:
         server.wait(i)
     page = server.get("/v1/jobs?state=completed&kind=forest&limit=2&offset=0").json()

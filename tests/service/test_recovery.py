@@ -18,21 +18,14 @@ from typing import Any
 
 import httpx
 import pytest
-from service_harness import Server, redis_redeliver_now, redis_unacked
-
-from forest.generate import ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.usd_scene import write_scene
+from service_harness import Server, redis_redeliver_now, redis_unacked, reference_scene, served
 
 BODY = {"preset": "shrub", "trees": 4, "seed": 31, "format": "usdc"}
 
 
 @pytest.fixture(scope="module")
 def paused(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    s = Server(tmp_path_factory.mktemp("paused"), backend | {"FOREST_TEST_PAUSE_S": "60"})
-    s.start()
-    yield s
-    s.stop()
+    yield from served(tmp_path_factory.mktemp("paused"), backend | {"FOREST_TEST_PAUSE_S": "60"})
 
 
 def wait_running(server: Server, job_id: str) -> dict[str, Any]:
@@ -55,8 +48,7 @@ def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
     assert done["state"] == "completed", done
     assert done["attempts"] == 2 and done["error"] is None
     scene = paused.get(f"/v1/jobs/{job_id}/artifacts/scene.usdc").content
-    forest = generate_forest(load_preset("shrub"), 31, ForestOptions(trees=4))
-    assert scene == write_scene(forest, tmp_path / "scene.usdc").read_bytes()
+    assert scene == reference_scene(tmp_path, BODY)
     if paused.env.get("FOREST_BROKER_URL", "").startswith("redis"):
         prefix = paused.env["FOREST_QUEUE_PREFIX"]
         assert redis_unacked(prefix) == 1  # the dead worker's delivery: Redis still holds it
@@ -68,7 +60,9 @@ def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
     time.sleep(3)  # a redelivered message or a reaper round must not run it again
     again = paused.get(f"/v1/jobs/{job_id}").json()
     assert (again["state"], again["attempts"], again["finished_at"]) == (
-        "completed", 2, done["finished_at"]
+        "completed",
+        2,
+        done["finished_at"],
     )
 
 
