@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 from numpy.typing import NDArray
@@ -122,13 +123,17 @@ class Forest:
         return [f / self.options.fps for f in range(self.options.frames)]
 
     def poser(self, pose: PoseParams | None = None) -> Poser:
+        """The forest's poser (one per forest, so what it derives once serves every frame),
+        or one for another ``pose``."""
+        return self._poser if pose is None else self._make_poser(pose)
+
+    @cached_property
+    def _poser(self) -> Poser:
+        return self._make_poser(self.pose)
+
+    def _make_poser(self, pose: PoseParams) -> Poser:
         return Poser(
-            self.graph,
-            self.bones,
-            self.pieces,
-            self.tree_transforms,
-            self.transforms,
-            pose or self.pose,
+            self.graph, self.bones, self.pieces, self.tree_transforms, self.transforms, pose
         )
 
     def local_bones(self, time: float | None = None) -> F64:
@@ -152,13 +157,6 @@ class Forest:
         return foliage_anchors(
             self.foliage_instance, self.graph.piece, self.bones.offset, self.transforms, hubs
         )
-
-    def foliage_points(self, time: float | None = None) -> tuple[F64, F64]:
-        """Leaf-cloud centres ``(k, 3)`` on the posed forest (with wind at ``time`` if given):
-        each hub bone's palette matrix applied to the hub's rest point; and the clouds'
-        diameters ``(k,)`` (``forest.foliage.CLOUD_RADII`` piece radii)."""
-        a = self.foliage_anchors()
-        return a.positions(self.palette(time)), a.size
 
 
 def generate_forest(

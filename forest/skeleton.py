@@ -18,10 +18,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import affine, rim
-from forest.assembly import building_twist_column, building_twist_table
-from forest.expand import BLOCK_PIECES, PieceGraph, children_radius
+from forest.assembly import building_twist_table
+from forest.expand import LevelBlock, PieceGraph, children_radius
 from forest.pieces import MAX_LEAF_RIMS, PieceArrays, skinning_rest_inverse
-from forest.transforms import F64, invert_similarity, matrix_to_quat
+from forest.transforms import F64, invert_similarity
 
 I32 = NDArray[np.int32]
 HUB, TIP0 = 1, 2
@@ -45,7 +45,6 @@ class Bones:
     offset : (n,) int32 first bone of each instance      instance, joint : (b,) int32
     parent : (b,) int32 parent bone, -1 for tree roots
     rest : (p, MAX_JOINTS, 4, 4) joint frames J per piece; inv_rest their inverses
-    piece_rims : (p,) int32 leaf rims per piece
     """
 
     offset: I32
@@ -54,27 +53,24 @@ class Bones:
     parent: I32
     rest: F64
     inv_rest: F64
-    piece_rims: I32
 
     def __len__(self) -> int:
         return len(self.instance)
 
 
 def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
-    n_joints = np.array([p.n_joints for p in pieces], np.int32)[graph.piece]
+    n_joints = np.take(np.array([p.n_joints for p in pieces], np.int32), graph.piece)
     offset = np.zeros(len(graph), np.int32)
     np.cumsum(n_joints[:-1], out=offset[1:])
     instance = np.repeat(np.arange(len(graph), dtype=np.int32), n_joints)
-    joint = (np.arange(len(instance), dtype=np.int32) - offset[instance]).astype(np.int32)
-    par_inst = graph.parent[instance]
-    # root bone -> the parent's terminal for this rim; hub -> own root; terminal -> own hub
-    parent = np.where(
-        joint == 0,
-        np.where(
-            par_inst >= 0, offset[np.maximum(par_inst, 0)] + TIP0 + graph.parent_rim[instance], -1
-        ),
-        offset[instance] + np.where(joint == HUB, 0, HUB),
-    ).astype(np.int32)
+    first = np.repeat(offset, n_joints)  # each bone's instance's first bone
+    joint = np.arange(len(instance), dtype=np.int32)
+    joint -= first
+    # hub -> own root; terminal -> own hub; root -> the parent's terminal for this rim
+    parent = first + (joint > HUB).astype(np.int32)
+    has = graph.parent >= 0
+    parent[offset] = -1
+    parent[offset[has]] = offset[graph.parent[has]] + TIP0 + graph.parent_rim[has]
     inv = skinning_rest_inverse(pieces)
     return Bones(
         offset=offset,
@@ -83,7 +79,6 @@ def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
         parent=parent,
         rest=invert_similarity(inv),
         inv_rest=inv,
-        piece_rims=np.array([p.n_leaf_rims for p in pieces], np.int32),
     )
 
 
@@ -118,19 +113,20 @@ def draw_pose(
     n_trees: int,
 ) -> PoseParams:
     n = len(graph)
-    bend = alt_bend[graph.alt]
-    spread = alt_spread[graph.alt]
-    sigma = _rest_tip_scale(pieces)[graph.piece]
+    bend = np.take(alt_bend, graph.alt, axis=0)
+    spread = np.take(alt_spread, graph.alt, axis=0)
+    sigma = np.take(_rest_tip_scale(pieces), graph.piece, axis=0)
     tree_phase = rng.random(n_trees) * 2 * np.pi
+    radius = graph.radius.astype(np.float16).astype(np.float64)
     return PoseParams(
         bend_azimuth=rng.random(n) * (2 * np.pi),
         bend_angle=bend[:, 0] + rng.random(n) * (bend[:, 1] - bend[:, 0]),
         spread_azimuth=rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi),
         spread_angle=spread[:, None, 0]
         + rng.random((n, MAX_LEAF_RIMS)) * (spread[:, None, 1] - spread[:, None, 0]),
-        tip_scale=sigma * children_radius(graph).astype(np.float16).astype(np.float64),
+        tip_scale=sigma * children_radius(graph, radius),
         length=graph.length,
-        phase=tree_phase[graph.tree] + 0.35 * graph.depth,
+        phase=np.take(tree_phase, graph.tree) + 0.35 * graph.depth,
     )
 
 
@@ -162,6 +158,8 @@ class _PieceTables:
     hub_t : (3, p) hub offset from the root
     tip_t : (3, p*R) terminal offset from the hub tip_r : (9, p*R) terminal rest rotation
     tip_scale : (p*R,) terminal rest scale sigma
+    tip_th : (3, p*R) terminal offset from the root, ``t + h``
+    rims : (p,) intp leaf rims per piece
     twists : (12, 6) the six rim twists
     building_twist : (12, p*R*6) ``B_r @ Twist_k``
     """
@@ -170,6 +168,8 @@ class _PieceTables:
     tip_t: F64
     tip_r: F64
     tip_scale: F64
+    tip_th: F64
+    rims: NDArray[np.intp]
     twists: F64
     building_twist: F64
 
@@ -191,8 +191,10 @@ def _piece_tables(pieces: tuple[PieceArrays, ...]) -> _PieceTables:
         tip_t=tip_t.reshape(-1, 3).T.copy(),
         tip_r=tip_r.reshape(-1, 9).T.copy(),
         tip_scale=_rest_tip_scale(pieces).ravel(),
+        tip_th=(tip_t + hub_t[:, None]).reshape(-1, 3).T.copy(),
+        rims=np.array([p.n_leaf_rims for p in pieces], np.intp),
         twists=affine.from_matrices(rim.twists()),
-        building_twist=affine.from_matrices(building_twist_table(pieces).reshape(-1, 4, 4)),
+        building_twist=building_twist_table(pieces),
     )
 
 
@@ -204,8 +206,8 @@ class _Locals:
     root: F64
     hub: F64
     tips: F64
-    pos: I32
-    r: I32
+    pos: NDArray[np.intp]
+    r: NDArray[np.intp]
 
 
 @dataclass(frozen=True, eq=False)
@@ -232,66 +234,85 @@ class Poser:
         np.maximum.at(deepest, self.graph.tree, self.graph.depth)
         return deepest
 
-    def _wind(self, idx: I32, wind: Wind | None, time: float) -> tuple[F64, F64] | None:
-        """Per instance of ``idx``: sway angle ``(m,)`` and the wind axis in the instance's
-        root frame ``(3, m)`` (one world axis across the wind, turned by the rest rotation)."""
+    @cached_property
+    def _wind_fields(self) -> dict[Wind, tuple[F64, F64]]:
+        return {}
+
+    def _wind_field(self, wind: Wind) -> tuple[F64, F64]:
+        """Per instance: sway amplitude ``(n,)`` and the wind axis in the instance's root frame
+        ``(3, n)`` (one world axis across the wind, turned by the rest rotation). Neither
+        depends on time, so each wind computes them once for all of its frames."""
+        if wind not in self._wind_fields:
+            g = self.graph
+            d = np.deg2rad(wind.direction_deg)
+            world_axis = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
+            deepest = np.take(self._tree_depth, g.tree)
+            amp = np.deg2rad(wind.strength_deg) * (
+                wind.base + (1 - wind.base) * g.depth / np.maximum(deepest, 1)
+            )
+            axis = np.einsum("nji,j->in", self.transforms[:, :3, :3], world_axis)  # R^T a
+            self._wind_fields[wind] = (amp, axis / np.linalg.norm(axis, axis=0))
+        return self._wind_fields[wind]
+
+    def _wind(
+        self, idx: NDArray[np.intp], wind: Wind | None, time: float
+    ) -> tuple[F64, F64] | None:
+        """Per instance of ``idx``: sway angle ``(m,)`` at ``time`` and the wind axis ``(3, m)``
+        in the instance's root frame."""
         if wind is None or not wind.strength_deg:
             return None
-        d = np.deg2rad(wind.direction_deg)
-        world_axis = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
-        depth = self.graph.depth[idx]
-        deepest = self._tree_depth[self.graph.tree[idx]]
-        amp = np.deg2rad(wind.strength_deg) * (
-            wind.base + (1 - wind.base) * depth / np.maximum(deepest, 1)
-        )
-        sway = amp * np.sin(2 * np.pi * wind.frequency_hz * time + self.pose.phase[idx])
-        lin = self.transforms[idx, :3, :3]
-        axis = np.einsum("nji,j->in", lin, world_axis)  # R^T a, up to the uniform scale
-        return sway, axis / np.linalg.norm(axis, axis=0)
+        amp, axis = self._wind_field(wind)
+        phase = 2 * np.pi * wind.frequency_hz * time + self.pose.phase[idx]
+        return amp[idx] * np.sin(phase), np.take(axis, idx, axis=1)
 
-    def _hub_and_tip_rotations(
-        self, idx: I32, wind: Wind | None, time: float
-    ) -> tuple[F64, F64, I32, I32]:
-        """Hub locals ``(12, m)``, and the pose rotation ``R_wind @ R_spread`` ``(9, k)`` of
-        every terminal with its instance position ``pos`` and rim ``r`` (each ``(k,)``)."""
-        g, pose, tab = self.graph, self.pose, _piece_tables(self.pieces)
-        piece = g.piece[idx]
-        hub = np.empty((12, len(idx)))
-        hub_rot = affine.horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
+    def _rotations(self, idx: NDArray[np.intp], wind: Wind | None, time: float) -> _Rotations:
+        """Pose rotations of the instances ``idx`` and of their terminals (see _Rotations)."""
+        pose, tab = self.pose, _piece_tables(self.pieces)
+        rims = tab.rims[self.graph.piece[idx]]
+        tipstart = np.cumsum(rims) - rims
+        pos = np.repeat(np.arange(len(idx)), rims)
+        r = np.arange(len(pos)) - tipstart[pos]
+        flat = idx[pos] * MAX_LEAF_RIMS + r  # into the (n, R) pose arrays
+        hub = affine.horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
+        tip = affine.horizontal_rotation(
+            np.take(pose.spread_azimuth, flat), np.take(pose.spread_angle, flat)
+        )
         swaying = self._wind(idx, wind, time)
         if swaying is not None:
             sway, axis = swaying
-            hub_rot = affine.compose_linear(affine.axis_angle(axis, sway), hub_rot)
-        hub[affine.LIN] = hub_rot
-        hub[affine.TRANS] = pose.length[idx] * tab.hub_t[:, piece]
-        pos, r = np.nonzero(np.arange(MAX_LEAF_RIMS)[None] < self.bones.piece_rims[piece][:, None])
-        inst = idx[pos]
-        rot = affine.horizontal_rotation(pose.spread_azimuth[inst, r], pose.spread_angle[inst, r])
-        if swaying is not None:
+            hub = affine.compose_linear(affine.axis_angle(axis, sway), hub)
             # in the hub's frame; tips sway half as much as hubs, so the motion ripples up
             # the tree instead of swinging each piece rigidly
-            hub_axis = affine.apply_linear(affine.transpose_linear(hub_rot)[:, pos], axis[:, pos])
-            rot = affine.compose_linear(affine.axis_angle(hub_axis, 0.5 * sway[pos]), rot)
-        return hub, rot, pos.astype(np.int32), r.astype(np.int32)
+            hub_axis = affine.apply_linear(affine.transpose_linear(hub)[:, pos], axis[:, pos])
+            tip = affine.compose_linear(affine.axis_angle(hub_axis, 0.5 * sway[pos]), tip)
+        return _Rotations(hub, tip, rims, tipstart, pos, r, flat)
 
-    def locals_for(self, idx: I32, wind: Wind | None = None, time: float = 0.0) -> _Locals:
+    def locals_for(
+        self, idx: NDArray[np.intp], wind: Wind | None = None, time: float = 0.0
+    ) -> _Locals:
         """Local transforms of the instances ``idx``."""
         g, pose, tab = self.graph, self.pose, _piece_tables(self.pieces)
         top = g.parent[idx] < 0
         root = tab.twists[:, g.twist[idx]]
         if top.any():
             root[:, top] = affine.from_matrices(self.tree_transforms[g.tree[idx[top]]])
-        hub, rot, pos, r = self._hub_and_tip_rotations(idx, wind, time)
-        inst = idx[pos]
-        col = g.piece[inst] * MAX_LEAF_RIMS + r
-        tips = np.empty((12, len(pos)))
-        tips[affine.LIN] = affine.compose_linear(rot, tab.tip_r[:, col]) * pose.tip_scale[inst, r]
+        rot = self._rotations(idx, wind, time)
+        piece = g.piece[idx]
+        hub = np.empty((12, len(idx)))
+        hub[affine.LIN] = rot.hub
+        hub[affine.TRANS] = pose.length[idx] * tab.hub_t[:, piece]
+        inst = idx[rot.pos]
+        col = piece[rot.pos] * MAX_LEAF_RIMS + rot.r
+        tips = np.empty((12, len(rot.pos)))
+        tips[affine.LIN] = affine.compose_linear(rot.tip, tab.tip_r[:, col]) * np.take(
+            pose.tip_scale, rot.flat
+        )
         tips[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col]
-        return _Locals(root, hub, tips, pos, r)
+        return _Locals(root, hub, tips, rot.pos, rot.r)
 
     def local_transforms(self, wind: Wind | None = None, time: float = 0.0) -> F64:
         """``(b, 4, 4)`` local transforms of every bone (what a SkelAnimation stores)."""
-        loc = self.locals_for(np.arange(len(self.graph), dtype=np.int32), wind, time)
+        loc = self.locals_for(np.arange(len(self.graph)), wind, time)
         out = np.empty((len(self.bones), 4, 4))
         off = self.bones.offset
         out[off] = affine.to_matrices(loc.root)
@@ -306,74 +327,98 @@ class Poser:
         trees (small enough for the temporaries to stay in cache); transposed for USD with
         ``row_vectors``, so a scene writer needs no second copy."""
         pal = np.empty((len(self.bones), 4, 4))
-        for start, stop in self.graph.tree_blocks(BLOCK_PIECES):
-            self._palette_block(start, stop, pal, wind, time, row_vectors)
+        for blk in self.graph.blocks:
+            self._palette_block(blk, pal, wind, time, row_vectors)
         return pal
 
     def _palette_block(
-        self,
-        start: int,
-        stop: int,
-        pal: F64,
-        wind: Wind | None,
-        time: float,
-        row_vectors: bool,
+        self, blk: LevelBlock, pal: F64, wind: Wind | None, time: float, row_vectors: bool
     ) -> None:
-        """Forward kinematics of instances ``[start, stop)``, one depth level at a time, in
-        closed forms that skip the terminals' globals.
+        """Forward kinematics of one block, a depth level at a time, in closed forms that
+        skip the hubs' and terminals' globals.
 
-        With ``J_tip = B_r = Tr(h + t) R_rest S(sigma)`` and the terminal's local
-        ``Tr(length t) R S(sigma rho)``, the terminal's palette entry is
-        ``G_hub @ [rho R | length t - rho R (t + h)]``; a child's root global is its parent
-        terminal's palette entry times ``B_r @ Twist_k``, a constant per piece, rim and twist.
+        With ``J_hub = Tr(h)`` and the hub's local ``Tr(length h) R``, the hub's palette entry
+        is ``G_root @ [R | length h - R h]``. With ``J_tip = B_r = Tr(h + t) R_rest S(sigma)``
+        and the terminal's local ``Tr(length t) R S(sigma rho)``, the terminal's entry is
+        ``P_hub @ [rho R | (length - 1) t + (t + h) - rho R (t + h)]``. A child's root global
+        is its parent terminal's entry times ``B_r @ Twist_k``, a constant per piece, rim and
+        twist. Each level's bones land in contiguous columns (roots, hubs, terminals); one
+        gather at the end puts them in palette order.
         """
         g, b, pose = self.graph, self.bones, self.pose
         tab = _piece_tables(self.pieces)
-        b0 = int(b.offset[start])
-        b1 = int(b.offset[stop]) if stop < len(g) else len(b)
-        block = np.empty((12, b1 - b0))  # this block's palette, SoA
-        for idx in g.levels_in(start, stop):
-            off = b.offset[idx] - b0
-            par = g.parent[idx]
+        b0 = int(b.offset[blk.start])
+        b1 = int(b.offset[blk.stop]) if blk.stop < len(g) else len(b)
+        cols = np.empty((12, b1 - b0))  # this block's palette, SoA, in computed order
+        bone = np.empty(b1 - b0, np.intp)  # palette row (within the block) of each column
+        at = 0  # next free column
+        prev = (0, 0, np.zeros(0, np.intp))  # last level: first column of its terminals,
+        # its first position in the block's depth order, each instance's first terminal
+        for lo, idx in blk.levels():
+            n = len(idx)
             piece = g.piece[idx]
-            if par[0] < 0:
-                root = affine.from_matrices(self.tree_transforms[g.tree[idx]])
+            par = g.parent[idx]
+            root = cols[:, at : at + n]
+            if lo == 0:
+                root[:] = affine.from_matrices(self.tree_transforms[g.tree[idx]])
             else:
-                parent_tip = block[:, b.offset[par] - b0 + TIP0 + g.parent_rim[idx]]
-                bt = building_twist_column(g.piece[par], g.parent_rim[idx], g.twist[idx])
-                root = affine.compose(parent_tip, tab.building_twist[:, bt])
-            block[:, off] = root  # J_root = I
-            hub, rot, pos, r = self._hub_and_tip_rotations(idx, wind, time)
-            g_hub = affine.compose(root, hub)
-            # inv(J_hub) is a pure translation: one matrix-vector product
-            hub_pal = g_hub.copy()
-            hub_pal[affine.TRANS] -= affine.apply(g_hub, tab.hub_t[:, piece])
-            block[:, off + HUB] = hub_pal
-            inst = idx[pos]
-            col = piece[pos] * MAX_LEAF_RIMS + r
-            rho = pose.tip_scale[inst, r] / tab.tip_scale[col]
-            m = np.empty((12, len(pos)))
-            m[affine.LIN] = rot * rho
-            m[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col] - affine.apply_linear(
-                m[affine.LIN], tab.tip_t[:, col] + tab.hub_t[:, piece[pos]]
+                tip0, prev_lo, prev_start = prev
+                prim = g.parent_rim[idx]
+                parent_tip = tip0 + prev_start[blk.rank[par - blk.start] - prev_lo] + prim
+                bt = np.take(g.building_twist_column, idx)
+                affine.compose(
+                    np.take(cols, parent_tip, axis=1),
+                    np.take(tab.building_twist, bt, axis=1),
+                    out=root,
+                )
+            rot = self._rotations(idx, wind, time)
+            h = np.take(tab.hub_t, piece, axis=1)
+            local = np.empty((12, n))
+            local[affine.LIN] = rot.hub
+            local[affine.TRANS] = pose.length[idx] * h - affine.apply_linear(rot.hub, h)
+            hub = affine.compose(root, local, out=cols[:, at + n : at + 2 * n])
+            k = len(rot.pos)
+            tcol = piece[rot.pos] * MAX_LEAF_RIMS + rot.r
+            rho = np.take(pose.tip_scale, rot.flat) / np.take(tab.tip_scale, tcol)
+            th = np.take(tab.tip_th, tcol, axis=1)
+            local = np.empty((12, k))
+            local[affine.LIN] = rot.tip * rho
+            local[affine.TRANS] = (
+                (pose.length[idx[rot.pos]] - 1.0) * np.take(tab.tip_t, tcol, axis=1)
+                + th
+                - affine.apply_linear(local[affine.LIN], th)
             )
-            block[:, off[pos] + TIP0 + r] = affine.compose(g_hub[:, pos], m)
-        affine.to_matrices(block, pal[b0:b1], row_vectors)
+            per_tip = hub if k == n else np.repeat(hub, rot.rims, axis=1)
+            affine.compose(per_tip, local, out=cols[:, at + 2 * n : at + 2 * n + k])
+            off = b.offset[idx] - b0
+            bone[at : at + n] = off
+            bone[at + n : at + 2 * n] = off + HUB
+            bone[at + 2 * n : at + 2 * n + k] = off[rot.pos] + TIP0 + rot.r
+            prev = (at + 2 * n, lo, rot.tipstart)
+            at += 2 * n + k
+        column = np.empty_like(bone)
+        column[bone] = np.arange(len(bone))
+        mats = affine.to_matrices(cols, row_vectors=row_vectors)
+        np.take(mats, column, axis=0, out=pal[b0:b1], mode="clip")
+
+
+@dataclass(frozen=True, eq=False)
+class _Rotations:
+    """Pose rotations of ``m`` instances (with wind if any): ``hub`` ``(9, m)``
+    ``R_wind @ R_bend``; ``tip`` ``(9, k)`` ``R_wind @ R_spread`` of every terminal,
+    instance-major. ``rims`` ``(m,)`` terminals per instance, ``tipstart`` ``(m,)`` the first
+    terminal of each; per terminal its instance position ``pos``, rim ``r`` and index
+    ``flat`` into ``(n, MAX_LEAF_RIMS)`` pose arrays."""
+
+    hub: F64
+    tip: F64
+    rims: NDArray[np.intp]
+    tipstart: NDArray[np.intp]
+    pos: NDArray[np.intp]
+    r: NDArray[np.intp]
+    flat: NDArray[np.intp]
 
 
 def rest_palette(bones: Bones, transforms: F64) -> F64:
     """The unposed palette: every bone of an instance equals its topological transform."""
     return transforms[bones.instance]
-
-
-def local_trs(local: F64) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]:
-    """Local similarities -> USD SkelAnimation arrays: translations float3, rotations quatf
-    (x, y, z, w), scales half3."""
-    lin = local[:, :3, :3]
-    s = np.cbrt(np.linalg.det(lin))
-    q = matrix_to_quat(lin / s[:, None, None])
-    return (
-        local[:, :3, 3].astype(np.float32),
-        q.astype(np.float32),
-        np.repeat(s[:, None], 3, axis=1).astype(np.float16),
-    )

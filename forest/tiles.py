@@ -44,23 +44,33 @@ def draw_tile_indices(
 ) -> NDArray[np.int32]:
     """``(n, q_max)`` int32 slice per instance and quad, ``-1`` past the piece's last quad.
 
-    One uint16 per quad from raw random bytes, mapped by multiply-shift: for ``c`` tiles the
-    bias is at most ``c / 65536`` (below 1/16 for any class size the manifest allows), and it
-    is far cheaper than bounded integer draws. Drawn one piece type at a time, only for the
-    quads that type has, so the per-quad tables broadcast instead of being gathered.
+    One uint16 per quad from the bit generator's raw output, mapped by multiply-shift: for
+    ``c`` tiles the bias is at most ``c / 65536`` (below 1/16 for any class size the manifest
+    allows), and it is far cheaper than bounded integer draws. Drawn one piece type at a time,
+    only for the quads that type has, so the per-quad tables broadcast instead of being
+    gathered, and in chunks of rows whose temporaries stay in cache.
     """
     first, count, n_quads = class_tables(pieces, manifest)
     out = np.full((len(piece), first.shape[1]), -1, np.int32)
     for p in range(len(pieces)):
-        rows = np.nonzero(piece == p)[0]
+        rows = np.flatnonzero(piece == p)
         q = int(n_quads[p])
-        raw = np.frombuffer(rng.bytes(2 * len(rows) * q), dtype=np.uint16)
-        tile = raw.reshape(len(rows), q).astype(np.int32)
-        tile *= count[p, :q]
-        tile >>= 16
-        tile += first[p, :q]
-        out[rows, :q] = tile
+        n_count = count[p, :q].astype(np.uint32)
+        buf = np.empty((min(_TILE_CHUNK, len(rows)), q), np.uint32)
+        for at in range(0, len(rows), _TILE_CHUNK):
+            chunk = rows[at : at + _TILE_CHUNK]
+            k = len(chunk) * q
+            raw = rng.bit_generator.random_raw(-(-k // 4)).view(np.uint16)[:k]
+            tile = buf[: len(chunk)]
+            np.multiply(raw.reshape(len(chunk), q), n_count, out=tile)
+            tile >>= 16
+            signed = tile.view(np.int32)
+            signed += first[p, :q]
+            out[chunk, :q] = signed
     return out
+
+
+_TILE_CHUNK = 8192  # rows per chunk: a multiple of 4, so chunks use whole 64-bit draws
 
 
 MANIFEST_NAME = "manifest.json"

@@ -18,10 +18,11 @@ from scipy.spatial import cKDTree
 
 from forest.generate import Forest
 from forest.pieces import MAX_INFLUENCES
-from forest.skeleton import local_trs, rest_pose
+from forest.skeleton import rest_pose
 from forest.transforms import (
     F64,
     compose_similarity,
+    decompose_similarity,
     invert_similarity,
     transform_points,
     transform_vectors,
@@ -67,10 +68,10 @@ def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
 
 def tree_mesh(
     forest: Forest, inst: slice, bones: slice, to_tree: F64
-) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64, NDArray[np.int32]]:
+) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
     """One tree's pieces in tree space at rest: points, normals, quads, joint indices (into
-    the tree's bones), joint weights, faceVarying UDIM st, and each point's instance."""
-    pts, nrm, quads, jidx, jw, st, owner = [], [], [], [], [], [], []
+    the tree's bones), joint weights and faceVarying UDIM st."""
+    pts, nrm, quads, jidx, jw, st = [], [], [], [], [], []
     base = 0
     for i in range(inst.start, inst.stop):
         p = forest.pieces[forest.graph.piece[i]]
@@ -81,7 +82,6 @@ def tree_mesh(
         jidx.append(p.joint_indices + (forest.bones.offset[i] - bones.start))
         jw.append(p.joint_weights)
         st.append(tile_udim_st(forest.tile_indices[i, : len(p.quads)]))
-        owner.append(np.full(len(p.positions), i - inst.start, np.int32))
         base += len(p.positions)
     return (
         np.concatenate(pts),
@@ -90,7 +90,6 @@ def tree_mesh(
         np.concatenate(jidx).astype(np.int32),
         np.concatenate(jw),
         np.concatenate(st),
-        np.concatenate(owner),
     )
 
 
@@ -149,12 +148,12 @@ def write_skinned_trees(
     def unscaled(
         local: F64,
     ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]:
-        t, q, _ = local_trs(local)
-        t = t * parent_scale[:, None]
+        t, q, scale = decompose_similarity(local)
+        t *= parent_scale[:, None]
         # the pose's own scale (the rounded radius scale) is all that is left: exact in half
-        s = np.repeat((_scale(local) / rest_scale)[:, None], 3, axis=1).astype(np.float16)
+        s = np.repeat((scale / rest_scale)[:, None], 3, axis=1).astype(np.float16)
         t[tree_root], q[tree_root], s[tree_root] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
-        return t.astype(np.float32), q, s
+        return t.astype(np.float32), q.astype(np.float32), s
 
     # a still forest's pose is one sample at time 0: DCC importers read only samples
     frames = [(t, unscaled(forest.local_bones(t))) for t in times]
@@ -187,7 +186,7 @@ def write_skinned_trees(
         UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()]
         )
-        pts, nrm, quads, jidx, jw, st, _ = tree_mesh(forest, inst, bones, to_tree)
+        pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree)
         mesh = UsdGeom.Mesh.Define(stage, f"{path}/Bark")
         mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
         mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(nrm.astype(np.float32)))

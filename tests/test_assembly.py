@@ -13,6 +13,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from forest import rim
+from forest.expand import BLOCK_PIECES
 from forest.generate import Forest, ForestOptions, generate_forest
 from forest.presets import load_preset, preset_names
 from forest.tolerances import (
@@ -316,3 +317,58 @@ def test_wind_moves_bones_over_time() -> None:
     roots = f.bones.offset[f.graph.parent < 0]
     # trunks stay planted: the root bone carries the tree transform only
     np.testing.assert_array_equal(p0[roots], f.tree_transforms)
+
+
+def forward_kinematics(parent: np.ndarray, local: np.ndarray) -> np.ndarray:
+    """Globals of bones from their locals, by matrix products down the parent links (no
+    blocks, no depth order, no closed forms: the plain definition)."""
+    glob = np.full_like(local, np.nan)
+    done = parent < 0
+    glob[done] = local[done]
+    while not done.all():
+        ready = ~done & done[np.maximum(parent, 0)]
+        glob[ready] = glob[parent[ready]] @ local[ready]
+        done |= ready
+    return glob
+
+
+@pytest.mark.parametrize("name", PRESETS)
+@pytest.mark.parametrize("block", [7, 64, 1 << 20])
+def test_blocked_passes_equal_the_plain_definitions(
+    name: str, block: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Assembly and palette run block by block in depth order and write each level's
+    results in one gather; with blocks of a few trees or one, they equal the textbook forms:
+    ``T(child) = T(parent) B Twist`` and ``palette = FK(locals) @ inv(J)``."""
+    monkeypatch.setattr("forest.expand.BLOCK_PIECES", block)
+    f = generate_forest(load_preset(name), 5, ForestOptions(trees=12, frames=2))
+    assert len(f.graph.blocks) > 1 or block > len(f.graph)
+    g = f.graph
+    tw = rim.twists()
+    local = np.empty_like(f.transforms)
+    roots = g.parent < 0
+    local[roots] = f.tree_transforms[g.tree[roots]]
+    kids = np.nonzero(~roots)[0]
+    for c in kids:
+        b = f.pieces[g.piece[g.parent[c]]].building[g.parent_rim[c]]
+        local[c] = b @ tw[g.twist[c]]
+    topo = forward_kinematics(g.parent, local)
+    np.testing.assert_allclose(f.transforms, topo, rtol=0, atol=1e-12 * np.abs(topo).max())
+    inv_rest = f.bones.inv_rest[g.piece[f.bones.instance], f.bones.joint]
+    for time in (None, 0.4):
+        glob = forward_kinematics(f.bones.parent, f.local_bones(time))
+        expect = glob @ inv_rest
+        np.testing.assert_allclose(
+            f.palette(time), expect, rtol=0, atol=1e-12 * np.abs(expect).max()
+        )
+
+
+def test_forest_whose_last_tree_spans_a_block_boundary() -> None:
+    """265 alternating trees of 62 pieces: the last tree holds piece 16384, the block size
+    (cutting a block there crashed with an IndexError: no tree starts after it)."""
+    assert BLOCK_PIECES == 16384
+    f = generate_forest(load_preset("alternating"), 1, ForestOptions(trees=265))
+    starts = np.flatnonzero(np.diff(f.graph.tree, prepend=-1))
+    assert starts[-1] < 16384 < len(f.graph)
+    assert [(b.start, b.stop) for b in f.graph.blocks] == [(0, len(f.graph))]
+    assert np.isfinite(f.palette(None)).all()
