@@ -16,10 +16,8 @@ from schemas.grammar import Grammar
 JobState = Literal["queued", "active", "completed", "failed", "canceled"]
 JobKind = Literal["forest", "render"]
 UsdFormat = Literal["usda", "usdc", "usdz"]
-TERMINAL_STATES: tuple[JobState, ...] = ("completed", "failed", "canceled")
 
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
-Finite = Annotated[float, Field(allow_inf_nan=False)]
 
 
 class _Strict(BaseModel):

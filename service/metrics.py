@@ -6,18 +6,18 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable
-from typing import Any
+from typing import Any, get_args
 
 from prometheus_client import CollectorRegistry, Counter, Histogram
 from prometheus_client.core import GaugeMetricFamily, HistogramMetricFamily, Metric
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from schemas.jobs import JobKind, JobState
 from service.store import JobStore
 
 JOB_BUCKETS = (0.1, 0.25, 0.5, 1, 2.5, 5, 10, 30, 60, 300, 1800, float("inf"))
 FRAME_BUCKETS = (1, 2, 5, 10, 20, 50, 100, 200, 500, 1000, 5000, float("inf"))
-STATES = ("queued", "active", "completed", "failed", "canceled")
 
 
 def _histogram(values: Iterable[float], buckets: tuple[float, ...]) -> tuple[list[Any], float]:
@@ -34,8 +34,8 @@ class JobCollector(Collector):
         counts = self.store.counts()
         jobs = GaugeMetricFamily("forest_jobs", "Jobs per kind and state", labels=["kind", "state"])
         depth = GaugeMetricFamily("forest_queue_depth", "Queued jobs per kind", labels=["kind"])
-        for kind in ("forest", "render"):
-            for state in STATES:
+        for kind in get_args(JobKind):
+            for state in get_args(JobState):
                 jobs.add_metric([kind, state], counts.get((kind, state), 0))
             depth.add_metric([kind], counts.get((kind, "queued"), 0))
         yield jobs
@@ -49,7 +49,7 @@ class JobCollector(Collector):
         frames = HistogramMetricFamily(
             "forest_render_frame_ms", "CPU frame times of recently completed renders"
         )
-        for kind in ("forest", "render"):
+        for kind in get_args(JobKind):
             secs = [
                 (r.finished_at - r.started_at).total_seconds()
                 for r in rows

@@ -42,6 +42,7 @@ class Claim:
     attempt: int
     kind: str
     params: dict[str, Any]
+    max_attempts: int
 
 
 class JobStore:
@@ -181,7 +182,9 @@ class JobStore:
                 return None
             row = s.get(JobRow, job_id)
             assert row is not None
-            return Claim(job_id, owner, row.attempts, row.kind, dict(row.params))
+            return Claim(
+                job_id, owner, row.attempts, row.kind, dict(row.params), row.max_attempts
+            )
 
     def heartbeat(
         self, claim: Claim, lease_s: float, progress: float | None = None, stage: str | None = None

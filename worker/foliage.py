@@ -35,7 +35,7 @@ from forest.transforms import F64
 from forest.usd_read import SceneArrays
 from forest.usd_scene import FOLIAGE
 from worker import shaders
-from worker.camera import Camera
+from worker.camera import Camera, box_corners
 
 if TYPE_CHECKING:
     import moderngl
@@ -133,8 +133,7 @@ def foliage_points(scene: SceneArrays, frame: int = 0) -> F64:
         return np.zeros((0, 3))
     cloud = scene.foliage_cloud or leaf_cloud()
     lo, hi = cloud.positions.min(axis=0), cloud.positions.max(axis=0)
-    sel = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T
-    corners = np.where(sel == 1, hi, lo)
+    corners = box_corners(lo, hi)
     c = scene.foliage_at(frame)
     return (c[:, None] + scene.foliage_sizes[:, None, None] * corners[None]).reshape(-1, 3)
 

@@ -41,6 +41,11 @@ CAPTURE_DTYPE = np.dtype(
 CAPTURE_HEADER = 16  # count, capacity, two pads (uint)
 
 
+def fog_density(camera: Camera) -> float:
+    """Fog density for ``camera``: ``FOG_AT_TARGET`` over the camera-target distance."""
+    return FOG_AT_TARGET / max(float(np.linalg.norm(camera.target - camera.eye)), 1e-6)
+
+
 def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:
     return cast("moderngl.Uniform", prog[name])
 
@@ -176,7 +181,7 @@ class Renderer:
             "u_alpha": tess.alpha,
             "u_sun": tuple(SUN),
             "u_sky": tuple(SKY),
-            "u_fog": FOG_AT_TARGET / max(float(np.linalg.norm(camera.target - camera.eye)), 1e-6),
+            "u_fog": fog_density(camera),
             "u_tiles": 0,
         }
         for name, value in values.items():
@@ -228,7 +233,7 @@ class Renderer:
         ``branches=False`` draws the foliage alone."""
         mgl, ctx = self._moderngl, self.ctx
         prog, vaos = self._variant(*(["ID_OUTPUT"] if self.id_texture else []))
-        fog = FOG_AT_TARGET / max(float(np.linalg.norm(camera.target - camera.eye)), 1e-6)
+        fog = fog_density(camera)
         t0 = time.perf_counter()
         self.buffers.use(frame)
         pass1 = None

@@ -37,6 +37,7 @@ from forest.pieces import QUAD_ST, PieceArrays
 from forest.transforms import F64
 from forest.usd_read import SceneArrays
 from forest.usd_scene import PIECES
+from worker.camera import box_corners
 
 if TYPE_CHECKING:
     import moderngl
@@ -173,8 +174,7 @@ def scene_points(scene: SceneArrays, frame: int = 0) -> F64:
     boxes = np.stack(
         [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in scene.pieces]
     )
-    sel = np.array(np.meshgrid([0, 1], [0, 1], [0, 1], indexing="ij")).reshape(3, -1).T
-    corners = boxes[:, sel, [0, 1, 2]]  # (p, 8, 3)
+    corners = box_corners(boxes[:, 0, None], boxes[:, 1, None])  # (p, 8, 3)
     n_joints = np.array([p.n_joints for p in scene.pieces])
     j = np.arange(n_joints.max())
     out = []

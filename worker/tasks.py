@@ -219,7 +219,7 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
     except Exception as exc:
         error = f"{type(exc).__name__}: {exc}"
         log.error("job %s attempt %d: %s", job_id, claim.attempt, traceback.format_exc())
-        if claim.attempt < claim_max(rt, job_id):
+        if claim.attempt < claim.max_attempts:
             if rt.store.retry(claim, error):
                 rt.dispatcher.send(job_id, claim.kind, countdown=s.retry_delay_s)
             return "retry"
@@ -229,11 +229,6 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
         stop.set()
         beat.join(timeout=5)
         shutil.rmtree(scratch, ignore_errors=True)
-
-
-def claim_max(rt: Runtime, job_id: str) -> int:
-    row = rt.store.get(job_id)
-    return row.max_attempts if row is not None else 1
 
 
 app = make_celery(get_settings())

@@ -12,21 +12,26 @@ from fastapi.responses import JSONResponse
 from schemas.jobs import Job, RenderRequest
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
+from service.settings import ServiceSettings
 from service.views import ERRORS, submit
 
 router = APIRouter(prefix="/v1/renders", tags=["renders"])
+
+
+def _check_caps(s: ServiceSettings, width: int, height: int, frames: int) -> None:
+    """The service's caps on image size and frame count (beyond the request schema's)."""
+    for name, value in (("width", width), ("height", height)):
+        if value > s.max_image_size:
+            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
+    if frames > s.max_render_frames:
+        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
 
 
 @router.post("", status_code=202, response_model=Job, responses=ERRORS)
 def create_render(
     req: RenderRequest, services: ServicesDep, idempotency_key: IdempotencyKey = None
 ) -> JSONResponse:
-    s = services.settings
-    for name, value in (("width", req.width), ("height", req.height)):
-        if value > s.max_image_size:
-            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
-    if req.frames > s.max_render_frames:
-        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
+    _check_caps(services.settings, req.width, req.height, req.frames)
     row = services.store.get(req.forest_job)
     if row is None or row.kind != "forest":
         raise field_error(["forest_job"], "no such forest job")
@@ -55,12 +60,7 @@ def upload_render(
 ) -> JSONResponse:
     """A render job of an uploaded USD scene (multipart form: ``scene`` file + the same
     settings as ``POST /v1/renders``); the scene must follow the forest scene contract."""
-    s = services.settings
-    for name, value in (("width", width), ("height", height)):
-        if value > s.max_image_size:
-            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
-    if frames > s.max_render_frames:
-        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
+    _check_caps(services.settings, width, height, frames)
     data = scene.file.read()
     suffix = next((sfx for magic, sfx in USD_MAGIC.items() if data.startswith(magic)), None)
     if suffix is None:
