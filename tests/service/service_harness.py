@@ -106,14 +106,37 @@ def redis_unacked(prefix: str) -> int:
         client.close()
 
 
-def redis_redeliver_now(prefix: str) -> None:
+def redis_pending(prefix: str) -> int:
+    """Messages of the run not yet done with: waiting in a queue (a list) or unacknowledged."""
+    import redis
+
+    client = redis.Redis.from_url(REDIS_URL)
+    try:
+        queued = sum(
+            int(client.llen(key))
+            for key in client.scan_iter(match=f"{prefix}*", count=1000, _type="list")
+        )
+        return queued + int(client.hlen(f"{prefix}unacked"))
+    finally:
+        client.close()
+
+
+def redis_redeliver_now(prefix: str) -> int:
     """What Redis does once the visibility timeout is past: every unacknowledged message of the
-    run goes back to its queue."""
+    run goes back to its queue. Returns how many went back.
+
+    kombu's ``restore_visible`` silently does nothing while another client holds the restore
+    mutex (a live worker's periodic sweep, or one killed mid-sweep: then for five minutes), so
+    this restores tag by tag, which is one WATCH transaction each and needs no mutex."""
     from kombu import Connection
 
-    options = {"global_keyprefix": prefix, "visibility_timeout": 0}
-    with Connection(REDIS_URL, transport_options=options) as conn:
-        conn.default_channel.qos.restore_visible(num=1000)
+    with Connection(REDIS_URL, transport_options={"global_keyprefix": prefix}) as conn:
+        qos = conn.default_channel.qos
+        with conn.default_channel.conn_or_acquire() as client:
+            tags = client.zrange(qos.unacked_index_key, 0, -1)
+            for tag in tags:
+                qos.restore_by_tag(tag, client)
+        return len(tags)
 
 
 def free_port() -> int:

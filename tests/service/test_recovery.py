@@ -18,7 +18,14 @@ from typing import Any
 
 import httpx
 import pytest
-from service_harness import Server, redis_redeliver_now, redis_unacked, reference_scene, served
+from service_harness import (
+    Server,
+    redis_pending,
+    redis_redeliver_now,
+    redis_unacked,
+    reference_scene,
+    served,
+)
 
 BODY = {"preset": "shrub", "trees": 4, "seed": 31, "format": "usdc"}
 
@@ -52,11 +59,11 @@ def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
     if paused.env.get("FOREST_BROKER_URL", "").startswith("redis"):
         prefix = paused.env["FOREST_QUEUE_PREFIX"]
         assert redis_unacked(prefix) == 1  # the dead worker's delivery: Redis still holds it
-        redis_redeliver_now(prefix)
+        assert redis_redeliver_now(prefix) == 1
         deadline = time.monotonic() + 20
-        while redis_unacked(prefix) and time.monotonic() < deadline:
+        while redis_pending(prefix) and time.monotonic() < deadline:
             time.sleep(0.1)
-        assert redis_unacked(prefix) == 0, "the redelivered message was not consumed"
+        assert redis_pending(prefix) == 0, "the redelivered message was not consumed"
     time.sleep(3)  # a redelivered message or a reaper round must not run it again
     again = paused.get(f"/v1/jobs/{job_id}").json()
     assert (again["state"], again["attempts"], again["finished_at"]) == (
