@@ -171,22 +171,35 @@ def _spec(pixels: U8) -> oiio.ImageSpec:
     return spec
 
 
-def _create(path: Path) -> oiio.ImageOutput:
+def _create(path: Path, shown: Path) -> oiio.ImageOutput:
     out = oiio.ImageOutput.create(str(path))
     if out is None:
-        raise OutputError(f"cannot write ({_oiio_message(oiio.geterror())})", path=str(path))
+        raise OutputError(f"cannot write ({_oiio_message(oiio.geterror())})", path=str(shown))
     return out
 
 
+@contextmanager
+def _replaced_when_written(path: Path) -> Iterator[Path]:
+    """A sibling temporary path to write, moved over ``path`` only once the writer is done, so
+    a reader (a render job's client, a tile-set loader) never sees half a file."""
+    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
+    try:
+        yield tmp
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
 def write_png(path: Path, pixels: U8) -> Path:
-    """Write ``(h, w, c)`` uint8 pixels (c = 1 or 3) as an 8-bit PNG."""
+    """Write ``(h, w, c)`` uint8 pixels (c = 1, 3 or 4, top row first) as an 8-bit PNG."""
     pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
-    out = _create(path)
-    ok = out.open(str(path), _spec(pixels)) and out.write_image(pixels)
-    problem = out.geterror()
-    out.close()
-    if not ok or problem:
-        raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
+    with _replaced_when_written(path) as tmp:
+        out = _create(tmp, path)
+        ok = out.open(str(tmp), _spec(pixels)) and out.write_image(pixels)
+        problem = out.geterror()
+        out.close()
+        if not ok or problem:
+            raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
     return path
 
 
@@ -199,21 +212,22 @@ def write_texture_array(path: Path, slices: U8) -> Path:
         spec.attribute("compression", "zip")
         # this libtiff build fails writing the (empty) Exif directory; there is none to keep
         spec.attribute("tiff:write_exif", 0)
-    out = _create(path)
-    if not out.supports("multiimage"):
+    with _replaced_when_written(path) as tmp:
+        out = _create(tmp, path)
+        if not out.supports("multiimage"):
+            out.close()
+            raise OutputError("format cannot hold several subimages; use .tif", path=str(path))
+        ok = out.open(str(tmp), specs)
+        for k, pixels in enumerate(slices):
+            if not ok:
+                break
+            if k:
+                ok = out.open(str(tmp), specs[k], "AppendSubimage")
+            ok = ok and out.write_image(pixels)
+        problem = out.geterror()
         out.close()
-        raise OutputError("format cannot hold several subimages; use .tif", path=str(path))
-    ok = out.open(str(path), specs)
-    for k, pixels in enumerate(slices):
-        if not ok:
-            break
-        if k:
-            ok = out.open(str(path), specs[k], "AppendSubimage")
-        ok = ok and out.write_image(pixels)
-    problem = out.geterror()
-    out.close()
-    if not ok or problem:
-        raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
+        if not ok or problem:
+            raise OutputError(f"cannot write ({_oiio_message(problem)})", path=str(path))
     return path
 
 

@@ -77,6 +77,14 @@ def test_unwritable_output_is_an_output_error(tmp_path: Path) -> None:
         write_png(tmp_path / "t.unknown-format", noise(4, 4, 3))
 
 
+def test_failed_write_keeps_the_old_file_and_no_temporary(tmp_path: Path) -> None:
+    old = write_png(tmp_path / "t.png", noise(8, 8, 3)).read_bytes()
+    with pytest.raises(OutputError, match="several subimages"):
+        write_texture_array(tmp_path / "t.png", np.stack([noise(8, 8, 3)] * 2))
+    assert (tmp_path / "t.png").read_bytes() == old
+    assert [p.name for p in tmp_path.iterdir()] == ["t.png"]
+
+
 def _write(path: Path, data: bytes) -> Path:
     path.write_bytes(data)
     return path

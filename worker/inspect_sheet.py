@@ -21,11 +21,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import ForestError
+from forest.images import write_png
 from forest.transforms import F64
 from forest.usd_read import SceneArrays
 from worker.camera import Camera, frame_points
 from worker.gl_context import INSTALL_EGL, INSTALL_WORKER, GLUnavailableError
-from worker.render_job import write_png
 from worker.scene_buffers import scene_points
 
 I64 = NDArray[np.int64]

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
 
 from forest.errors import ForestError, OutputError
+from forest.images import write_png
 from forest.usd_read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
 from worker.camera import Camera, frame_points
@@ -78,27 +78,6 @@ class RenderRequest:
             )
         if self.output.suffix.lower() != ".png":
             raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
-
-
-def write_png(path: Path, rgba: NDArray[np.uint8]) -> Path:
-    """Write ``(h, w, 4)`` uint8 (top row first) with OpenImageIO."""
-    import OpenImageIO as oiio
-
-    h, w, c = rgba.shape
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    out = oiio.ImageOutput.create(str(tmp))
-    if out is None:
-        raise OutputError(f"no image writer: {oiio.geterror()}", path=str(path))
-    try:
-        if not out.open(str(tmp), oiio.ImageSpec(w, h, c, "uint8")):
-            raise OutputError(f"cannot open for writing: {out.geterror()}", path=str(path))
-        if not out.write_image(np.ascontiguousarray(rgba)):
-            raise OutputError(f"cannot write: {out.geterror()}", path=str(path))
-        out.close()
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
 
 
 def preview_view(

@@ -25,11 +25,12 @@ from pxr import Usd, Vt
 
 from forest.cli import main
 from forest.generate import ForestOptions, generate_forest
+from forest.images import write_png
 from forest.presets import load_preset
 from forest.usd_read import read_scene
 from forest.usd_scene import write_scene
 from schemas.metrics import RenderMetrics
-from worker.render_job import preview_view, write_png
+from worker.render_job import preview_view
 from worker.renderer import Renderer
 from worker.textures import procedural_tiles, read_image_subimages
 
