@@ -18,7 +18,7 @@ from worker import shaders
 from worker.camera import Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import gl_info
-from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, check_scene
+from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers
 from worker.textures import TileImages, tile_images, upload
 
 if TYPE_CHECKING:
@@ -131,9 +131,8 @@ class Renderer:
         self.info = gl_info(ctx)
         self.scene = scene
         self.size = size
-        self.buffers = SceneBuffers(ctx, scene)
-        self.images = images or tile_images(scene.manifest, int(self.buffers.layout.tiles.max()))
-        check_scene(scene, self.images.n_slices)
+        self.images = images or tile_images(scene.manifest, int(scene.tile_indices.max()))
+        self.buffers = SceneBuffers(ctx, scene, self.images.n_slices)
         self.texture = upload(ctx, self.images)
         self.color = ctx.texture(size, 4)
         self.id_texture = ctx.texture(size, 4, dtype="i4") if ids else None

@@ -198,8 +198,12 @@ class SceneBuffers:
     """GPU buffers of one scene on one context. ``use(frame)`` binds the storage buffers and
     uploads that frame's palette if it is not the one already there."""
 
-    def __init__(self, ctx: moderngl.Context, scene: SceneArrays) -> None:
-        check_scene(scene, scene.manifest.n_slices)
+    def __init__(
+        self, ctx: moderngl.Context, scene: SceneArrays, n_slices: int | None = None
+    ) -> None:
+        """``n_slices``: the slices of the tile images to be bound, if known; tile indices
+        must lie within those and within the scene's manifest."""
+        check_scene(scene, min(scene.manifest.n_slices, n_slices or scene.manifest.n_slices))
         self.ctx = ctx
         self.scene = scene
         self.layout = InstanceLayout.from_scene(scene)
