@@ -3,6 +3,8 @@ a grammar that compiles, and the service's caps. Errors name the request field (
 
 from __future__ import annotations
 
+import functools
+
 from forest.errors import ForestError, GrammarError
 from forest.grammar import CompiledGrammar, compile_grammar
 from forest.presets import load_preset
@@ -14,7 +16,14 @@ from service.settings import ServiceSettings
 
 
 def library_settings(settings: ServiceSettings, max_pieces: int) -> ForestSettings:
-    return ForestSettings(max_pieces_per_forest=max_pieces, max_frames=settings.max_frames)
+    return _library_settings(max_pieces, settings.max_frames)
+
+
+@functools.lru_cache(maxsize=16)
+def _library_settings(max_pieces: int, max_frames: int) -> ForestSettings:
+    # frozen, so one per cap pair is shared; building one reads the environment (~0.2 ms),
+    # which a request paid twice
+    return ForestSettings(max_pieces_per_forest=max_pieces, max_frames=max_frames)
 
 
 def resolve_grammar(

@@ -12,8 +12,8 @@ import json
 import uuid
 from collections.abc import Sequence
 from dataclasses import dataclass
-from datetime import timedelta
-from typing import Any
+from datetime import datetime, timedelta
+from typing import Any, NamedTuple
 
 from sqlalchemy import Engine, func, select, update
 from sqlalchemy.exc import IntegrityError
@@ -33,6 +33,13 @@ class IdempotencyConflict(Exception):
 def request_hash(kind: str, params: dict[str, Any]) -> str:
     text = json.dumps({"kind": kind, "params": params}, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+class FinishedJob(NamedTuple):
+    kind: str
+    started_at: datetime | None
+    finished_at: datetime | None
+    result: dict[str, Any] | None
 
 
 @dataclass(frozen=True)
@@ -143,14 +150,17 @@ class JobStore:
             ).all()
         return {(k, st): int(n) for k, st, n in rows}
 
-    def recent_finished(self, limit: int = 1000) -> Sequence[JobRow]:
+    def recent_finished(self, limit: int = 1000) -> list[FinishedJob]:
+        """What the metrics scrape needs of the latest completed jobs: four columns, not the
+        rows (a forest job's params can hold a whole grammar)."""
         with self.session() as s:
-            return s.scalars(
-                select(JobRow)
+            rows = s.execute(
+                select(JobRow.kind, JobRow.started_at, JobRow.finished_at, JobRow.result)
                 .where(JobRow.state == "completed")
                 .order_by(JobRow.finished_at.desc())
                 .limit(limit)
             ).all()
+        return [FinishedJob(*r) for r in rows]
 
     # -- worker side ------------------------------------------------------------------------
 

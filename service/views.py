@@ -88,7 +88,8 @@ def submit(
             services.store.mark_enqueued(row.id)
         except Exception:  # broker away; the job stays queued in the table
             log.exception("could not send job %s; the reaper will", row.id)
-    job = job_model(services.store.get(row.id) or row, services)
+        row = services.store.get(row.id) or row  # as enqueued
+    job = job_model(row, services)
     return JSONResponse(
         job.model_dump(mode="json"),
         status_code=202,
