@@ -231,8 +231,9 @@ def write_texture_array(path: Path, slices: U8) -> Path:
     return path
 
 
-def read_texture_array(path: Path) -> U8:
-    """Every subimage of a texture-array TIFF, ``(n, h, w, c)`` uint8 in slice order."""
+def read_subimages(path: Path) -> list[U8]:
+    """Every subimage of an image file in order, each ``(h, w, c)`` uint8 (a texture-array
+    TIFF holds one per slice, a PNG one)."""
     inp = oiio.ImageInput.open(str(path))
     if inp is None:
         raise ForestError(
@@ -250,4 +251,9 @@ def read_texture_array(path: Path) -> U8:
             k += 1
     finally:
         inp.close()
-    return np.stack(slices)
+    return slices
+
+
+def read_texture_array(path: Path) -> U8:
+    """Every subimage of a texture-array TIFF, ``(n, h, w, c)`` uint8 in slice order."""
+    return np.stack(read_subimages(path))

@@ -42,7 +42,9 @@ from forest.errors import ForestError, LimitError, OutputError
 from forest.images import ExampleImage, read_example, write_png, write_texture_array
 from forest.quilting import cut_mask, min_cut_paths, squared_error
 from schemas.tileset import (
+    ARRAY_FILE,
     MAX_UDIM_SLICES,
+    UDIM_PATTERN,
     CornerPattern,
     EdgePattern,
     SourceImage,
@@ -56,8 +58,6 @@ from schemas.tileset import (
 
 U8 = NDArray[np.uint8]
 MANIFEST_FILE = "manifest.json"
-ARRAY_FILE = "bark_array.tif"
-UDIM_PATTERN = "bark.<UDIM>.png"
 CORNER_FILE = "corner.png"
 # Image quilting's patch choice: any candidate whose overlap error is within 10 % of the best
 # is as good (Efros and Freeman use the same 0.1); choosing among them at random keeps tiles

@@ -21,6 +21,8 @@ FileName = Annotated[str, Field(pattern=r"^[^/\\]+$", min_length=1, max_length=2
 Sha256 = Annotated[str, Field(pattern=r"^[0-9a-f]{64}$")]
 Pixels = Annotated[int, Field(ge=0)]
 UDIM_TOKEN = "<UDIM>"
+UDIM_PATTERN = "bark.<UDIM>.png"  # the default slice files
+ARRAY_FILE = "bark_array.tif"  # the texture array a written tile set carries
 MAX_UDIM_SLICES = 999
 """UDIM tiles run from 1001 to 1999 (ten columns, a hundred rows)."""
 
@@ -113,7 +115,7 @@ class TileRecord(_Crop):
 
 
 class TileSetFiles(_Strict):
-    udim: Annotated[str, Field(pattern=r"^[^/\\]*<UDIM>[^/\\]*$")] = "bark.<UDIM>.png"
+    udim: Annotated[str, Field(pattern=r"^[^/\\]*<UDIM>[^/\\]*$")] = UDIM_PATTERN
     """File-name pattern of the per-slice images: slice ``k`` is UDIM tile ``1001 + k``."""
     slices: list[FileName]
     """One image per texture-array slice, in slice order."""

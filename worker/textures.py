@@ -26,14 +26,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import ForestError
-from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+from forest.images import read_subimages
+from schemas.tileset import ARRAY_FILE, DEFAULT_MANIFEST, UDIM_PATTERN, TileSetManifest, udim_file
 
 if TYPE_CHECKING:
     import moderngl
 
 LOOKS_TILES = "/World/Looks/Bark/Tiles"
-ARRAY_NAME = "bark_array.tif"
-UDIM_BASE = 1001
 PLACEHOLDER_SIZE = 64
 BARK_RGB = np.array([0.50, 0.36, 0.24])
 FORK_RGB = np.array([0.46, 0.38, 0.26])
@@ -112,31 +111,15 @@ def _rgba(pixels: NDArray[np.uint8], where: str) -> NDArray[np.uint8]:
 
 def read_image_subimages(path: Path) -> list[NDArray[np.uint8]]:
     """Every subimage of ``path`` as ``(h, w, 4)`` uint8."""
-    import OpenImageIO as oiio
-
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise TileSetError(f"cannot read image: {oiio.geterror()}", path=str(path))
-    images = []
-    try:
-        sub = 0
-        while inp.seek_subimage(sub, 0):
-            pixels = inp.read_image(format="uint8")
-            if pixels is None:
-                raise TileSetError(f"cannot read subimage {sub}: {inp.geterror()}", path=str(path))
-            images.append(_rgba(np.asarray(pixels), str(path)))
-            sub += 1
-    finally:
-        inp.close()
-    return images
+    return [_rgba(pixels, str(path)) for pixels in read_subimages(path)]
 
 
 def _folder_files(folder: Path, n_slices: int) -> tuple[str | None, list[str]]:
     """The array file and per-slice files a tile-set folder declares in ``manifest.json``
     (``files.array``, ``files.slices``), else the defaults ``bark_array.tif`` and
     ``bark.<1001+k>.png``. Read loosely: only these two names are needed here."""
-    array: str | None = ARRAY_NAME
-    slices = [f"bark.{UDIM_BASE + k}.png" for k in range(n_slices)]
+    array: str | None = ARRAY_FILE
+    slices = [udim_file(UDIM_PATTERN, k) for k in range(n_slices)]
     path = folder / "manifest.json"
     if path.is_file():
         try:
@@ -169,7 +152,7 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
                     path=str(path),
                 )
             images.extend(read_image_subimages(path)[:1])
-        source = str(folder / "bark.<UDIM>.png")
+        source = str(folder / UDIM_PATTERN)
     if len(images) < n_slices:
         raise TileSetError(f"{len(images)} slices, the scene's tiles need {n_slices}", path=source)
     shapes = {im.shape for im in images}
