@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.pieces import HUB
 from forest.transforms import F64
 
-HUB = 1  # the joint a cloud follows (forest.skeleton.HUB)
 LEAVES = 256
 LEAF_LENGTH = 0.2  # of the cloud's diameter
 LEAF_WIDTH = 0.12

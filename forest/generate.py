@@ -13,9 +13,9 @@ from forest import __version__
 from forest.assembly import topological_transforms
 from forest.errors import LimitError
 from forest.expand import PieceGraph, expand
-from forest.foliage import HUB, FoliageAnchors, foliage_anchors
+from forest.foliage import FoliageAnchors, foliage_anchors
 from forest.grammar import CompiledGrammar, compile_grammar
-from forest.pieces import PieceArrays, piece_library
+from forest.pieces import HUB, PieceArrays, piece_library
 from forest.scatter import Placement, tree_transforms
 from forest.settings import ForestSettings, get_settings
 from forest.skeleton import (

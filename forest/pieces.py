@@ -39,7 +39,8 @@ from forest.transforms import (
 BARK = 1
 FORK = 2
 MAX_LEAF_RIMS = 3
-MAX_JOINTS = 2 + MAX_LEAF_RIMS
+ROOT, HUB, TIP0 = 0, 1, 2  # the joint layout of every piece (table above)
+MAX_JOINTS = TIP0 + MAX_LEAF_RIMS
 MAX_INFLUENCES = 4
 # Corner st of every quad, in the winding order (a_i, b_i, b_i+1, a_i+1): u runs around the
 # tube, v along it, so bark tiles stand upright.
@@ -228,7 +229,7 @@ class _PieceBuilder:
         ring_pts = [*mids, k_pts, leaf_pts]
         n = len(ring_pts)
         prev = start
-        tip = _onehot(2 + r, self.nj)
+        tip = _onehot(TIP0 + r, self.nj)
         for i, pts in enumerate(ring_pts, start=1):
             u = i / n
             idx = self.mesh.add(pts, (1 - u) * w_start + u * tip)

@@ -20,11 +20,10 @@ from numpy.typing import NDArray
 from forest import affine, rim
 from forest.assembly import building_twist_table
 from forest.expand import LevelBlock, PieceGraph, children_radius
-from forest.pieces import MAX_LEAF_RIMS, PieceArrays, skinning_rest_inverse
+from forest.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
 from forest.transforms import F64, invert_similarity
 
 I32 = NDArray[np.int32]
-HUB, TIP0 = 1, 2
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,9 @@ import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-from forest.foliage import HUB, LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
+from forest.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
 from forest.generate import Forest
-from forest.pieces import QUAD_ST, PieceArrays
+from forest.pieces import HUB, QUAD_ST, PieceArrays
 from forest.transforms import F64, decompose_similarity
 from forest.usd_files import check_output_path, finish, new_stage_layer
 
