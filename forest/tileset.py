@@ -324,6 +324,7 @@ def choose_patch(
     places: _Places,
     geom: TileGeometry,
     rng: np.random.Generator,
+    scored: dict[tuple[int, int, int], int] | None = None,
 ) -> tuple[tuple[int, int, int], int]:
     """Image quilting's patch choice for one tile: among the candidate places, one at random
     whose overlap error against the frame is within :data:`ERROR_TOLERANCE_PERCENT` of the
@@ -331,17 +332,23 @@ def choose_patch(
     none is left, random places that overlap earlier interiors least.
 
     frame : (S, S, 3) uint8   examples : (h_k, w_k, 3) uint8 each
+    scored : errors of free slots against this same frame, kept by the caller across the
+        tiles of one class (a slot's error does not change; only which slots are free does)
     returns : the place ``(example, crop y, crop x)`` and its error; marks it taken
     """
     shapes = [ex.shape[:2] for ex in examples]
+    from_free = bool(places.free)
     cands = _candidates(places, shapes, geom, rng)
+    known = scored if scored is not None and from_free else {}
+    todo = [c for c in cands if c not in known]
     s = geom.size
-    err = np.zeros(len(cands), np.int64)
     step = max(1, CHUNK_BYTES // (s * s * 3))
-    for i in range(0, len(cands), step):
-        crops = _crops(examples, cands[i : i + step], s, s)
+    for i in range(0, len(todo), step):
+        crops = _crops(examples, todo[i : i + step], s, s)
         frames = np.broadcast_to(frame, crops.shape)
-        err[i : i + step] = band_errors(frames, crops, geom).sum(axis=(1, 2, 3), dtype=np.int64)
+        sums = band_errors(frames, crops, geom).sum(axis=(1, 2, 3), dtype=np.int64)
+        known.update(zip(todo[i : i + step], sums.tolist(), strict=True))
+    err = np.array([known[c] for c in cands], np.int64)
     best = int(err.min())
     ok = np.nonzero(err * 100 <= best * (100 + ERROR_TOLERANCE_PERCENT))[0]
     pick = int(ok[rng.integers(len(ok))])
@@ -467,9 +474,10 @@ def build_tileset(
         tile_classes.append(
             TileClass(name=c.name, id=c.id, first=first_slice, count=c.count, edges=c.edges)
         )
+        scored: dict[tuple[int, int, int], int] = {}
         for i in range(c.count):
             reused += not places.free
-            at, err = choose_patch(frames_by_class[c.id], pix, places, geom, rng)
+            at, err = choose_patch(frames_by_class[c.id], pix, places, geom, rng, scored)
             chosen.append(at)
             slice_class.append(c.id)
             records.append(
