@@ -20,6 +20,7 @@ import numpy as np
 import OpenImageIO as oiio
 from numpy.typing import NDArray
 
+from forest.atomic import replaced_when_written
 from forest.errors import ForestError, OutputError
 
 U8 = NDArray[np.uint8]
@@ -148,20 +149,8 @@ def read_example(path: Path, min_size: int = 2) -> ExampleImage:
 
 
 def read_pixels(path: Path) -> U8:
-    """A whole image as stored, ``(h, w, c)`` uint8 (for tile-set outputs and tests)."""
-    inp = oiio.ImageInput.open(str(path))
-    if inp is None:
-        raise ForestError(
-            f"not a readable image ({_oiio_message(oiio.geterror())})", path=str(path)
-        )
-    try:
-        spec = inp.spec()
-        pixels = inp.read_image(0, 0, 0, spec.nchannels, "uint8")
-        if pixels is None or inp.geterror():
-            raise ForestError("image data is truncated or corrupt", path=str(path))
-    finally:
-        inp.close()
-    return np.asarray(pixels, np.uint8).reshape(spec.height, spec.width, spec.nchannels)
+    """A single image as stored, ``(h, w, c)`` uint8 (tile-set outputs, in tests)."""
+    return read_subimages(path)[0]
 
 
 def _spec(pixels: U8) -> oiio.ImageSpec:
@@ -178,22 +167,10 @@ def _create(path: Path, shown: Path) -> oiio.ImageOutput:
     return out
 
 
-@contextmanager
-def _replaced_when_written(path: Path) -> Iterator[Path]:
-    """A sibling temporary path to write, moved over ``path`` only once the writer is done, so
-    a reader (a render job's client, a tile-set loader) never sees half a file."""
-    tmp = path.with_name(f".{path.stem}.tmp{path.suffix}")
-    try:
-        yield tmp
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def write_png(path: Path, pixels: U8) -> Path:
     """Write ``(h, w, c)`` uint8 pixels (c = 1, 3 or 4, top row first) as an 8-bit PNG."""
     pixels = np.ascontiguousarray(pixels, dtype=np.uint8)
-    with _replaced_when_written(path) as tmp:
+    with replaced_when_written(path) as tmp:
         out = _create(tmp, path)
         ok = out.open(str(tmp), _spec(pixels)) and out.write_image(pixels)
         problem = out.geterror()
@@ -212,7 +189,7 @@ def write_texture_array(path: Path, slices: U8) -> Path:
         spec.attribute("compression", "zip")
         # this libtiff build fails writing the (empty) Exif directory; there is none to keep
         spec.attribute("tiff:write_exif", 0)
-    with _replaced_when_written(path) as tmp:
+    with replaced_when_written(path) as tmp:
         out = _create(tmp, path)
         if not out.supports("multiimage"):
             out.close()

@@ -11,7 +11,7 @@ from pydantic import ValidationError
 
 from forest.errors import ForestError
 from forest.pieces import PieceArrays
-from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+from schemas.tileset import DEFAULT_MANIFEST, MANIFEST_FILE, TileSetManifest
 
 
 def class_tables(
@@ -73,14 +73,13 @@ def draw_tile_indices(
 _TILE_CHUNK = 8192  # rows per chunk: a multiple of 4, so chunks use whole 64-bit draws
 
 
-MANIFEST_NAME = "manifest.json"
 
 
 def manifest_for(folder: Path) -> TileSetManifest:
     """The manifest of a tile-set folder; the built-in default where the folder has none."""
     if not folder.is_dir():
         raise ForestError("tile-set folder does not exist", path=str(folder))
-    path = folder / MANIFEST_NAME
+    path = folder / MANIFEST_FILE
     if not path.exists():
         return DEFAULT_MANIFEST
     try:

@@ -38,13 +38,17 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import __version__
+from forest.atomic import write_text
 from forest.errors import ForestError, LimitError, OutputError
 from forest.images import ExampleImage, read_example, write_png, write_texture_array
 from forest.quilting import cut_mask, min_cut_paths, squared_error
 from schemas.tileset import (
     ARRAY_FILE,
+    MANIFEST_FILE,
     MAX_UDIM_SLICES,
+    SIDE_AXIS,
     UDIM_PATTERN,
+    UDIM_TOKEN,
     CornerPattern,
     EdgePattern,
     SourceImage,
@@ -57,7 +61,6 @@ from schemas.tileset import (
 )
 
 U8 = NDArray[np.uint8]
-MANIFEST_FILE = "manifest.json"
 CORNER_FILE = "corner.png"
 # Image quilting's patch choice: any candidate whose overlap error is within 10 % of the best
 # is as good (Efros and Freeman use the same 0.1); choosing among them at random keeps tiles
@@ -100,6 +103,11 @@ class TileGeometry:
         """Side of the corner pattern's source crop: the ``2e`` junction plus an overlap
         band on every side, where the edge patterns are stitched onto it."""
         return 2 * (self.extent + self.overlap)
+
+    @property
+    def chunk(self) -> int:
+        """Tiles per image stack of at most :data:`CHUNK_BYTES` (RGB)."""
+        return max(1, CHUNK_BYTES // (self.size * self.size * 3))
 
     @property
     def region(self) -> int:
@@ -342,7 +350,7 @@ def choose_patch(
     known = scored if scored is not None and from_free else {}
     todo = [c for c in cands if c not in known]
     s = geom.size
-    step = max(1, CHUNK_BYTES // (s * s * 3))
+    step = geom.chunk
     for i in range(0, len(todo), step):
         crops = _crops(examples, todo[i : i + step], s, s)
         frames = np.broadcast_to(frame, crops.shape)
@@ -367,9 +375,8 @@ def _check_classes(classes: Sequence[ClassSpec]) -> dict[str, str]:
     horizontal, and one colour cannot be both."""
     axes: dict[str, str] = {}
     for c in classes:
-        for side in ("left", "right", "top", "bottom"):
+        for side, axis in SIDE_AXIS.items():
             name = getattr(c.edges, side)
-            axis = "vertical" if side in ("left", "right") else "horizontal"
             if axes.setdefault(name, axis) != axis:
                 raise ForestError(
                     f"edge colour {name!r} is used on both vertical and horizontal edges",
@@ -488,7 +495,7 @@ def build_tileset(
         first_slice += c.count
     n = len(chosen)
     tiles = np.empty((n, s, s, 3), np.uint8)
-    step = max(1, CHUNK_BYTES // (s * s * 3))
+    step = geom.chunk
     for i in range(0, n, step):
         frames = np.stack([frames_by_class[cid] for cid in slice_class[i : i + step]])
         patches = _crops(pix, chosen[i : i + step], s, s)
@@ -536,7 +543,8 @@ def build_tileset(
     return TileSet(manifest=manifest, tiles=tiles, patterns=patterns, corner=corner, reused=reused)
 
 
-_UDIM_FILE = re.compile(r"^bark\.1\d{3}\.png$")
+# the slice files of any earlier set written with the default names
+_UDIM_FILE = re.compile(re.escape(UDIM_PATTERN).replace(re.escape(UDIM_TOKEN), r"1\d{3}"))
 
 
 def write_tileset(tileset: TileSet, folder: Path) -> list[Path]:
@@ -554,37 +562,30 @@ def write_tileset(tileset: TileSet, folder: Path) -> list[Path]:
     ]
     keep = set(m.files.slices)
     for old in folder.iterdir():
-        if _UDIM_FILE.match(old.name) and old.name not in keep:
+        if _UDIM_FILE.fullmatch(old.name) and old.name not in keep:
             old.unlink()
     if m.files.array:
         written.append(write_texture_array(folder / m.files.array, tileset.tiles))
     for p in m.edge_patterns:
         written.append(write_png(folder / p.file, tileset.patterns[p.name]))
     written.append(write_png(folder / m.corner.file, tileset.corner))
-    path = folder / MANIFEST_FILE
-    try:
-        path.write_text(m.model_dump_json(indent=2) + "\n", encoding="utf-8")
-    except OSError as exc:
-        raise OutputError(f"cannot write: {exc.strerror}", path=str(path)) from None
-    written.append(path)
+    written.append(write_text(folder / MANIFEST_FILE, m.model_dump_json(indent=2) + "\n"))
     return written
 
 
 def make_tileset(
     paths: Sequence[Path],
     folder: Path,
-    per_class: int,
+    classes: Sequence[ClassSpec],
     size: int,
     seed: int,
-    classes: Sequence[ClassSpec] | None = None,
 ) -> TileSet:
-    """``forest tiles``: read the examples, build the default classes (``per_class`` tiles
-    each) or ``classes``, write the set into ``folder``."""
+    """``forest tiles``: read the examples, build ``classes``, write the set into
+    ``folder``."""
     geom = TileGeometry.for_size(size)
-    specs = classes if classes is not None else default_classes(per_class, per_class)
-    _check_classes(specs)
-    _check_size(sum(c.count for c in specs), geom)
+    _check_classes(classes)
+    _check_size(sum(c.count for c in classes), geom)
     examples = [read_example(Path(p), min_size=size) for p in paths]
-    tileset = build_tileset(examples, specs, geom, seed)
+    tileset = build_tileset(examples, classes, geom, seed)
     write_tileset(tileset, folder)
     return tileset

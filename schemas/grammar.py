@@ -10,14 +10,12 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
+
+from schemas.base import StrictModel
 
 PieceName = Literal["I", "Y", "T", "Psi"]
 Symbol = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")]
-
-
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
 
 def _ordered(lo_hi: tuple[float, float], name: str) -> None:
@@ -25,7 +23,7 @@ def _ordered(lo_hi: tuple[float, float], name: str) -> None:
         raise ValueError(f"{name} range [{lo_hi[0]}, {lo_hi[1]}] has low > high")
 
 
-class Successor(_Strict):
+class Successor(StrictModel):
     """What grows at one leaf rim."""
 
     symbol: Symbol
@@ -51,7 +49,7 @@ class Successor(_Strict):
 Degrees = Annotated[float, Field(ge=0, le=90)]
 
 
-class Pose(_Strict):
+class Pose(StrictModel):
     """Joint rotation ranges in degrees, drawn per piece instance about random horizontal
     axes, so equal topologies look different (paper 4.3)."""
 
@@ -67,7 +65,7 @@ class Pose(_Strict):
         return self
 
 
-class Alternative(_Strict):
+class Alternative(StrictModel):
     piece: PieceName
     # bounded so the cumulative weights of any rule stay far from float overflow
     weight: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 1.0
@@ -87,7 +85,7 @@ class Alternative(_Strict):
         return self
 
 
-class Grammar(_Strict):
+class Grammar(StrictModel):
     """A tree grammar. JSON Schema: ``schemas/json/grammar.schema.json``."""
 
     name: Annotated[str, Field(min_length=1, max_length=64)] = "custom"

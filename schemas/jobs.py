@@ -9,8 +9,9 @@ from __future__ import annotations
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from schemas.base import StrictModel
 from schemas.grammar import Grammar
 
 JobState = Literal["queued", "active", "completed", "failed", "canceled"]
@@ -20,11 +21,7 @@ UsdFormat = Literal["usda", "usdc", "usdz"]
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class TreeRequest(_Strict):
+class TreeRequest(StrictModel):
     """One tree from a preset name or a grammar object, answered synchronously as USD."""
 
     preset: Annotated[str, Field(min_length=1, max_length=64)] | None = None
@@ -51,7 +48,7 @@ class ForestRequest(TreeRequest):
     placement: Literal["poisson", "grid"] = "poisson"
 
 
-class RenderRequest(_Strict):
+class RenderRequest(StrictModel):
     """A render job of a finished forest job's scene (the camera frames the forest itself)."""
 
     forest_job: Annotated[str, Field(min_length=1, max_length=64)]
@@ -64,13 +61,13 @@ class RenderRequest(_Strict):
     """Measured frames (wind samples from ``frame`` on); the preview is the first."""
 
 
-class Artifact(_Strict):
+class Artifact(StrictModel):
     name: str
     url: str
     size: Annotated[int, Field(ge=0)]
 
 
-class Job(_Strict):
+class Job(StrictModel):
     """A job record: the SQL job table is the source of truth, the broker only delivers."""
 
     id: str
@@ -93,23 +90,23 @@ class Job(_Strict):
     result: dict[str, Any] | None
 
 
-class JobPage(_Strict):
+class JobPage(StrictModel):
     items: list[Job]
     total: Annotated[int, Field(ge=0)]
     limit: Annotated[int, Field(ge=1)]
     offset: Annotated[int, Field(ge=0)]
 
 
-class Preset(_Strict):
+class Preset(StrictModel):
     name: str
     description: str
     grammar: Grammar
 
 
-class PresetList(_Strict):
+class PresetList(StrictModel):
     items: list[Preset]
 
 
-class Health(_Strict):
+class Health(StrictModel):
     status: Literal["ok", "unavailable"]
     checks: dict[str, str] = {}

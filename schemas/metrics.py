@@ -4,18 +4,18 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from schemas.base import StrictModel
 
 NonNegative = Annotated[float, Field(ge=0)]
 Count = Annotated[int, Field(ge=0)]
 
 
-class TessellationSettings(BaseModel):
+class TessellationSettings(StrictModel):
     """Level of detail (paper 4.4): ``level(d) = clamp(max_level * 2^(-max(d - lod_near, 0)
     / lod_half), 1, max_level)`` for the camera distance ``d`` of an edge midpoint (outer
     levels) or the quad centre (inner levels)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     max_level: Annotated[float, Field(ge=1, le=64)]
     alpha: Annotated[float, Field(ge=0, le=1)]
@@ -27,18 +27,14 @@ class TessellationSettings(BaseModel):
     spacing: Literal["fractional_odd"] = "fractional_odd"
 
 
-class FoliagePassMetrics(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class FoliagePassMetrics(StrictModel):
     draw_calls: Count
     primitives: Count
     """GL_PRIMITIVES_GENERATED of the pass (triangles)."""
 
 
-class FoliageFrameMetrics(BaseModel):
+class FoliageFrameMetrics(StrictModel):
     """The foliage passes of one frame (paper 6), also counted in the frame's totals."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     impostor_rendered: bool
     """Whether pass 1 ran this frame: it reruns only when the view direction changed."""
@@ -50,9 +46,7 @@ class FoliageFrameMetrics(BaseModel):
     real leaf-cloud mesh at every cloud, also in one instanced draw."""
 
 
-class FoliageSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class FoliageSettings(StrictModel):
     mode: Literal["impostor", "geometry"]
     """2.5D impostors (two passes) or the real leaf-cloud mesh instanced (for comparison)."""
     clouds: Count
@@ -65,9 +59,7 @@ class FoliageSettings(BaseModel):
     """Times pass 1 ran in the whole run, warm-up frames included."""
 
 
-class FrameMetrics(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class FrameMetrics(StrictModel):
     frame: Count
     """Index into the scene's time-sampled bone palette."""
     time: Annotated[float | None, Field(ge=0)]
@@ -87,9 +79,7 @@ class FrameMetrics(BaseModel):
     """The foliage passes alone; null when no foliage was drawn."""
 
 
-class MetricsSummary(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class MetricsSummary(StrictModel):
     cpu_ms: NonNegative
     gpu_ms: NonNegative | None
     primitives: NonNegative
@@ -97,9 +87,7 @@ class MetricsSummary(BaseModel):
     """1000 / median cpu_ms."""
 
 
-class RenderMetrics(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class RenderMetrics(StrictModel):
     scene: str
     renderer: str
     """GL_RENDERER, e.g. an NVIDIA board or llvmpipe (CPU rasteriser)."""

@@ -14,6 +14,8 @@ from typing import Annotated, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from schemas.base import StrictModel
+
 ColourName = Annotated[str, Field(pattern=r"^[a-z0-9][a-z0-9_-]{0,31}$")]
 """An edge colour (paper Fig. 9): tiles match along an edge when both sides name it."""
 FileName = Annotated[str, Field(pattern=r"^[^/\\]+$", min_length=1, max_length=255)]
@@ -23,15 +25,14 @@ Pixels = Annotated[int, Field(ge=0)]
 UDIM_TOKEN = "<UDIM>"
 UDIM_PATTERN = "bark.<UDIM>.png"  # the default slice files
 ARRAY_FILE = "bark_array.tif"  # the texture array a written tile set carries
+MANIFEST_FILE = "manifest.json"
+SIDE_AXIS = {"left": "vertical", "right": "vertical", "top": "horizontal", "bottom": "horizontal"}
+"""The edge-pattern axis each side of a tile takes."""
 MAX_UDIM_SLICES = 999
 """UDIM tiles run from 1001 to 1999 (ten columns, a hundred rows)."""
 
 
-class _Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
-
-class TileEdges(_Strict):
+class TileEdges(StrictModel):
     """The edge colour of each side of the tiles of a class. Left and right edges take
     ``vertical`` edge patterns, top and bottom ``horizontal`` ones."""
 
@@ -41,9 +42,7 @@ class TileEdges(_Strict):
     bottom: ColourName
 
 
-class TileClass(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=True)
-
+class TileClass(StrictModel):
     name: Annotated[str, Field(min_length=1, max_length=64)]
     id: Annotated[int, Field(ge=1, le=255)]
     """The tile class a quad carries (1 bark, 2 fork region)."""
@@ -54,7 +53,7 @@ class TileClass(BaseModel):
     """Edge colours of this class's tiles (absent in a manifest written by hand)."""
 
 
-class SourceImage(_Strict):
+class SourceImage(StrictModel):
     """An example image the tile set was cut from."""
 
     file: Annotated[str, Field(min_length=1, max_length=255)]
@@ -68,7 +67,7 @@ class SourceImage(_Strict):
     """Pixel type in the file: ``uint8``, ``uint16``, ``half``, ``float``..."""
 
 
-class _Crop(_Strict):
+class _Crop(StrictModel):
     source: Annotated[int, Field(ge=0)]
     """Index into ``sources``."""
     x: Pixels
@@ -114,7 +113,7 @@ class TileRecord(_Crop):
     the overlap bands, before the cut (image quilting's patch-selection error)."""
 
 
-class TileSetFiles(_Strict):
+class TileSetFiles(StrictModel):
     udim: Annotated[str, Field(pattern=r"^[^/\\]*<UDIM>[^/\\]*$")] = UDIM_PATTERN
     """File-name pattern of the per-slice images: slice ``k`` is UDIM tile ``1001 + k``."""
     slices: list[FileName]
@@ -161,9 +160,8 @@ class TileSetManifest(BaseModel):
         for c in self.classes:
             if c.edges is None:
                 continue
-            for side in ("left", "right", "top", "bottom"):
+            for side, want in SIDE_AXIS.items():
                 name = getattr(c.edges, side)
-                want = "vertical" if side in ("left", "right") else "horizontal"
                 if name not in axis:
                     raise ValueError(f"class {c.name}: {side} edge colour {name!r} has no pattern")
                 if axis[name] != want:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import os
 import socket
 
+from forest.errors import ForestError
 from service.db import migrate
 from service.dispatch import QUEUES
 from service.reaper import Reaper
@@ -16,7 +17,9 @@ from service.store import JobStore
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
     unknown = [q for q in queues if q not in QUEUES]
     if unknown or not queues:
-        raise ValueError(f"unknown queue(s) {', '.join(unknown)}; the queues are {QUEUES}")
+        raise ForestError(
+            f"unknown queue(s) {', '.join(unknown)}; the queues are {QUEUES}", path="queues"
+        )
     import forest.usd_scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
     from forest.pieces import piece_library
     from worker.tasks import app, runtime

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from forest.errors import OutputError
+from forest.atomic import write_text
 from schemas.metrics import (
     FoliageFrameMetrics,
     FoliagePassMetrics,
@@ -106,12 +106,5 @@ def _foliage_settings(renderer: Renderer) -> FoliageSettings | None:
 
 
 def write_metrics(path: Path, metrics: RenderMetrics) -> Path:
-    """Write ``metrics`` as indented JSON (via a temporary name, then renamed)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        tmp.write_text(metrics.model_dump_json(indent=2) + "\n", encoding="utf-8")
-        tmp.replace(path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        raise OutputError(f"cannot write: {exc.strerror}", path=str(path)) from None
-    return path
+    """Write ``metrics`` as indented JSON, whole (:func:`forest.atomic.write_text`)."""
+    return write_text(path, metrics.model_dump_json(indent=2) + "\n")

@@ -27,7 +27,14 @@ from numpy.typing import NDArray
 
 from forest.errors import ForestError
 from forest.images import read_subimages
-from schemas.tileset import ARRAY_FILE, DEFAULT_MANIFEST, UDIM_PATTERN, TileSetManifest, udim_file
+from schemas.tileset import (
+    ARRAY_FILE,
+    DEFAULT_MANIFEST,
+    MANIFEST_FILE,
+    UDIM_PATTERN,
+    TileSetManifest,
+    udim_file,
+)
 
 if TYPE_CHECKING:
     import moderngl
@@ -120,7 +127,7 @@ def _folder_files(folder: Path, n_slices: int) -> tuple[str | None, list[str]]:
     ``bark.<1001+k>.png``. Read loosely: only these two names are needed here."""
     array: str | None = ARRAY_FILE
     slices = [udim_file(UDIM_PATTERN, k) for k in range(n_slices)]
-    path = folder / "manifest.json"
+    path = folder / MANIFEST_FILE
     if path.is_file():
         try:
             data = json.loads(path.read_text(encoding="utf-8"))

@@ -2,12 +2,11 @@
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import click
 
-from forest.cli.app import EXIT_INPUT, bench, input_errors, main, parse_counts
+from forest.cli.app import bench, input_errors, main, parse_counts
 
 
 @main.command()
@@ -44,6 +43,7 @@ def serve(data_dir: Path, host: str, port: int, workers: int) -> None:
 @click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
 @click.option("--loglevel", default="info", show_default=True)
 @click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
+@input_errors
 def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -> None:
     """Join a cluster: consume jobs from the broker and job store in the settings
     (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
@@ -56,11 +56,7 @@ def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -
         return
     from worker.main import run_worker
 
-    try:
-        run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
-    except ValueError as exc:
-        click.echo(f"error: queues: {exc}", err=True)
-        sys.exit(EXIT_INPUT)
+    run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
 
 
 @bench.command("service")

@@ -39,9 +39,10 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
     edge.<colour>.png and corner.png (the patterns every tile's border shows) and
     manifest.json (classes, sources with checksums, seed, sizes, file names).
     """
-    from forest.tileset import make_tileset
+    from forest.tileset import TileGeometry, default_classes, make_tileset
+    from schemas.tileset import MANIFEST_FILE
 
-    ts = make_tileset(examples, output, per_class, size, seed)
+    ts = make_tileset(examples, output, default_classes(per_class, per_class), size, seed)
     m = ts.manifest
     assert m.files is not None
     counts = ", ".join(f"{c.count} {c.name}" for c in m.classes)
@@ -50,10 +51,10 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
         f"{len(examples)} example(s), seed {seed}"
     )
     names = [m.files.slices[0], "..", m.files.slices[-1]] if len(ts.tiles) > 2 else m.files.slices
-    extra = [m.files.array or "", *(p.file for p in m.edge_patterns), "manifest.json"]
+    extra = [m.files.array or "", *(p.file for p in m.edge_patterns), MANIFEST_FILE]
     click.echo("  " + " ".join(names) + ", " + ", ".join(x for x in extra if x))
     if ts.reused:
-        region = size - 2 * (m.border or 0)
+        region = TileGeometry.for_size(size).region
         click.echo(
             f"note: the examples hold only {len(ts.tiles) - ts.reused} disjoint {region} px "
             f"interiors; {ts.reused} tile(s) partly repeat others: give more or larger "

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from forest.barkgen import bark_example
 from forest.images import write_png
-from forest.tileset import TileSet, make_tileset
+from forest.tileset import TileSet, default_classes, make_tileset
 
 DEFAULT_TILE_SIZE = 128
 DEFAULT_COUNTS = (8, 4)  # bark, fork
@@ -31,19 +31,11 @@ def default_dir() -> Path:
 
 def make_default(folder: Path) -> TileSet:
     """Build the default tile set into ``folder`` (examples made on the fly)."""
-    from forest.tileset import default_classes
-
     with tempfile.TemporaryDirectory() as tmp:
         paths = []
         for seed in EXAMPLE_SEEDS:
             path = Path(tmp) / f"procedural-bark-{seed}.png"
             write_png(path, bark_example(EXAMPLE_SIZE, EXAMPLE_SIZE, seed))
             paths.append(path)
-        return make_tileset(
-            paths,
-            folder,
-            per_class=0,
-            size=DEFAULT_TILE_SIZE,
-            seed=DEFAULT_SEED,
-            classes=default_classes(*DEFAULT_COUNTS),
-        )
+        classes = default_classes(*DEFAULT_COUNTS)
+        return make_tileset(paths, folder, classes, size=DEFAULT_TILE_SIZE, seed=DEFAULT_SEED)
