@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import sys
 from functools import cache
 
@@ -24,11 +23,8 @@ def keep_freed_memory() -> bool:
     """
     if not sys.platform.startswith("linux"):
         return False
-    name = ctypes.util.find_library("c")
-    if name is None:
-        return False
-    try:
-        libc = ctypes.CDLL(name)
+    try:  # the process's own symbols: glibc's mallopt without find_library's ldconfig run
+        libc = ctypes.CDLL(None)
         return bool(libc.mallopt(_M_MMAP_THRESHOLD, _KEEP)) and bool(
             libc.mallopt(_M_TRIM_THRESHOLD, _KEEP))
     except (OSError, AttributeError):  # not glibc

@@ -213,10 +213,11 @@ class _Locals:
 class Poser:
     """Evaluates a forest's pose (and wind) into local bone transforms or the palette.
 
-    Locals are built for any subset of instances by :meth:`locals_for`, the one definition
-    both outputs share: ``Tr(length * t) @ R_wind @ R_bend`` for hubs and
-    ``Tr(length * t) @ R_wind @ R_spread @ R_rest @ S(scale)`` for terminals; a root bone's
-    local is the tree's model transform or the twist.
+    Both outputs take their rotations from :meth:`_rotations`, the one definition of the
+    pose: locals (:meth:`locals_for`) are ``Tr(length * t) @ R_wind @ R_bend`` for hubs and
+    ``Tr(length * t) @ R_wind @ R_spread @ R_rest @ S(scale)`` for terminals, a root bone's
+    local being the tree's model transform or the twist; the palette composes the same
+    rotations down each block's depth levels in closed form (:meth:`_palette_block`).
     """
 
     graph: PieceGraph

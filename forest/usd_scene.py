@@ -33,16 +33,9 @@ BARK_COLOR = (0.36, 0.27, 0.2)
 Progress = Callable[[str, int, int], None]
 
 
-# flat index of M.T's entries in M: scattering 16 columns is ten times faster than numpy's
-# copy of a swapped-axes view
-_TRANSPOSE = np.arange(16).reshape(4, 4).T.ravel()
-
-
 def row_major(m: F64) -> Vt.Matrix4dArray:
     """Column-vector ``(n, 4, 4)`` matrices -> Gf row-vector array."""
-    out = np.empty((len(m), 16))
-    out[:, _TRANSPOSE] = m.reshape(len(m), 16)  # the permutation is its own inverse
-    return Vt.Matrix4dArray.FromNumpy(out.reshape(len(m), 4, 4))
+    return Vt.Matrix4dArray.FromNumpy(np.ascontiguousarray(np.swapaxes(m, -1, -2)))
 
 
 def _attr(
