@@ -5,7 +5,6 @@ transport) and the artifacts all live in the data folder: nothing to install or 
 from __future__ import annotations
 
 import logging
-import os
 import subprocess
 import sys
 import threading
@@ -46,7 +45,6 @@ class Workers:
              "--name", f"w{i}-{time.time_ns()}@%h"],
             stdout=log_file,
             stderr=subprocess.STDOUT,
-            env=os.environ.copy(),
             preexec_fn=_die_with_parent if sys.platform == "linux" else None,
         )
         log_file.close()

@@ -88,6 +88,7 @@ class JobStore:
             request_hash=digest,
             artifacts=[],
             created_at=now,
+            enqueued_at=now,  # sent right after; if that fails, the reaper resends it later
         )
         try:
             with self.session() as s, s.begin():
@@ -123,9 +124,6 @@ class JobStore:
                 q.order_by(JobRow.created_at.desc(), JobRow.id).limit(limit).offset(offset)
             ).all()
         return rows, total
-
-    def mark_enqueued(self, job_id: str) -> None:
-        self._update(job_id, enqueued_at=utcnow())
 
     def cancel(self, job_id: str) -> JobRow | None:
         """Queued jobs are canceled at once; active ones get the flag their task checks."""
@@ -322,12 +320,20 @@ class JobStore:
                 )
             if res.rowcount == 1:  # type: ignore[attr-defined]
                 (resend if values["state"] == "queued" else failed).append(row)
-        for row in lost:
-            self.mark_enqueued(row.id)
-            resend.append(row)
+        for row in lost:  # claimed by one reaper only: every API process and worker runs one
+            sent_at = (
+                JobRow.enqueued_at.is_(None)
+                if row.enqueued_at is None
+                else JobRow.enqueued_at == row.enqueued_at
+            )
+            with self.session() as s, s.begin():
+                res = s.execute(
+                    update(JobRow)
+                    .where(JobRow.id == row.id, JobRow.state == "queued", sent_at)
+                    .values(enqueued_at=now)
+                    .execution_options(synchronize_session=False)
+                )
+            if res.rowcount == 1:  # type: ignore[attr-defined]
+                resend.append(row)
         return resend, failed
-
-    def _update(self, job_id: str, **values: Any) -> None:
-        with self.session() as s, s.begin():
-            s.execute(update(JobRow).where(JobRow.id == job_id).values(**values))
 

@@ -85,10 +85,8 @@ def submit(
         # a failed send is not lost: the reaper re-sends queued jobs nobody picked up
         try:
             services.dispatcher.send(row.id, kind)
-            services.store.mark_enqueued(row.id)
         except Exception:  # broker away; the job stays queued in the table
             log.exception("could not send job %s; the reaper will", row.id)
-        row = services.store.get(row.id) or row  # as enqueued
     job = job_model(row, services)
     return JSONResponse(
         job.model_dump(mode="json"),

@@ -11,7 +11,6 @@ from service.db import migrate
 from service.dispatch import QUEUES
 from service.reaper import Reaper
 from service.settings import get_settings
-from service.store import JobStore
 
 
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
@@ -29,10 +28,7 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     migrate(settings.db_url)
     settings.artifacts.mkdir(parents=True, exist_ok=True)
     rt = runtime()
-    reaper = Reaper(
-        JobStore(settings.db_url), rt.dispatcher, settings.reaper_interval_s,
-        settings.requeue_after_s,
-    )
+    reaper = Reaper(rt.store, rt.dispatcher, settings.reaper_interval_s, settings.requeue_after_s)
     reaper.start()
     node = name or f"forest-{os.getpid()}@{socket.gethostname()}"
     app.worker_main(

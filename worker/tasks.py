@@ -232,6 +232,5 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
 
 
 app = make_celery(get_settings())
-run_job: Callable[..., Any] = app.task(name=TASK_NAME, acks_late=True, reject_on_worker_lost=True)(
-    execute
-)
+# acks_late and reject_on_worker_lost come from make_celery's configuration
+run_job: Callable[..., Any] = app.task(name=TASK_NAME)(execute)

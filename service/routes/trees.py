@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import Any
+from typing import Any, get_args
 
 from fastapi import APIRouter
 from fastapi.responses import Response
@@ -12,18 +12,15 @@ from fastapi.responses import Response
 from forest.errors import ForestError
 from forest.generate import generate_forest, options_from_request
 from forest.usd_scene import write_scene
-from schemas.jobs import TreeRequest
+from schemas.jobs import TreeRequest, UsdFormat
 from service.deps import ServicesDep
 from service.errors import forest_error
 from service.inputs import library_settings, resolve_grammar
+from service.routes.jobs import ARTIFACT_TYPES
 
 router = APIRouter(prefix="/v1/trees", tags=["trees"])
 
-MEDIA_TYPES = {
-    "usda": "model/vnd.usda",
-    "usdc": "model/vnd.usd",
-    "usdz": "model/vnd.usdz+zip",
-}
+MEDIA_TYPES = {fmt: ARTIFACT_TYPES[f".{fmt}"] for fmt in get_args(UsdFormat)}
 _BINARY = {"schema": {"type": "string", "format": "binary"}}
 RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {

@@ -250,11 +250,14 @@ def served(data: Path, env: dict[str, str]) -> Iterator[Server]:
 def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> bytes:
     """The library's own output for a forest or tree request body (a .usdz names its inner
     layer by stem)."""
-    from forest.generate import ForestOptions, generate_forest
+    from forest.generate import generate_forest, options_from_request
     from forest.presets import load_preset
     from forest.usd_scene import write_scene
+    from schemas.jobs import ForestRequest, TreeRequest
 
-    opts = ForestOptions(trees=int(body["trees"]), frames=int(body.get("frames", 0)))
-    forest = generate_forest(load_preset(str(body["preset"])), int(body["seed"]), opts)
+    # the request as the service parses and maps it, so the reference cannot drift from it
+    req = (ForestRequest if "trees" in body else TreeRequest).model_validate(body)
+    assert req.preset is not None
+    forest = generate_forest(load_preset(req.preset), req.seed, options_from_request(req))
     (tmp / "ref").mkdir(exist_ok=True)
     return write_scene(forest, tmp / "ref" / f"{stem}.{body['format']}").read_bytes()
