@@ -58,7 +58,7 @@ def pg_database(tag: str) -> Iterator[str]:
     import psycopg
 
     db = f"forest_test_{tag}"
-    admin = "host=127.0.0.1 port=5432 user=postgres dbname=test"
+    admin = "host=127.0.0.1 port=5432 user=postgres dbname=postgres"  # every cluster has it
     with psycopg.connect(admin, autocommit=True) as conn:
         conn.execute(f'CREATE DATABASE "{db}"')
     try:
