@@ -16,7 +16,7 @@ from forest.errors import SceneError
 from forest.foliage import LeafCloud, anchor_positions
 from forest.pieces import PieceArrays
 from forest.transforms import F64, compose_similarity
-from forest.usd_scene import FOLIAGE, FOREST, PIECES
+from forest.usd_scene import BARK_TILES, FOLIAGE, FOREST, PIECES
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
@@ -35,6 +35,9 @@ class SceneArrays:
     version: str
     options: dict[str, Any]
     manifest: TileSetManifest
+    tile_folder: Path | None
+    """The folder the bark material reads its UDIM tiles from (resolved against the scene
+    file's folder), or None for a flat-colour material."""
     pieces: tuple[PieceArrays, ...]
     proto_indices: I32
     transforms: F64
@@ -203,6 +206,7 @@ def read_scene(path: str | Path) -> SceneArrays:
         version=_get(forest, "forest:version"),
         options=options,
         manifest=manifest,
+        tile_folder=_tile_folder(stage, Path(path)),
         pieces=tuple(pieces),
         proto_indices=proto_idx,
         transforms=transforms,
@@ -219,6 +223,16 @@ def read_scene(path: str | Path) -> SceneArrays:
         palettes=palettes,
         **foliage,
     )
+
+
+def _tile_folder(stage: Usd.Stage, path: Path) -> Path | None:
+    prim = stage.GetPrimAtPath(BARK_TILES)
+    attr = prim.GetAttribute("inputs:file") if prim else None
+    asset = attr.Get() if attr else None
+    if asset is None or not asset.path:
+        return None
+    folder = Path(asset.path).parent
+    return folder if folder.is_absolute() else path.parent / folder
 
 
 def _read_leaf_cloud(prim: Usd.Prim) -> LeafCloud:

@@ -23,12 +23,14 @@ from forest.generate import Forest
 from forest.pieces import HUB, QUAD_ST, PieceArrays
 from forest.transforms import F64, decompose_similarity
 from forest.usd_files import check_output_path, finish, new_stage_layer
+from schemas.tileset import UDIM_PATTERN
 
 FOREST = "/World/Forest"
 PIECES = "/World/Forest/Pieces"
 FOLIAGE = "/World/Forest/Foliage"
 FOLIAGE_CLOUD = "/World/Forest/Foliage/Prototypes/LeafCloud"
 LOOKS = "/World/Looks"
+BARK_TILES = f"{LOOKS}/Bark/Tiles"  # the UsdUVTexture reading the UDIM tiles
 BARK_COLOR = (0.36, 0.27, 0.2)
 Progress = Callable[[str, int, int], None]
 
@@ -145,10 +147,10 @@ def bark_material(stage: Usd.Stage, tiles: str | None = None) -> UsdShade.Materi
         reader.CreateIdAttr("UsdPrimvarReader_float2")
         reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
         reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-        tex = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/Tiles")
+        tex = UsdShade.Shader.Define(stage, BARK_TILES)
         tex.CreateIdAttr("UsdUVTexture")
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
-            Sdf.AssetPath(f"{tiles.rstrip('/')}/bark.<UDIM>.png")
+            Sdf.AssetPath(f"{tiles.rstrip('/')}/{UDIM_PATTERN}")
         )
         tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
         tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(

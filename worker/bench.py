@@ -26,13 +26,14 @@ from typing import TYPE_CHECKING
 
 from forest.generate import ForestOptions, generate_forest
 from forest.presets import load_preset
-from forest.usd_read import read_scene
+from forest.usd_read import SceneArrays, read_scene
 from forest.usd_scene import write_scene
+from schemas.grammar import Grammar
 from worker.foliage import FOLIAGE_MODES
 from worker.gl_context import create_context, gl_info, raise_gl_error
 from worker.render_job import preview_view
 from worker.renderer import Renderer, TessSettings
-from worker.textures import procedural_tiles
+from worker.textures import TileImages, procedural_tiles
 
 if TYPE_CHECKING:
     import moderngl
@@ -59,6 +60,15 @@ class BenchRow:
     cpu_ms: float
     gpu_ms: float | None
 
+
+
+def _bench_scene(grammar: Grammar, n: int, path: Path) -> tuple[SceneArrays, TileImages]:
+    """``n`` trees at the bench's density, through a written and re-read scene (what a render
+    job sees), with the placeholder tiles."""
+    side = SPACING * math.sqrt(n)
+    forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
+    scene = read_scene(write_scene(forest, path))
+    return scene, procedural_tiles(scene.manifest, scene.manifest.n_slices)
 
 def run_render_bench(
     trees: Sequence[int],
@@ -90,11 +100,7 @@ def run_render_bench(
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for n in trees:
-                side = SPACING * math.sqrt(n)
-                forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
-                path = write_scene(forest, Path(tmp) / f"bench_{n}.usdc")
-                scene = read_scene(path)
-                images = procedural_tiles(scene.manifest, scene.manifest.n_slices)
+                scene, images = _bench_scene(grammar, n, Path(tmp) / f"bench_{n}.usdc")
                 renderer = Renderer(ctx, scene, size, images, foliage=None)
                 try:
                     camera, _ = preview_view(scene, size, 1.0, foliage=False)
@@ -175,11 +181,7 @@ def _foliage_bench(
     rows: list[FoliageBenchRow] = []
     tess = TessSettings(max_level=1.0, lod_half=0.0)
     for n in trees:
-        side = SPACING * math.sqrt(n)
-        forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
-        scene = read_scene(write_scene(forest, tmp / f"foliage_{n}.usdc"))
-        del forest
-        images = procedural_tiles(scene.manifest, scene.manifest.n_slices)
+        scene, images = _bench_scene(grammar, n, tmp / f"foliage_{n}.usdc")
         camera, _ = preview_view(scene, size, 1.0)
         by_mode: dict[str, FoliageBenchRow] = {}
         for mode in FOLIAGE_MODES:

@@ -114,9 +114,7 @@ def render_file(req: RenderRequest) -> RenderMetrics:
     check_scene(scene, scene.manifest.n_slices)  # before any GL or texture work
     ctx = create_context()
     try:
-        images = tile_images(
-            scene.manifest, int(scene.tile_indices.max()), req.tiles, scene_path=req.scene
-        )
+        images = tile_images(scene.manifest, req.tiles, scene.tile_folder)
         renderer = Renderer(
             ctx,
             scene,

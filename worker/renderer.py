@@ -131,7 +131,7 @@ class Renderer:
         self.info = gl_info(ctx)
         self.scene = scene
         self.size = size
-        self.images = images or tile_images(scene.manifest, int(scene.tile_indices.max()))
+        self.images = images or tile_images(scene.manifest)
         self.buffers = SceneBuffers(ctx, scene, self.images.n_slices)
         self.texture = upload(ctx, self.images)
         self.color = ctx.texture(size, 4)

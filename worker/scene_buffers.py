@@ -34,7 +34,7 @@ from numpy.typing import NDArray
 
 from forest.errors import LimitError, SceneError
 from forest.pieces import QUAD_ST, PieceArrays
-from forest.transforms import F64
+from forest.transforms import F64, transform_points
 from forest.usd_read import SceneArrays
 from forest.usd_scene import PIECES
 from worker.camera import box_corners
@@ -183,8 +183,7 @@ def scene_points(scene: SceneArrays, frame: int = 0) -> F64:
         if not len(idx):
             continue
         bones = pal[scene.bone_offset[idx][:, None] + j[: n_joints[t]]]  # (m, j, 4, 4)
-        pts = np.einsum("mjab,cb->mjca", bones[..., :3, :3], corners[t]) + bones[..., None, :3, 3]
-        out.append(pts.reshape(-1, 3))
+        out.append(transform_points(bones, corners[t]).reshape(-1, 3))
     return np.concatenate(out)
 
 
@@ -226,9 +225,9 @@ class SceneBuffers:
         self.instances = ctx.buffer(self.layout.records.tobytes())
         self.tiles = ctx.buffer(self.layout.tiles.tobytes())
         self.palette = ctx.buffer(reserve=n_bones * MAT4_BYTES)
-        self._cached: NDArray[np.float32] | None = None
-        if n_frames * n_bones * MAT4_BYTES <= PALETTE_CACHE_BYTES:
-            self._cached = gl_matrices(scene.palettes)
+        # each frame converted when first drawn (a job may draw one of many), kept if all fit
+        fits = n_frames * n_bones * MAT4_BYTES <= PALETTE_CACHE_BYTES
+        self._converted: dict[int, NDArray[np.float32]] | None = {} if fits else None
         self.frame: int | None = None
 
     @property
@@ -237,7 +236,11 @@ class SceneBuffers:
 
     def palette_frame(self, frame: int) -> NDArray[np.float32]:
         f = frame % self.n_frames
-        return self._cached[f] if self._cached is not None else gl_matrices(self.scene.palettes[f])
+        if self._converted is None:
+            return gl_matrices(self.scene.palettes[f])
+        if f not in self._converted:
+            self._converted[f] = gl_matrices(self.scene.palettes[f])
+        return self._converted[f]
 
     def use(self, frame: int = 0) -> None:
         f = frame % self.n_frames

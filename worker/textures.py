@@ -17,7 +17,6 @@ Images are read with OpenImageIO, 8-bit sRGB RGBA.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -27,10 +26,10 @@ from numpy.typing import NDArray
 
 from forest.errors import ForestError
 from forest.images import read_subimages
+from forest.tiles import manifest_for
 from schemas.tileset import (
     ARRAY_FILE,
     DEFAULT_MANIFEST,
-    MANIFEST_FILE,
     UDIM_PATTERN,
     TileSetManifest,
     udim_file,
@@ -39,7 +38,6 @@ from schemas.tileset import (
 if TYPE_CHECKING:
     import moderngl
 
-LOOKS_TILES = "/World/Looks/Bark/Tiles"
 PLACEHOLDER_SIZE = 64
 BARK_RGB = np.array([0.50, 0.36, 0.24])
 FORK_RGB = np.array([0.46, 0.38, 0.26])
@@ -122,24 +120,12 @@ def read_image_subimages(path: Path) -> list[NDArray[np.uint8]]:
 
 
 def _folder_files(folder: Path, n_slices: int) -> tuple[str | None, list[str]]:
-    """The array file and per-slice files a tile-set folder declares in ``manifest.json``
-    (``files.array``, ``files.slices``), else the defaults ``bark_array.tif`` and
-    ``bark.<1001+k>.png``. Read loosely: only these two names are needed here."""
-    array: str | None = ARRAY_FILE
-    slices = [udim_file(UDIM_PATTERN, k) for k in range(n_slices)]
-    path = folder / MANIFEST_FILE
-    if path.is_file():
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError) as exc:
-            raise TileSetError(f"unreadable manifest ({exc})", path=str(path)) from None
-        files = data.get("files") if isinstance(data, dict) else None
-        if isinstance(files, dict):
-            array = files.get("array")
-            named = files.get("slices")
-            if isinstance(named, list) and all(isinstance(n, str) for n in named):
-                slices = named
-    return array, slices
+    """The array file and per-slice files the folder's manifest declares (``files``), else
+    the defaults ``bark_array.tif`` and ``bark.<1001+k>.png``."""
+    files = manifest_for(folder).files
+    if files is None:
+        return ARRAY_FILE, [udim_file(UDIM_PATTERN, k) for k in range(n_slices)]
+    return files.array, files.slices
 
 
 def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
@@ -182,37 +168,18 @@ def shipped_tile_folder(manifest: TileSetManifest) -> Path | None:
     return folder if same and folder.is_dir() else None
 
 
-def material_tile_folder(scene_path: str | Path) -> Path | None:
-    """The folder the scene's bark material reads ``bark.<UDIM>.png`` from, if it has one."""
-    from pxr import Sdf, Usd
-
-    mask = Usd.StagePopulationMask([Sdf.Path(LOOKS_TILES)])
-    stage = Usd.Stage.OpenMasked(str(scene_path), mask)
-    prim = stage.GetPrimAtPath(LOOKS_TILES) if stage else None
-    if not prim:
-        return None
-    attr = prim.GetAttribute("inputs:file")
-    asset = attr.Get() if attr else None
-    if asset is None or not asset.path:
-        return None
-    folder = Path(asset.path).parent
-    return folder if folder.is_absolute() else Path(scene_path).parent / folder
-
-
 def tile_images(
     manifest: TileSetManifest,
-    max_tile: int,
     folder: Path | None = None,
-    scene_path: str | Path | None = None,
+    scene_folder: Path | None = None,
     shipped: bool = True,
 ) -> TileImages:
-    """The scene's slices: from ``folder``, else the folder the scene's material names, else
-    the package's default tile set (``shipped``), else the procedural placeholder."""
-    n_slices = max(manifest.n_slices, max_tile + 1)
-    if folder is None and scene_path is not None:
-        found = material_tile_folder(scene_path)
-        if found is not None and found.is_dir():
-            folder = found
+    """The scene's slices (``manifest.n_slices``): from ``folder``, else the folder the
+    scene's material names (``SceneArrays.tile_folder``) if it exists, else the package's
+    default tile set (``shipped``), else the procedural placeholder."""
+    n_slices = manifest.n_slices
+    if folder is None and scene_folder is not None and scene_folder.is_dir():
+        folder = scene_folder
     if folder is None and shipped:
         folder = shipped_tile_folder(manifest)
     if folder is not None:
