@@ -107,16 +107,20 @@ def _matrices(prim: Usd.Prim, name: str, time: Usd.TimeCode | None = None) -> F6
     return np.swapaxes(_array(prim, name, np.float64, (-1, 4, 4), time), -1, -2).copy()
 
 
-def _read_piece(prim: Usd.Prim) -> PieceArrays:
+def _read_quads(prim: Usd.Prim, what: str) -> tuple[F64, I32]:
+    """A quad-only Mesh's points and ``(q, 4)`` quads, indices checked."""
     pts = _array(prim, "points", np.float64, (-1, 3))
     counts = _array(prim, "faceVertexCounts", np.int32)
     if not (counts == 4).all():
-        raise SceneError(
-            "piece prototypes must be quad-only", path=f"{prim.GetPath()}.faceVertexCounts"
-        )
+        raise SceneError(f"{what} must be quad-only", path=f"{prim.GetPath()}.faceVertexCounts")
     quads = _array(prim, "faceVertexIndices", np.int32, (-1, 4))
     if quads.size and (quads.max() >= len(pts) or quads.min() < 0):
         raise SceneError("index out of range", path=f"{prim.GetPath()}.faceVertexIndices")
+    return pts, quads
+
+
+def _read_piece(prim: Usd.Prim) -> PieceArrays:
+    pts, quads = _read_quads(prim, "piece prototypes")
     building = _matrices(prim, "forest:building")
     leaf = _array(prim, "forest:leafRims", np.int32, (len(building), 6))
     return PieceArrays(
@@ -236,13 +240,7 @@ def _tile_folder(stage: Usd.Stage, path: Path) -> Path | None:
 
 
 def _read_leaf_cloud(prim: Usd.Prim) -> LeafCloud:
-    pts = _array(prim, "points", np.float64, (-1, 3))
-    counts = _array(prim, "faceVertexCounts", np.int32)
-    if not (counts == 4).all():
-        raise SceneError("leaf cards must be quads", path=f"{prim.GetPath()}.faceVertexCounts")
-    quads = _array(prim, "faceVertexIndices", np.int32, (-1, 4))
-    if quads.size and (quads.max() >= len(pts) or quads.min() < 0):
-        raise SceneError("index out of range", path=f"{prim.GetPath()}.faceVertexIndices")
+    pts, quads = _read_quads(prim, "leaf clouds")
     normals = _array(prim, "normals", np.float64, (-1, 3))
     st = _array(prim, "primvars:st", np.float64, (-1, 2))
     for name, arr in (("normals", normals), ("primvars:st", st)):

@@ -64,19 +64,33 @@ def _primvar(
     pv.Set(value)
 
 
+def _quad_mesh(
+    stage: Usd.Stage,
+    path: str,
+    points: F64,
+    normals: F64,
+    quads: NDArray[np.int32],
+    double_sided: bool = False,
+) -> UsdGeom.Mesh:
+    """A quad Mesh (no subdivision) with per-vertex normals and its extent."""
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
+    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(quads.ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    if double_sided:
+        mesh.CreateDoubleSidedAttr(True)
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(normals.astype(np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    return mesh
+
+
 def write_prototype(
     stage: Usd.Stage, path: str, piece: PieceArrays, material: UsdShade.Material
 ) -> UsdGeom.Mesh:
     """A piece as a quad Mesh with normals, faceVarying st, skin weights and rim metadata."""
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    pts = piece.positions.astype(np.float32)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(piece.quads), 4, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(piece.quads.ravel()))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(piece.normals.astype(np.float32)))
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    mesh = _quad_mesh(stage, path, piece.positions, piece.normals, piece.quads)
     prim = mesh.GetPrim()
     st = np.broadcast_to(QUAD_ST, (len(piece.quads), 4, 2)).reshape(-1, 2).astype(np.float32)
     _primvar(
@@ -246,15 +260,9 @@ def write_leaf_cloud(
     stage: Usd.Stage, path: str, cloud: LeafCloud, material: UsdShade.Material
 ) -> UsdGeom.Mesh:
     """The leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter)."""
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(cloud.positions.astype(np.float32)))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(cloud.n_cards, 4, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(cloud.quads.ravel()))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateDoubleSidedAttr(True)
-    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(cloud.normals.astype(np.float32)))
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    mesh = _quad_mesh(
+        stage, path, cloud.positions, cloud.normals, cloud.quads, double_sided=True
+    )
     mesh.CreateDisplayColorAttr([Gf.Vec3f(*LEAF_GREEN)])
     _primvar(
         mesh.GetPrim(),
