@@ -6,8 +6,8 @@ from __future__ import annotations
 import functools
 
 from forest.errors import ForestError, GrammarError
-from forest.grammar import CompiledGrammar, compile_grammar
-from forest.presets import load_preset
+from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.presets import load_preset
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest

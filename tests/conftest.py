@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.usd_scene import write_scene
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.scene import write_scene
 
 
 @pytest.fixture(scope="session")

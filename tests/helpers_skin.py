@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.generate import Forest
-from forest.pieces import PieceArrays
+from forest.geometry.pieces import PieceArrays
+from forest.growth.generate import Forest
 
 F64 = NDArray[np.float64]
 

@@ -12,15 +12,15 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from forest import rim
-from forest.expand import BLOCK_PIECES
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.presets import load_preset, preset_names
-from forest.tolerances import (
+from forest.geometry import rim
+from forest.geometry.tolerances import (
     SIMILARITY_SCALE_REL,
     TEST_RIM_NORMAL_ABS,
     TEST_RIM_POSITION_REL,
 )
+from forest.growth.expand import BLOCK_PIECES
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset, preset_names
 from tests.helpers_skin import bbox_diagonal, skin_forest
 
 PRESETS = preset_names()
@@ -340,7 +340,7 @@ def test_blocked_passes_equal_the_plain_definitions(
     """Assembly and palette run block by block in depth order and write each level's
     results in one gather; with blocks of a few trees or one, they equal the textbook forms:
     ``T(child) = T(parent) B Twist`` and ``palette = FK(locals) @ inv(J)``."""
-    monkeypatch.setattr("forest.expand.BLOCK_PIECES", block)
+    monkeypatch.setattr("forest.growth.expand.BLOCK_PIECES", block)
     f = generate_forest(load_preset(name), 5, ForestOptions(trees=12, frames=2))
     assert len(f.graph.blocks) > 1 or block > len(f.graph)
     g = f.graph

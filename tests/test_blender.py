@@ -18,9 +18,9 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdSkel
 
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.usd_scene import FOLIAGE, PIECES, write_scene
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.scene import FOLIAGE, PIECES, write_scene
 
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"

@@ -139,7 +139,7 @@ def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], me
 
 
 def test_tiles_folder_sets_material_and_manifest(tmp_path: Path) -> None:
-    from forest.usd_read import read_scene
+    from forest.usd.read import read_scene
 
     (tmp_path / "tiles").mkdir()
     (tmp_path / "tiles" / "manifest.json").write_text(

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 from pxr import Sdf, Usd, UsdGeom
 
-from forest.foliage import CLOUD_RADII, leaf_cloud, leaf_texture
-from forest.generate import Forest
-from forest.pieces import HUB
-from forest.usd_read import read_scene
-from forest.usd_scene import FOLIAGE, FOLIAGE_CLOUD, write_scene
+from forest.geometry.pieces import HUB
+from forest.growth.foliage import CLOUD_RADII, leaf_cloud, leaf_texture
+from forest.growth.generate import Forest
+from forest.usd.read import read_scene
+from forest.usd.scene import FOLIAGE, FOLIAGE_CLOUD, write_scene
 from tests.test_usd import validation_errors
 
 

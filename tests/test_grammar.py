@@ -15,15 +15,15 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from forest.errors import ForestError, GrammarError, LimitError
-from forest.generate import ForestOptions, generate_forest
-from forest.grammar import (
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.grammar import (
     MAX_GRAMMAR_BYTES,
     compile_grammar,
     grammar_from_json,
     load_grammar,
     parse_grammar,
 )
-from forest.presets import load_preset, preset_names
+from forest.growth.presets import load_preset, preset_names
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar
 
@@ -328,7 +328,7 @@ def test_presets_compile(name: str) -> None:
     cg = compile_grammar(g)
     assert 1 <= cg.expected_pieces <= ForestSettings().max_pieces_per_tree
     # the shipped file loads the same through load_grammar
-    path = resources.files("forest.presets").joinpath(f"{name}.json")
+    path = resources.files("forest.growth.presets").joinpath(f"{name}.json")
     with resources.as_file(path) as p:
         assert load_grammar(p) == g
 

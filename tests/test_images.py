@@ -13,15 +13,15 @@ import OpenImageIO as oiio
 import pytest
 from click.testing import CliRunner
 
-from forest.cli import main
-from forest.errors import ForestError, OutputError
-from forest.images import (
+from forest.bark.images import (
     read_example,
     read_pixels,
     read_texture_array,
     write_png,
     write_texture_array,
 )
+from forest.cli import main
+from forest.errors import ForestError, OutputError
 
 
 def write_raw(path: Path, pixels: np.ndarray, fmt: str = "uint8", alpha: int = -1) -> Path:

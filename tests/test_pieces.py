@@ -6,9 +6,16 @@ import numpy as np
 import pytest
 import trimesh
 
-from forest import rim
-from forest.pieces import BARK, FORK, MAX_INFLUENCES, PIECE_NAMES, PieceArrays, piece_library
-from forest.transforms import invert_similarity, transform_points, transform_vectors
+from forest.geometry import rim
+from forest.geometry.pieces import (
+    BARK,
+    FORK,
+    MAX_INFLUENCES,
+    PIECE_NAMES,
+    PieceArrays,
+    piece_library,
+)
+from forest.geometry.transforms import invert_similarity, transform_points, transform_vectors
 
 SEGMENTS = (1, 2)
 CASES = [(s, name) for s in SEGMENTS for name in PIECE_NAMES]
@@ -267,7 +274,7 @@ def test_vertex_normals_face_outward(piece: PieceArrays) -> None:
 
 def test_library_is_cached_and_deterministic() -> None:
     assert piece_library(1) is piece_library(1)
-    from forest.pieces import MAKERS
+    from forest.geometry.pieces import MAKERS
 
     for name, make in MAKERS.items():
         a, b = make(1), piece_library(1)[PIECE_NAMES.index(name)]

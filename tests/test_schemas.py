@@ -4,7 +4,7 @@ import json
 
 import pytest
 
-from forest.presets import load_preset, preset_names
+from forest.growth.presets import load_preset, preset_names
 from schemas.export import FOLDER, MODELS, schema_text
 
 

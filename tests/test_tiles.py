@@ -7,11 +7,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from forest.bark.tiles import class_tables, draw_tile_indices
 from forest.errors import ForestError
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.pieces import piece_library
-from forest.presets import load_preset, preset_names
-from forest.tiles import class_tables, draw_tile_indices
+from forest.geometry.pieces import piece_library
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset, preset_names
 from schemas.tileset import DEFAULT_MANIFEST, TileClass, TileSetManifest
 
 SEEDS = st.integers(min_value=0, max_value=2**63 - 1)

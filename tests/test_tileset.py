@@ -18,21 +18,21 @@ from pydantic import ValidationError
 from scipy.signal import fftconvolve
 from skimage import data as skdata
 
-from forest.bench_tiles import procedural_examples, stitch_inputs, stitch_tile_python
-from forest.cli import main
-from forest.errors import ForestError, LimitError
-from forest.generate import ForestOptions, generate_forest
-from forest.images import read_pixels, read_texture_array
-from forest.presets import load_preset
-from forest.tiles import manifest_for
-from forest.tileset import (
+from forest.bark.images import read_pixels, read_texture_array
+from forest.bark.tiles import manifest_for
+from forest.bark.tileset import (
     ClassSpec,
     TileGeometry,
     build_tileset,
     default_classes,
     stitch_tiles,
 )
-from forest.tilesets import default_dir, make_default
+from forest.bark.tilesets import default_dir, make_default
+from forest.bench.tiles import procedural_examples, stitch_inputs, stitch_tile_python
+from forest.cli import main
+from forest.errors import ForestError, LimitError
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
 from schemas.tileset import DEFAULT_MANIFEST, TileEdges, TileSetManifest, udim_file
 
 PHOTOS = ("brick", "grass", "gravel")
@@ -267,11 +267,11 @@ def test_default_set_is_the_default_manifest() -> None:
 
 
 def test_default_set_is_what_the_code_makes(tmp_path: Path) -> None:
-    """The shipped files are current (rebuild them with ``python -m forest.tilesets``).
+    """The shipped files are current (rebuild them with ``python -m forest.bark.tilesets``).
     Source checksums depend on the PNG encoder's version, so they are left out."""
     ts = make_default(tmp_path)
     m, tiles = load(default_dir())
-    assert np.array_equal(tiles, ts.tiles), "run `python -m forest.tilesets`"
+    assert np.array_equal(tiles, ts.tiles), "run `python -m forest.bark.tilesets`"
 
     def strip(man: TileSetManifest) -> dict:
         d = man.model_dump()
@@ -279,7 +279,7 @@ def test_default_set_is_what_the_code_makes(tmp_path: Path) -> None:
             src.pop("sha256")
         return d
 
-    assert strip(m) == strip(ts.manifest), "run `python -m forest.tilesets`"
+    assert strip(m) == strip(ts.manifest), "run `python -m forest.bark.tilesets`"
 
 
 def test_same_seed_same_tiles_other_seed_other_tiles() -> None:

@@ -11,12 +11,12 @@ import pytest
 from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
 
 from forest.errors import OutputError, SceneError
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.presets import load_preset, preset_names
-from forest.tolerances import INSTANCE_TRANSFORM_REL
-from forest.usd_read import read_scene
-from forest.usd_scene import PIECES, write_scene
-from forest.usd_skinned import tree_slices
+from forest.geometry.tolerances import INSTANCE_TRANSFORM_REL
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset, preset_names
+from forest.usd.read import read_scene
+from forest.usd.scene import PIECES, write_scene
+from forest.usd.skinned import tree_slices
 
 
 def validation_errors(stage: Usd.Stage) -> list[str]:
@@ -170,9 +170,9 @@ def test_udim_st_follows_tile_indices(skinned_scene: Path, windy_forest: Forest)
 
 _WRITE = """
 import sys
-from forest.generate import ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.usd_scene import write_scene
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.scene import write_scene
 f = generate_forest(load_preset("uniform"), 5, ForestOptions(trees=2, frames=2))
 write_scene(f, sys.argv[1], skinned=True)
 """

@@ -24,10 +24,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from forest.generate import ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.usd_read import SceneArrays, read_scene
-from forest.usd_scene import write_scene
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.read import SceneArrays, read_scene
+from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from worker.foliage import FOLIAGE_MODES
 from worker.gl_context import create_context, gl_info, raise_gl_error

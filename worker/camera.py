@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
-from forest.transforms import F64
+from forest.geometry.transforms import F64
 
 UP = np.array([0.0, 1.0, 0.0])  # the scene contract's upAxis = Y
 # margin around the framed box, as a fraction of the distance that just fits it

@@ -30,10 +30,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import LimitError
-from forest.foliage import LeafCloud, leaf_cloud, leaf_texture
-from forest.transforms import F64
-from forest.usd_read import SceneArrays
-from forest.usd_scene import FOLIAGE
+from forest.geometry.transforms import F64
+from forest.growth.foliage import LeafCloud, leaf_cloud, leaf_texture
+from forest.usd.read import SceneArrays
+from forest.usd.scene import FOLIAGE
 from worker import shaders
 from worker.camera import Camera, box_corners
 

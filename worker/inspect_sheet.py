@@ -20,10 +20,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.bark.images import write_png
 from forest.errors import ForestError
-from forest.images import write_png
-from forest.transforms import F64
-from forest.usd_read import SceneArrays
+from forest.geometry.transforms import F64
+from forest.usd.read import SceneArrays
 from worker.camera import Camera, frame_points
 from worker.gl_context import INSTALL_EGL, INSTALL_WORKER, GLUnavailableError
 from worker.scene_buffers import scene_points

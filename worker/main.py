@@ -19,8 +19,8 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
         raise ForestError(
             f"unknown queue(s) {', '.join(unknown)}; the queues are {QUEUES}", path="queues"
         )
-    import forest.usd_scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
-    from forest.pieces import piece_library
+    import forest.usd.scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
+    from forest.geometry.pieces import piece_library
     from worker.tasks import app, runtime
 
     piece_library(1)  # built once per process (about a second): not inside the first job

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
+from forest.bark.images import write_png
 from forest.errors import ForestError, OutputError
-from forest.images import write_png
-from forest.usd_read import SceneArrays, read_scene
+from forest.usd.read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
 from worker.camera import Camera, frame_points
 from worker.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points

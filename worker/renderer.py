@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.usd_read import SceneArrays
+from forest.usd.read import SceneArrays
 from schemas.metrics import TessellationSettings
 from worker import shaders
 from worker.camera import Camera

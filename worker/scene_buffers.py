@@ -1,4 +1,4 @@
-"""A scene's arrays (:class:`forest.usd_read.SceneArrays`) -> GPU buffers.
+"""A scene's arrays (:class:`forest.usd.read.SceneArrays`) -> GPU buffers.
 
 ================== ============================================================ ==========
 buffer             contents                                                      binding
@@ -33,10 +33,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import LimitError, SceneError
-from forest.pieces import QUAD_ST, PieceArrays
-from forest.transforms import F64, transform_points
-from forest.usd_read import SceneArrays
-from forest.usd_scene import PIECES
+from forest.geometry.pieces import QUAD_ST, PieceArrays
+from forest.geometry.transforms import F64, transform_points
+from forest.usd.read import SceneArrays
+from forest.usd.scene import PIECES
 from worker.camera import box_corners
 
 if TYPE_CHECKING:

@@ -78,9 +78,9 @@ class TaskKind(Protocol):
 
 def run_forest(ctx: JobContext) -> Outcome:
     """A forest job: generate, write the scene (``scene.<format>``)."""
-    from forest.generate import generate_forest, options_from_request
-    from forest.presets import load_preset
-    from forest.usd_scene import write_scene
+    from forest.growth.generate import generate_forest, options_from_request
+    from forest.growth.presets import load_preset
+    from forest.usd.scene import write_scene
     from schemas.jobs import ForestRequest
 
     req = ForestRequest.model_validate(ctx.params)

@@ -6,7 +6,7 @@ Where the slices come from, first found wins:
    ``manifest.json``, default ``bark_array.tif``: one subimage per slice), else one image per
    slice (``files.slices``, default ``bark.<1001+k>.png``); the folder is given, or found
    through the scene's bark material (``/World/Looks/Bark/Tiles.inputs:file`` =
-   ``DIR/bark.<UDIM>.png``), or is the package's default set (``forest.tilesets``) when the
+   ``DIR/bark.<UDIM>.png``), or is the package's default set (``forest.bark.tilesets``) when the
    scene uses the default tile classes;
 2. a procedural placeholder made here in numpy, with one slice per tile of the scene's
    manifest (at least max tile index + 1). Its slices share one periodic border pattern and
@@ -24,9 +24,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.bark.images import read_subimages
+from forest.bark.tiles import manifest_for
 from forest.errors import ForestError
-from forest.images import read_subimages
-from forest.tiles import manifest_for
 from schemas.tileset import (
     ARRAY_FILE,
     DEFAULT_MANIFEST,
@@ -155,10 +155,10 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
 
 
 def shipped_tile_folder(manifest: TileSetManifest) -> Path | None:
-    """The package's default tile set (``forest.tilesets``), when it exists and has the
+    """The package's default tile set (``forest.bark.tilesets``), when it exists and has the
     scene's tile classes."""
     try:
-        from forest.tilesets import default_dir
+        from forest.bark.tilesets import default_dir
     except ImportError:
         return None
     folder = Path(default_dir())

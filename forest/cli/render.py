@@ -130,7 +130,7 @@ def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> N
     """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
     indices, piece types."""
     from forest.errors import OutputError
-    from forest.usd_read import read_scene
+    from forest.usd.read import read_scene
     from worker.inspect_sheet import contact_sheet
 
     if output.suffix.lower() != ".png":

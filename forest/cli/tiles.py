@@ -39,7 +39,7 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
     edge.<colour>.png and corner.png (the patterns every tile's border shows) and
     manifest.json (classes, sources with checksums, seed, sizes, file names).
     """
-    from forest.tileset import TileGeometry, default_classes, make_tileset
+    from forest.bark.tileset import TileGeometry, default_classes, make_tileset
     from schemas.tileset import MANIFEST_FILE
 
     ts = make_tileset(examples, output, default_classes(per_class, per_class), size, seed)
@@ -71,6 +71,6 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
 def bench_tiles(size: int, n_tiles: int, repeat: int) -> None:
     """Milliseconds per tile of the quilting stitch against a plain-Python baseline, and of
     the whole tile-set build."""
-    from forest.bench_tiles import run_tiles_bench
+    from forest.bench.tiles import run_tiles_bench
 
     run_tiles_bench(size=size, tiles=n_tiles, repeat=repeat, echo=click.echo)

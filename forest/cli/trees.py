@@ -15,8 +15,8 @@ from forest.errors import ForestError
 @input_errors
 def presets() -> None:
     """List the grammar presets shipped with the package."""
-    from forest.grammar import compile_grammar
-    from forest.presets import load_preset, preset_names
+    from forest.growth.grammar import compile_grammar
+    from forest.growth.presets import load_preset, preset_names
 
     for name in preset_names():
         g = load_preset(name)
@@ -25,8 +25,8 @@ def presets() -> None:
 
 
 def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
-    from forest.grammar import load_grammar
-    from forest.presets import load_preset
+    from forest.growth.grammar import load_grammar
+    from forest.growth.presets import load_preset
 
     if (preset is None) == (grammar is None):
         raise ForestError("give exactly one of --preset NAME or --grammar FILE", path="grammar")
@@ -104,11 +104,11 @@ def generate(
     output: Path,
 ) -> None:
     """Generate a forest from a grammar and a seed and write it as USD."""
-    from forest.generate import ForestOptions, generate_forest
-    from forest.skeleton import Wind
-    from forest.tiles import manifest_for
-    from forest.usd_files import check_output_path
-    from forest.usd_scene import write_scene
+    from forest.bark.tiles import manifest_for
+    from forest.growth.generate import ForestOptions, generate_forest
+    from forest.growth.skeleton import Wind
+    from forest.usd.files import check_output_path
+    from forest.usd.scene import write_scene
     from schemas.tileset import DEFAULT_MANIFEST
 
     check_output_path(output)
@@ -145,9 +145,9 @@ def generate(
 def demo(output: Path) -> None:
     """Write a small forest (and one skinned, animated tree) into a folder, and render a
     preview of the forest where an EGL driver is present."""
-    from forest.generate import ForestOptions, generate_forest
-    from forest.presets import load_preset
-    from forest.usd_scene import write_scene
+    from forest.growth.generate import ForestOptions, generate_forest
+    from forest.growth.presets import load_preset
+    from forest.usd.scene import write_scene
 
     try:
         output.mkdir(parents=True, exist_ok=True)
@@ -203,6 +203,6 @@ def _demo_preview(folder: Path) -> None:
 def bench_generate(trees: int, preset: str, repeat: int) -> None:
     """Pieces/s of expansion + assembly + pose + tiles against a per-piece Python loop, and
     seconds to write the forest as .usdc."""
-    from forest.bench import run_generate_bench
+    from forest.bench.generate import run_generate_bench
 
     run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)

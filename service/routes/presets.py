@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter
 
-from forest.presets import load_preset, preset_names
+from forest.growth.presets import load_preset, preset_names
 from schemas.jobs import Preset, PresetList
 
 router = APIRouter(prefix="/v1/presets", tags=["presets"])

@@ -10,8 +10,8 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 
 from forest.errors import ForestError
-from forest.generate import generate_forest, options_from_request
-from forest.usd_scene import write_scene
+from forest.growth.generate import generate_forest, options_from_request
+from forest.usd.scene import write_scene
 from schemas.jobs import TreeRequest, UsdFormat
 from service.deps import ServicesDep
 from service.errors import forest_error

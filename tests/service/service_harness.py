@@ -250,9 +250,9 @@ def served(data: Path, env: dict[str, str]) -> Iterator[Server]:
 def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> bytes:
     """The library's own output for a forest or tree request body (a .usdz names its inner
     layer by stem)."""
-    from forest.generate import generate_forest, options_from_request
-    from forest.presets import load_preset
-    from forest.usd_scene import write_scene
+    from forest.growth.generate import generate_forest, options_from_request
+    from forest.growth.presets import load_preset
+    from forest.usd.scene import write_scene
     from schemas.jobs import ForestRequest, TreeRequest
 
     # the request as the service parses and maps it, so the reference cannot drift from it

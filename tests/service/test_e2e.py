@@ -14,7 +14,7 @@ import httpx
 import pytest
 from service_harness import Server, reference_scene, served
 
-from forest.usd_read import read_scene
+from forest.usd.read import read_scene
 from schemas.metrics import RenderMetrics
 
 FOREST = {"preset": "almond", "trees": 3, "seed": 7, "format": "usdc", "frames": 2}
@@ -139,7 +139,7 @@ def test_client_errors_name_the_field(server: Server) -> None:
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
     r = server.post("/v1/trees", {})
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
-    bad = json.loads((Path(__file__).parents[2] / "forest/presets/shrub.json").read_text())
+    bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/shrub.json").read_text())
     first = next(iter(bad["rules"]))
     bad["rules"][first][0]["successors"] = [{"symbol": "Nowhere"}] * len(
         bad["rules"][first][0]["successors"]

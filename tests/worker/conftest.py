@@ -13,9 +13,9 @@ from typing import Any
 
 import pytest
 
-from forest.generate import ForestOptions, generate_forest
-from forest.usd_read import SceneArrays, read_scene
-from forest.usd_scene import write_scene
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.usd.read import SceneArrays, read_scene
+from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 
 # Every piece type, with bends, spreads and thinner side branches, so rims meet in all the

@@ -20,9 +20,9 @@ from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
 from forest.cli import main
-from forest.generate import ForestOptions, generate_forest
-from forest.usd_read import SceneArrays, read_scene
-from forest.usd_scene import FOLIAGE, write_scene
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.usd.read import SceneArrays, read_scene
+from forest.usd.scene import FOLIAGE, write_scene
 from schemas.grammar import Grammar
 from schemas.metrics import RenderMetrics
 from worker.bench import run_render_bench

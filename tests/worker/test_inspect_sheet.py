@@ -11,8 +11,8 @@ import pytest
 from click.testing import CliRunner
 
 from forest.cli import main
-from forest.tolerances import TEST_RIM_POSITION_REL
-from forest.usd_read import SceneArrays
+from forest.geometry.tolerances import TEST_RIM_POSITION_REL
+from forest.usd.read import SceneArrays
 from worker.gl_context import GLUnavailableError
 from worker.inspect_sheet import contact_sheet, skin_forest
 from worker.textures import read_image_subimages

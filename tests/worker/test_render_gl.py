@@ -17,11 +17,11 @@ from numpy.typing import NDArray
 from pxr import Usd
 from scipy.spatial import cKDTree
 
-from forest.generate import ForestOptions, generate_forest
-from forest.presets import load_preset
-from forest.tolerances import TEST_RIM_NORMAL_ABS, TEST_RIM_POSITION_REL
-from forest.usd_read import SceneArrays, read_scene
-from forest.usd_scene import write_scene
+from forest.geometry.tolerances import TEST_RIM_NORMAL_ABS, TEST_RIM_POSITION_REL
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.read import SceneArrays, read_scene
+from forest.usd.scene import write_scene
 from tests.helpers_skin import skin
 from worker.camera import Camera, frame_box
 from worker.renderer import Renderer, TessSettings

@@ -23,12 +23,12 @@ from click.testing import CliRunner
 from numpy.typing import NDArray
 from pxr import Usd, Vt
 
+from forest.bark.images import write_png
 from forest.cli import main
-from forest.generate import ForestOptions, generate_forest
-from forest.images import write_png
-from forest.presets import load_preset
-from forest.usd_read import read_scene
-from forest.usd_scene import write_scene
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.read import read_scene
+from forest.usd.scene import write_scene
 from schemas.metrics import RenderMetrics
 from worker.render_job import preview_view
 from worker.renderer import Renderer

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from forest.errors import LimitError, SceneError
-from forest.pieces import QUAD_ST
-from forest.usd_read import SceneArrays
+from forest.geometry.pieces import QUAD_ST
+from forest.usd.read import SceneArrays
 from tests.helpers_skin import skin
 from worker import shaders
 from worker.camera import box_corners, frame_box

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from forest.transforms import F64, rotation_y
+from forest.geometry.transforms import F64, rotation_y
 
 SIDES = 6
 RADIUS = 1.0

@@ -6,7 +6,7 @@ from functools import cache
 from importlib import resources
 
 from forest.errors import GrammarError
-from forest.grammar import grammar_from_json
+from forest.growth.grammar import grammar_from_json
 from schemas.grammar import Grammar
 
 

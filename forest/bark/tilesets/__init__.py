@@ -2,8 +2,8 @@
 
 ``default/``: 8 bark and 4 fork tiles of 128 px (the classes of
 :data:`schemas.tileset.DEFAULT_MANIFEST`), quilted from two procedural bark examples of
-384 px made by :func:`forest.barkgen.bark_example` (seeds 1 and 2), tile-set seed 7. Rebuild it
-with ``python -m forest.tilesets`` after changing the quilting or the bark generator; a test
+384 px made by :func:`forest.bark.barkgen.bark_example` (seeds 1 and 2), tile-set seed 7. Rebuild it
+with ``python -m forest.bark.tilesets`` after changing the quilting or the bark generator; a test
 fails while the shipped files differ from what the code makes.
 """
 
@@ -12,9 +12,9 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from forest.barkgen import bark_example
-from forest.images import write_png
-from forest.tileset import TileSet, default_classes, make_tileset
+from forest.bark.barkgen import bark_example
+from forest.bark.images import write_png
+from forest.bark.tileset import TileSet, default_classes, make_tileset
 
 DEFAULT_TILE_SIZE = 128
 DEFAULT_COUNTS = (8, 4)  # bark, fork

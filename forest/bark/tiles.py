@@ -10,7 +10,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from forest.errors import ForestError
-from forest.pieces import PieceArrays
+from forest.geometry.pieces import PieceArrays
 from schemas.tileset import DEFAULT_MANIFEST, MANIFEST_FILE, TileSetManifest
 
 

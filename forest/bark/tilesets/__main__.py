@@ -1,11 +1,11 @@
-"""``python -m forest.tilesets [FOLDER]``: rebuild the default tile set (into the package)."""
+"""``python -m forest.bark.tilesets [FOLDER]``: rebuild the default tile set (into the package)."""
 
 from __future__ import annotations
 
 import sys
 from pathlib import Path
 
-from forest.tilesets import default_dir, make_default
+from forest.bark.tilesets import default_dir, make_default
 
 
 def main(argv: list[str]) -> int:

@@ -2,8 +2,8 @@
 time-sampled wind.
 
 Every piece instance owns ``2 + leaf rims`` bones (root, hub, one terminal per leaf rim; see
-``forest.pieces``). A child's root bone hangs rigidly under its parent's terminal bone with the
-twist as its local transform, so rims stay closed in every pose. Local bone transforms are
+``forest.geometry.pieces``). A child's root bone hangs rigidly under its parent's terminal bone
+with the twist as its local transform, so rims stay closed in every pose. Local bone transforms are
 similarities ``Tr(t) @ R @ S(s)``; global ones come from forward kinematics, one bone level at
 a time. Palette entries are skinning matrices ``G @ inv(J)``: they map prototype (model-space)
 points straight to world space.
@@ -17,11 +17,11 @@ from functools import cache, cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from forest import affine, rim
-from forest.assembly import building_twist_table
-from forest.expand import LevelBlock, PieceGraph, children_radius
-from forest.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
-from forest.transforms import F64, invert_similarity
+from forest.geometry import affine, rim
+from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
+from forest.geometry.transforms import F64, invert_similarity
+from forest.growth.assembly import building_twist_table
+from forest.growth.expand import LevelBlock, PieceGraph, children_radius
 
 I32 = NDArray[np.int32]
 
@@ -152,7 +152,7 @@ def _rest_tip_scale(pieces: tuple[PieceArrays, ...]) -> F64:
 
 @dataclass(frozen=True, eq=False)
 class _PieceTables:
-    """Per piece (p) and leaf rim (r), in the SoA layout of :mod:`forest.affine`.
+    """Per piece (p) and leaf rim (r), in the SoA layout of :mod:`forest.geometry.affine`.
 
     hub_t : (3, p) hub offset from the root
     tip_t : (3, p*R) terminal offset from the hub tip_r : (9, p*R) terminal rest rotation
@@ -199,8 +199,8 @@ def _piece_tables(pieces: tuple[PieceArrays, ...]) -> _PieceTables:
 
 @dataclass(frozen=True, eq=False)
 class _Locals:
-    """Local transforms of a set of instances (SoA, see :mod:`forest.affine`): roots and hubs
-    ``(12, m)``; terminals ``(12, k)`` with their instance position ``pos`` and rim ``r``."""
+    """Local transforms of a set of instances (SoA, see :mod:`forest.geometry.affine`): roots and
+    hubs ``(12, m)``; terminals ``(12, k)`` with their instance position ``pos`` and rim ``r``."""
 
     root: F64
     hub: F64

@@ -39,9 +39,9 @@ from numpy.typing import NDArray
 
 from forest import __version__
 from forest.atomic import write_text
+from forest.bark.images import ExampleImage, read_example, write_png, write_texture_array
+from forest.bark.quilting import cut_mask, min_cut_paths, squared_error
 from forest.errors import ForestError, LimitError, OutputError
-from forest.images import ExampleImage, read_example, write_png, write_texture_array
-from forest.quilting import cut_mask, min_cut_paths, squared_error
 from schemas.tileset import (
     ARRAY_FILE,
     MANIFEST_FILE,

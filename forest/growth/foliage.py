@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.pieces import HUB
-from forest.transforms import F64
+from forest.geometry.pieces import HUB
+from forest.geometry.transforms import F64
 
 LEAVES = 256
 LEAF_LENGTH = 0.2  # of the cloud's diameter

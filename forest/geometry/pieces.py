@@ -25,8 +25,8 @@ from functools import cache
 import numpy as np
 from numpy.typing import NDArray
 
-from forest import rim
-from forest.transforms import (
+from forest.geometry import rim
+from forest.geometry.transforms import (
     F64,
     axis_angle_matrix,
     invert_similarity,

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from forest.errors import GrammarError, LimitError
-from forest.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
+from forest.geometry.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 

@@ -14,10 +14,10 @@ from typing import TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.barkgen import bark_example
-from forest.images import ExampleImage
-from forest.quilting import min_cut_paths
-from forest.tileset import (
+from forest.bark.barkgen import bark_example
+from forest.bark.images import ExampleImage
+from forest.bark.quilting import min_cut_paths
+from forest.bark.tileset import (
     TileGeometry,
     TileSet,
     band_errors,
@@ -37,7 +37,7 @@ U8 = NDArray[np.uint8]
 
 def min_cut_python(err: Sequence[Sequence[int]]) -> list[int]:
     """The minimum-error cut of one band, row by row and column by column in plain Python,
-    with the tie rules of :func:`forest.quilting.min_cut_paths`."""
+    with the tie rules of :func:`forest.bark.quilting.min_cut_paths`."""
     h, w = len(err), len(err[0])
     acc = list(err[0])
     moves: list[list[int]] = [[0] * w]
@@ -64,7 +64,7 @@ def min_cut_python(err: Sequence[Sequence[int]]) -> list[int]:
 
 
 def stitch_tile_python(frame: U8, patch: U8, geom: TileGeometry) -> U8:
-    """One tile as :func:`forest.tileset.stitch_tiles` makes it, pixel by pixel in Python."""
+    """One tile as :func:`forest.bark.tileset.stitch_tiles` makes it, pixel by pixel in Python."""
     s, w, o, e = geom.size, geom.border, geom.overlap, geom.extent
     f, p = frame.tolist(), patch.tolist()
 

@@ -13,10 +13,10 @@ from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
 from forest.errors import SceneError
-from forest.foliage import LeafCloud, anchor_positions
-from forest.pieces import PieceArrays
-from forest.transforms import F64, compose_similarity
-from forest.usd_scene import BARK_TILES, FOLIAGE, FOREST, PIECES
+from forest.geometry.pieces import PieceArrays
+from forest.geometry.transforms import F64, compose_similarity
+from forest.growth.foliage import LeafCloud, anchor_positions
+from forest.usd.scene import BARK_TILES, FOLIAGE, FOREST, PIECES
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
@@ -24,7 +24,7 @@ I32 = NDArray[np.int32]
 
 @dataclass(frozen=True, eq=False)
 class SceneArrays:
-    """A scene's arrays, shaped like the generator's (see ``forest.generate.Forest``).
+    """A scene's arrays, shaped like the generator's (see ``forest.growth.generate.Forest``).
 
     palettes : (f, b, 4, 4) float64, one per entry of ``times`` (``None`` for a still scene)
     """

@@ -7,15 +7,15 @@ from functools import cache
 
 import numpy as np
 
-from forest import affine, rim
-from forest.expand import PieceGraph
-from forest.pieces import MAX_LEAF_RIMS, PieceArrays
-from forest.transforms import F64
+from forest.geometry import affine, rim
+from forest.geometry.pieces import MAX_LEAF_RIMS, PieceArrays
+from forest.geometry.transforms import F64
+from forest.growth.expand import PieceGraph
 
 
 @cache
 def building_twist_table(pieces: tuple[PieceArrays, ...]) -> F64:
-    """``(12, p * MAX_LEAF_RIMS * 6)`` affine batch (:mod:`forest.affine`) of
+    """``(12, p * MAX_LEAF_RIMS * 6)`` affine batch (:mod:`forest.geometry.affine`) of
     ``B[p, r] @ Twist[k]``, flattened ``(p, r, k)``; identity where no rim ``r``."""
     out = np.broadcast_to(np.eye(4), (len(pieces), MAX_LEAF_RIMS, rim.SIDES, 4, 4)).copy()
     tw = rim.twists()
@@ -28,7 +28,7 @@ def topological_transforms(
     graph: PieceGraph, tree_transforms: F64, pieces: tuple[PieceArrays, ...]
 ) -> F64:
     """``(n, 4, 4)`` world transforms of every piece instance at rest, composed block by
-    block of whole trees, one depth level at a time (SoA, see :mod:`forest.affine`)."""
+    block of whole trees, one depth level at a time (SoA, see :mod:`forest.geometry.affine`)."""
     table = building_twist_table(pieces)
     out = np.empty((len(graph), 4, 4))
     for blk in graph.blocks:

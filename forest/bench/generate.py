@@ -12,16 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from forest import rim
-from forest.generate import Forest, ForestOptions, generate_forest
-from forest.grammar import CompiledGrammar, compile_grammar
-from forest.pieces import PieceArrays, piece_library, skinning_rest_inverse
-from forest.presets import load_preset
-from forest.scatter import tree_transforms
-from forest.skeleton import _piece_tables, _rest_tip_scale
-from forest.tiles import class_tables
-from forest.transforms import axis_angle_matrix
-from forest.usd_scene import write_scene
+from forest.bark.tiles import class_tables
+from forest.geometry import rim
+from forest.geometry.pieces import PieceArrays, piece_library, skinning_rest_inverse
+from forest.geometry.transforms import axis_angle_matrix
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.presets import load_preset
+from forest.growth.scatter import tree_transforms
+from forest.growth.skeleton import _piece_tables, _rest_tip_scale
+from forest.usd.scene import write_scene
 from schemas.tileset import DEFAULT_MANIFEST
 
 Echo = Callable[[str], None]

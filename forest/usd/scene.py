@@ -18,11 +18,11 @@ import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
-from forest.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
-from forest.generate import Forest
-from forest.pieces import HUB, QUAD_ST, PieceArrays
-from forest.transforms import F64, decompose_similarity
-from forest.usd_files import check_output_path, finish, new_stage_layer
+from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
+from forest.geometry.transforms import F64, decompose_similarity
+from forest.growth.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
+from forest.growth.generate import Forest
+from forest.usd.files import check_output_path, finish, new_stage_layer
 from schemas.tileset import UDIM_PATTERN
 
 FOREST = "/World/Forest"
@@ -408,7 +408,7 @@ def write_scene(
         if anchors is not None:
             write_foliage(stage, forest, anchors, samples)
         if skinned:
-            from forest.usd_skinned import write_skinned_trees
+            from forest.usd.skinned import write_skinned_trees
 
             write_skinned_trees(stage, forest, material, progress)
         finish(stage, tmp, out)

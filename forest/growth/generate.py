@@ -10,15 +10,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import __version__
-from forest.assembly import topological_transforms
+from forest.bark.tiles import draw_tile_indices
 from forest.errors import LimitError
-from forest.expand import PieceGraph, expand
-from forest.foliage import FoliageAnchors, foliage_anchors
-from forest.grammar import CompiledGrammar, compile_grammar
-from forest.pieces import HUB, PieceArrays, piece_library
-from forest.scatter import Placement, tree_transforms
-from forest.settings import ForestSettings, get_settings
-from forest.skeleton import (
+from forest.geometry.pieces import HUB, PieceArrays, piece_library
+from forest.geometry.transforms import F64
+from forest.growth.assembly import topological_transforms
+from forest.growth.expand import PieceGraph, expand
+from forest.growth.foliage import FoliageAnchors, foliage_anchors
+from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.scatter import Placement, tree_transforms
+from forest.growth.skeleton import (
     Bones,
     PoseParams,
     Poser,
@@ -27,8 +28,7 @@ from forest.skeleton import (
     draw_pose,
     rest_palette,
 )
-from forest.tiles import draw_tile_indices
-from forest.transforms import F64
+from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.jobs import ForestRequest, TreeRequest
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
@@ -152,7 +152,7 @@ class Forest:
 
     def foliage_anchors(self) -> FoliageAnchors:
         """Where leaf clouds sit: the hub of each foliage-bearing piece, following its hub bone
-        (see :mod:`forest.foliage`)."""
+        (see :mod:`forest.growth.foliage`)."""
         hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
         return foliage_anchors(
             self.foliage_instance, self.graph.piece, self.bones.offset, self.transforms, hubs

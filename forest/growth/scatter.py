@@ -7,7 +7,7 @@ from typing import Literal
 
 import numpy as np
 
-from forest.transforms import F64, rotation_y, scaling, translation
+from forest.geometry.transforms import F64, rotation_y, scaling, translation
 
 Placement = Literal["poisson", "grid"]
 # Poisson-disk sampling is O(n) with a large constant in Python; past this many trees the

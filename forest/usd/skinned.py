@@ -16,10 +16,8 @@ from numpy.typing import NDArray
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 from scipy.spatial import cKDTree
 
-from forest.generate import Forest
-from forest.pieces import MAX_INFLUENCES
-from forest.skeleton import rest_pose
-from forest.transforms import (
+from forest.geometry.pieces import MAX_INFLUENCES
+from forest.geometry.transforms import (
     F64,
     compose_similarity,
     decompose_similarity,
@@ -27,7 +25,9 @@ from forest.transforms import (
     transform_points,
     transform_vectors,
 )
-from forest.usd_scene import FOREST, _primvar, _time_code, row_major, tile_udim_st
+from forest.growth.generate import Forest
+from forest.growth.skeleton import rest_pose
+from forest.usd.scene import FOREST, _primvar, _time_code, row_major, tile_udim_st
 
 TREES = f"{FOREST}/Trees"
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps

@@ -10,10 +10,10 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import NDArray
 
-from forest import rim
 from forest.errors import GrammarError, LimitError
-from forest.grammar import CompiledGrammar
-from forest.pieces import MAX_LEAF_RIMS
+from forest.geometry import rim
+from forest.geometry.pieces import MAX_LEAF_RIMS
+from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
 
 I32 = NDArray[np.int32]
@@ -48,7 +48,7 @@ class PieceGraph:
     @cached_property
     def building_twist_column(self) -> NDArray[np.intp]:
         """``(n,)`` index of ``B[parent piece, parent rim] @ Twist[twist]`` in the flattened
-        ``(p, MAX_LEAF_RIMS, 6)`` building-twist table (``forest.assembly``); 0 for roots."""
+        ``(p, MAX_LEAF_RIMS, 6)`` building-twist table (``forest.growth.assembly``); 0 for roots."""
         par = np.maximum(self.parent, 0)
         col = (self.piece[par].astype(np.intp) * MAX_LEAF_RIMS + self.parent_rim) * rim.SIDES
         col += self.twist
