@@ -14,7 +14,7 @@ from pydantic import Field, model_validator
 
 from schemas.base import StrictModel
 
-PieceName = Literal["I", "Y", "T", "Psi"]
+PieceName = Literal["I", "Y", "T", "Psi", "Cap", "Flare"]
 Symbol = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")]
 
 
@@ -65,6 +65,16 @@ class Pose(StrictModel):
         return self
 
 
+class Tropism(StrictModel):
+    """Bends toward a direction, applied at each piece's hub from the piece's orientation in
+    the (posed) tree: per piece, this fraction of the angle to the direction is closed."""
+
+    gravity: Annotated[float, Field(ge=-1, le=1, allow_inf_nan=False)] = 0.0
+    """Toward the vertical: positive bends up (leaders, poplar), negative down (weeping)."""
+    light: Annotated[float, Field(ge=0, le=1, allow_inf_nan=False)] = 0.0
+    """Toward the light: outward from the trunk and 45 degrees up."""
+
+
 class Alternative(StrictModel):
     piece: PieceName
     # bounded so the cumulative weights of any rule stay far from float overflow
@@ -74,6 +84,15 @@ class Alternative(StrictModel):
     twist: Literal["random"] | Annotated[int, Field(ge=0, le=5)] = "random"
     """Which of the six 60-degree twists lays this piece onto its parent's rim."""
     pose: Pose = Pose()
+    roll: Annotated[float, Field(ge=-360, le=360, allow_inf_nan=False)] | None = None
+    """Phyllotaxis: divergence in degrees between this piece's laterals and the previous
+    piece's along the same axis (137.5 spiral, 180 alternate/distichous, 120 for whorls of
+    three...). Rolls are kept exactly along the axis and laid onto the six rim twists with
+    the rounding error carried forward. Overrides ``twist``."""
+    branch_angle: tuple[Degrees, Degrees] | None = None
+    """Range of the angle in degrees between each lateral rim's axis and the stem (Y: each
+    branch's angle from the fork's axis); the piece's built-in angle otherwise."""
+    tropism: Tropism = Tropism()
     min_depth: Annotated[int, Field(ge=0)] = 0
     max_depth: Annotated[int, Field(ge=0)] | None = None
     """Depth condition: the alternative applies when min_depth <= depth <= max_depth."""
@@ -82,6 +101,43 @@ class Alternative(StrictModel):
     def _depths(self) -> Alternative:
         if self.max_depth is not None and self.max_depth < self.min_depth:
             raise ValueError(f"max_depth {self.max_depth} < min_depth {self.min_depth}")
+        return self
+
+
+Hex = Annotated[str, Field(pattern=r"^#[0-9a-fA-F]{6}$")]
+
+
+class Leaves(StrictModel):
+    """Foliage of a species: which cloud models, how big, in which colours."""
+
+    family: Literal["broadleaf", "needles", "strands"] = "broadleaf"
+    """Leaf-cloud models: balls of broad leaf cards, tufts of needles, hanging strands."""
+    size: Annotated[float, Field(gt=0, le=50, allow_inf_nan=False)] = 7.0
+    """Cloud diameter in radii of the branch piece it sits on."""
+    max_radius: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] | None = None
+    """Metres: no cloud on a piece whose root rim is thicker (trunks and main limbs)."""
+    colors: Annotated[list[Hex], Field(min_length=1, max_length=8)] = ["#38691f"]
+    """sRGB palette: each tree draws a base colour from it, each cloud varies around it."""
+    autumn_colors: Annotated[list[Hex], Field(max_length=8)] = []
+    """The palette with ``season: autumn`` (none: the summer palette)."""
+
+
+class Crown(StrictModel):
+    """Crown envelope and apical control (after Weber and Penn's shape ratios)."""
+
+    shape: Literal["cone", "ellipsoid", "column", "dome", "vase", "umbrella"] = "ellipsoid"
+    """Scales the length of each first-order branch by where it leaves the trunk."""
+    base: Annotated[float, Field(ge=0, lt=1)] = 0.0
+    """Fraction of the tree's height below which no branch grows (a bare trunk) and no
+    leaf cloud sits."""
+    height: tuple[
+        Annotated[float, Field(gt=0, le=150)], Annotated[float, Field(gt=0, le=150)]
+    ] = (10.0, 10.0)
+    """Range of each tree's height in metres: the trunk's axis stops growing there."""
+
+    @model_validator(mode="after")
+    def _range(self) -> Crown:
+        _ordered(self.height, "height")
         return self
 
 
@@ -99,6 +155,17 @@ class Grammar(StrictModel):
     must terminate on their own."""
     foliage: list[Symbol] = []
     """Symbols whose pieces bear leaf clouds."""
+    leaves: Leaves = Leaves()
+    crown: Crown | None = None
+    pipe_exponent: Annotated[float, Field(ge=2, le=3)] | None = None
+    """Pipe model: at a fork, ``r_parent^e = sum(r_child^e)``. The successors' ``radius``
+    ranges of a fork are then relative weights (the split ratio), normalised to that rule."""
+    twig_radius: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] | None = None
+    """Metres: a rim thinner than this grows no successor; the branch ends there."""
+    close_tips: bool = True
+    """End every open rim with a tapered cap piece."""
+    bark: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")] = "default"
+    """The shipped bark tile set (``forest/bark/tilesets/<name>``) the scene uses."""
     trunk_radius: Annotated[float, Field(gt=0, le=100)] = 0.15
     """Root-rim circumradius of a tree in metres (the tree's base scale)."""
     tree_scale: tuple[
