@@ -8,6 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from forest.errors import ForestError
 from forest.geometry.transforms import F64
 
 UP = np.array([0.0, 1.0, 0.0])  # the scene contract's upAxis = Y
@@ -132,3 +133,151 @@ def frame_points(
     return Camera(
         eye=target + dist * back, target=target, fov_y=fov_y, aspect=aspect, near=near, far=far
     )
+
+
+# -- placeable cameras ---------------------------------------------------------------------------
+
+VIEWS = ("overview", "side", "eye")
+OVERVIEW_ELEVATION = 18.0
+EYE_HEIGHT = 1.7  # metres: a standing person's eyes
+# the ground quad spans this many camera-target distances around the target (fogged to ~97 %
+# at its edge), and the far plane reaches past it
+GROUND_SPAN = 30.0
+
+
+def _triple(value: object, path: str) -> F64:
+    try:
+        v = np.asarray(value, dtype=np.float64).reshape(3)
+    except (TypeError, ValueError):
+        raise ForestError("expected three numbers X,Y,Z in metres", path=path) from None
+    if not np.isfinite(v).all():
+        raise ForestError(f"must be finite, got {value!r}", path=path)
+    return v
+
+
+@dataclass(frozen=True)
+class CameraSpec:
+    """Where the camera goes: a named view of the scene, or an explicit eye and target.
+
+    ``overview``: the scene's box from ``azimuth`` (about +Y, from +Z) and 18 degrees up, at
+    the least distance that shows everything (the default, as it always was). ``side``: the
+    same at 0 degrees, so the camera looks horizontally at mid-height. ``eye``: eyes 1.7 m
+    above the ground, ``distance`` metres (horizontally) from the scene's centre, looking at
+    that centre; without ``distance``, the least distance that shows everything. ``eye`` and
+    ``target`` (metres, Y up) given together override the view; ``fov`` is vertical, degrees.
+    """
+
+    view: str = "overview"
+    eye: tuple[float, float, float] | None = None
+    target: tuple[float, float, float] | None = None
+    fov: float = 40.0
+    distance: float | None = None
+    azimuth: float = 35.0
+
+    def check(self) -> None:
+        if self.view not in VIEWS:
+            raise ForestError(f"must be one of {', '.join(VIEWS)}, got {self.view!r}", path="view")
+        if (self.eye is None) != (self.target is None):
+            raise ForestError(
+                "give --eye and --target together", path="eye" if self.eye is None else "target"
+            )
+        if self.eye is not None and self.target is not None:
+            eye, target = _triple(self.eye, "eye"), _triple(self.target, "target")
+            if np.linalg.norm(target - eye) < 1e-6:
+                raise ForestError("must differ from the eye", path="target")
+        if not (np.isfinite(self.fov) and 1.0 <= self.fov <= 170.0):
+            raise ForestError(f"must be in [1, 170] degrees, got {self.fov}", path="fov")
+        if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
+            raise ForestError(f"must be > 0 metres, got {self.distance}", path="distance")
+        if not np.isfinite(self.azimuth):
+            raise ForestError(f"must be finite, got {self.azimuth}", path="azimuth")
+
+
+def _clip_planes(eye: F64, forward: F64, points: F64, dist: float) -> tuple[float, float]:
+    """``(near, far)`` enclosing ``points`` seen from ``eye`` along ``forward``."""
+    depth = (points - eye) @ forward
+    ahead = depth[depth > 0]
+    near = max(float(ahead.min()) * 0.5 if len(ahead) else 0.0, dist * 1e-3, 1e-3)
+    far = max(float(depth.max()) * 2.0 + 1.0 if len(depth) else 0.0, near * 10)
+    return near, far
+
+
+def with_ground(camera: Camera) -> Camera:
+    """``camera`` with clip planes that keep the ground quad (:data:`GROUND_SPAN`): the far
+    plane past its edge, the near plane before the nearest ground point in view (no nearer
+    than the eye's height, at most the half-diagonal field off the view axis)."""
+    dist = float(np.linalg.norm(camera.target - camera.eye))
+    far = max(camera.far, 1.5 * (GROUND_SPAN + 1) * dist)
+    tan_v = np.tan(np.deg2rad(camera.fov_y) / 2)
+    cos_diag = float(np.cos(np.arctan(tan_v * np.hypot(1.0, camera.aspect))))
+    height = abs(float(camera.eye[1]))
+    near = min(camera.near, max(0.9 * height * cos_diag, dist * 1e-3, 1e-3))
+    return Camera(camera.eye, camera.target, camera.fov_y, camera.aspect, near, far)
+
+
+def place_camera(
+    spec: CameraSpec, points_in: ArrayLike, aspect: float, ground: bool = False
+) -> Camera:
+    """The camera ``spec`` asks for, for a scene enclosed by ``points`` (``(m, 3)`` world);
+    ``ground`` fits the clip planes to the ground quad too (:func:`with_ground`)."""
+    spec.check()
+    pts = np.asarray(points_in, dtype=np.float64).reshape(-1, 3)
+    if spec.eye is not None and spec.target is not None:
+        eye, target = _triple(spec.eye, "eye"), _triple(spec.target, "target")
+        dist = float(np.linalg.norm(target - eye))
+        near, far = _clip_planes(eye, (target - eye) / dist, pts, dist)
+        cam = Camera(eye, target, spec.fov, aspect, near, far)
+    elif spec.view == "eye":
+        cam = _eye_level(spec, pts, aspect)
+    else:
+        elevation = OVERVIEW_ELEVATION if spec.view == "overview" else 0.0
+        cam = frame_points(pts, aspect, spec.fov, spec.azimuth, elevation)
+    return with_ground(cam) if ground else cam
+
+
+def _eye_level(spec: CameraSpec, pts: F64, aspect: float) -> Camera:
+    """Eyes at :data:`EYE_HEIGHT` looking at the centre of the points' box from ``azimuth``,
+    at ``spec.distance`` or else the least horizontal distance (found by bisection on the
+    box's corners: wider is always better) that shows the whole box with the frame margin."""
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    target = 0.5 * (lo + hi)
+    az = np.deg2rad(spec.azimuth)
+    back = np.array([np.sin(az), 0.0, np.cos(az)])
+    corners = box_corners(lo, hi)
+
+    def at(d: float) -> Camera:
+        eye = np.array([target[0], EYE_HEIGHT, target[2]]) + d * back
+        return Camera(eye, target, spec.fov, aspect)
+
+    def fits(d: float) -> bool:
+        clip = np.c_[corners, np.ones(8)] @ at(d).view_projection().T
+        w = clip[:, 3]
+        return bool(
+            (w > 0).all() and (np.abs(clip[:, :2]) <= w[:, None] / (1 + FRAME_MARGIN)).all()
+        )
+
+    if spec.distance is not None:
+        d = spec.distance
+    else:
+        radius = max(0.5 * float(np.linalg.norm(hi - lo)), 1e-2)
+        lo_d, hi_d = 0.0, radius
+        while not fits(hi_d) and hi_d < 1e6:
+            lo_d, hi_d = hi_d, hi_d * 2
+        for _ in range(40):
+            mid = 0.5 * (lo_d + hi_d)
+            lo_d, hi_d = (lo_d, mid) if fits(mid) else (mid, hi_d)
+        d = hi_d
+    cam = at(d)
+    dist = float(np.linalg.norm(cam.target - cam.eye))
+    near, far = _clip_planes(cam.eye, cam.forward, pts, dist)
+    return Camera(cam.eye, cam.target, spec.fov, aspect, near, far)
+
+
+def project(camera: Camera, points_in: ArrayLike, size: tuple[int, int]) -> F64:
+    """``(m, 2)`` pixel coordinates (x right, y down from the top-left corner, pixel centres at
+    half-integers) of world points ``(m, 3)`` in an image of ``size = (width, height)``."""
+    pts = np.asarray(points_in, dtype=np.float64).reshape(-1, 3)
+    clip = np.c_[pts, np.ones(len(pts))] @ camera.view_projection().T
+    ndc = clip[:, :2] / clip[:, 3:4]
+    w, h = size
+    return np.stack([(ndc[:, 0] + 1) * 0.5 * w, (1 - ndc[:, 1]) * 0.5 * h], axis=1)

@@ -1,14 +1,14 @@
 """``forest render``: a scene file -> preview PNG (+ frame-time metrics JSON).
 
-The camera frames the forest automatically; wind frames are played from the scene's
-time-sampled bone palette. Frame ``F`` is drawn once unmeasured (shader compilation, first
-uploads), then ``N`` measured frames ``F, F+1, ...`` (wrapping around the palette's samples);
-the preview is the first measured frame.
+The camera frames the forest automatically, or as a :class:`worker.camera.CameraSpec` asks;
+wind frames are played from the scene's time-sampled bone palette. Frame ``F`` is drawn once
+unmeasured (shader compilation, first uploads), then ``N`` measured frames ``F, F+1, ...``
+(wrapping around the palette's samples); the preview is the first measured frame.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -17,12 +17,13 @@ from forest.bark.images import write_png
 from forest.errors import ForestError, OutputError
 from forest.usd.read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
-from worker.camera import Camera, frame_points
+from worker.camera import Camera, CameraSpec, place_camera
 from worker.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points
 from worker.gl_context import create_context, raise_gl_error
 from worker.metrics import render_metrics, write_metrics
 from worker.renderer import Renderer, TessSettings, auto_lod
 from worker.scene_buffers import check_scene, scene_points
+from worker.staging import Staging
 from worker.textures import tile_images
 
 MAX_SIZE = 8192
@@ -48,8 +49,11 @@ class RenderRequest:
     cull: bool = True
     foliage: FoliageMode | None = "impostor"  # None: no foliage
     impostor_size: int = IMPOSTOR_SIZE
+    camera: CameraSpec = field(default_factory=CameraSpec)
+    ground: bool = False  # a ground under the trees and a sky gradient (worker.staging)
 
     def check(self) -> None:
+        self.camera.check()
         for name, value in (("width", self.width), ("height", self.height)):
             if not 1 <= value <= MAX_SIZE:
                 raise ForestError(f"must be in [1, {MAX_SIZE}], got {value}", path=name)
@@ -88,14 +92,17 @@ def preview_view(
     alpha: float = 0.75,
     lod_half: float | None = None,
     foliage: bool = True,
+    spec: CameraSpec | None = None,
+    ground: bool = False,
 ) -> tuple[Camera, TessSettings]:
-    """The automatic camera framing the forest at ``frame`` (its leaf clouds too, with
-    ``foliage``) and its level-of-detail settings."""
+    """The camera ``spec`` asks for (default: the automatic overview) around the forest at
+    ``frame`` (its leaf clouds too, with ``foliage``; far enough for the ground with
+    ``ground``) and its level-of-detail settings."""
     points = scene_points(scene, frame)
     if foliage and scene.n_foliage:
         points = np.concatenate([points, foliage_points(scene, frame)])
     lo, hi = points.min(axis=0), points.max(axis=0)
-    camera = frame_points(points, size[0] / size[1])
+    camera = place_camera(spec or CameraSpec(), points, size[0] / size[1], ground)
     tess = auto_lod(camera, lo, hi, tess_max, alpha)
     if lod_half is not None:
         tess = TessSettings(tess_max, alpha, tess.lod_near, lod_half)
@@ -122,6 +129,7 @@ def render_file(req: RenderRequest) -> RenderMetrics:
             images,
             foliage=req.foliage,
             impostor_size=req.impostor_size,
+            staging=Staging() if req.ground else None,
         )
         camera, tess = preview_view(
             scene,
@@ -131,6 +139,8 @@ def render_file(req: RenderRequest) -> RenderMetrics:
             req.alpha,
             req.lod_half,
             foliage=req.foliage is not None,
+            spec=req.camera,
+            ground=req.ground,
         )
         for _ in range(req.warmup):
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)

@@ -19,6 +19,7 @@ from worker.camera import Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import gl_info
 from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers
+from worker.staging import StageRenderer, Staging
 from worker.textures import TileImages, tile_images, upload
 
 if TYPE_CHECKING:
@@ -113,6 +114,9 @@ class Renderer:
     ``foliage`` draws the scene's leaf clouds as 2.5D impostors (``"impostor"``, the default)
     or as the real leaf-cloud mesh (``"geometry"``); ``None`` leaves them out, as does a scene
     without foliage (see :mod:`worker.foliage`).
+
+    ``staging`` draws a sky gradient and a ground under the trees first (see
+    :mod:`worker.staging`); the id attachment is undefined where only they cover a pixel.
     """
 
     def __init__(
@@ -124,6 +128,7 @@ class Renderer:
         ids: bool = False,
         foliage: FoliageMode | None = "impostor",
         impostor_size: int = IMPOSTOR_SIZE,
+        staging: Staging | None = None,
     ) -> None:
         import moderngl
 
@@ -147,6 +152,7 @@ class Renderer:
             self.foliage = FoliageRenderer(
                 ctx, scene, foliage, impostor_size, timer_query=self.info.timer_query
             )
+        self.stage = StageRenderer(ctx, staging) if staging is not None else None
 
     # -- programs -----------------------------------------------------------------------------
 
@@ -246,6 +252,8 @@ class Renderer:
         self.fbo.clear(color=(r, g, b, 1.0), depth=1.0)
         if self.id_texture is not None:
             self.id_texture.write(np.zeros((*self.size[::-1], 4), np.int32).tobytes())
+        if self.stage is not None:
+            self.stage.draw(camera, SUN, SKY, fog)
         self.texture.use(0)
         self._uniforms(prog, camera, tess, skinning, cull)
         calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
@@ -339,6 +347,8 @@ class Renderer:
         self.ctx.detect_framebuffer(0).use()
         if self.foliage is not None:
             self.foliage.release()
+        if self.stage is not None:
+            self.stage.release()
         for obj in (self.fbo, self.color, self.depth, self.texture):
             obj.release()
         if self.id_texture is not None:

@@ -3,11 +3,49 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
 from forest.cli.app import bench, input_errors, main, parse_counts
 from forest.errors import ForestError
+
+VIEW_NAMES = ("overview", "side", "eye")  # worker.camera.VIEWS, without importing the worker
+
+
+def parse_point(text: str | None, path: str) -> tuple[float, float, float] | None:
+    """``"1,2.5,-3"`` -> ``(1.0, 2.5, -3.0)``; anything else is an input error naming ``path``."""
+    if text is None:
+        return None
+    try:
+        x, y, z = (float(v) for v in text.split(","))
+    except ValueError:
+        raise ForestError(f"expected X,Y,Z in metres, got {text!r}", path=path) from None
+    return x, y, z
+
+
+def camera_options(fn: Any) -> Any:
+    """The camera and staging options shared by ``render`` (see worker.camera.CameraSpec)."""
+    options = [
+        click.option(
+            "--view",
+            type=click.Choice(VIEW_NAMES),
+            default="overview",
+            show_default=True,
+            help="overview: the whole forest from 35 deg azimuth, 18 deg up; side: horizontal "
+            "at mid-height; eye: eyes 1.7 m above the ground (at --distance).",
+        ),
+        click.option("--eye", "eye_text", metavar="X,Y,Z", help="Camera position, metres, Y up."),
+        click.option("--target", "target_text", metavar="X,Y,Z", help="Point looked at."),
+        click.option(
+            "--fov", type=float, default=40.0, show_default=True, help="Vertical field, degrees."
+        ),
+        click.option("--distance", type=float, help="Eye view: metres from the forest's centre."),
+        click.option("--ground", is_flag=True, help="A ground under the trees and a sky gradient."),
+    ]
+    for option in reversed(options):
+        fn = option(fn)
+    return fn
 
 
 @main.command()
@@ -54,6 +92,7 @@ from forest.errors import ForestError
     is_flag=True,
     help="Draw the real leaf-cloud mesh at every cloud instead of 2.5D impostors (comparison).",
 )
+@camera_options
 @input_errors
 def render(
     scene: Path,
@@ -71,9 +110,24 @@ def render(
     no_cull: bool,
     no_foliage: bool = False,
     foliage_geometry: bool = False,
+    view: str = "overview",
+    eye_text: str | None = None,
+    target_text: str | None = None,
+    fov: float = 40.0,
+    distance: float | None = None,
+    ground: bool = False,
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
+    from worker.camera import CameraSpec
     from worker.render_job import RenderRequest, render_file
+
+    spec = CameraSpec(
+        view=view,
+        eye=parse_point(eye_text, "eye"),
+        target=parse_point(target_text, "target"),
+        fov=fov,
+        distance=distance,
+    )
 
     m = render_file(
         RenderRequest(
@@ -91,6 +145,8 @@ def render(
             per_instance=per_instance,
             cull=not no_cull,
             foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
+            camera=spec,
+            ground=ground,
         )
     )
     med = m.median

@@ -1,0 +1,62 @@
+#version 430 core
+// Ground shading: a procedural meadow (value-noise patches of grass, dry grass and bare soil
+// at 7 m, 0.6 m and 15 cm), lit by the bark's sun and hemisphere sky with the same distance
+// fog, so the ground fades into the horizon's sky colour. Octaves finer than a pixel fade to
+// their mean (fwidth) instead of shimmering.
+// Defines accepted: none.
+
+in vec3 v_position;
+
+layout(location = 0) out vec4 o_color;
+
+uniform vec3 u_camera;
+uniform vec3 u_sun;   // unit, towards the sun
+uniform vec3 u_sky;   // linear
+uniform float u_fog;  // density per metre
+
+vec3 to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
+
+float hash(vec2 cell) {
+    // integer hash of the lattice cell: the same pattern on every driver
+    uvec2 q = uvec2(ivec2(cell) + ivec2(32768)) * uvec2(1597334673u, 3812015801u);
+    uint n = (q.x ^ q.y) * 1597334673u;
+    return float(n) * (1.0 / 4294967295.0);
+}
+
+float value_noise(vec2 p) {
+    vec2 i = floor(p);
+    vec2 f = fract(p);
+    vec2 u = f * f * (3.0 - 2.0 * f);
+    return mix(mix(hash(i), hash(i + vec2(1.0, 0.0)), u.x),
+               mix(hash(i + vec2(0.0, 1.0)), hash(i + vec2(1.0, 1.0)), u.x), u.y);
+}
+
+// three octaves of value noise in [0, 1]; an octave fades to 0.5 once a cell spans a pixel
+float fbm(vec2 p) {
+    float sum = 0.0;
+    float amp = 0.5;
+    for (int k = 0; k < 3; ++k) {
+        float fade = clamp(1.5 - 2.0 * length(fwidth(p)), 0.0, 1.0);
+        sum += amp * mix(0.5, value_noise(p), fade);
+        p = p * 2.03 + vec2(11.7, 5.3);
+        amp *= 0.5;
+    }
+    return sum / 0.875;
+}
+
+void main() {
+    vec2 xz = v_position.xz;
+    vec3 grass = vec3(0.075, 0.13, 0.035);
+    vec3 dry = vec3(0.22, 0.20, 0.09);
+    vec3 soil = vec3(0.14, 0.10, 0.06);
+    float patches = fbm(xz / 7.0);
+    float bare = fbm(xz / 0.6 + 17.0);
+    vec3 albedo = mix(grass, dry, smoothstep(0.45, 0.7, patches));
+    albedo = mix(albedo, soil, 0.7 * smoothstep(0.6, 0.8, bare));
+    albedo *= 0.75 + 0.5 * fbm(xz / 0.15 + 41.0);
+    // the normal is +Y: the hemisphere ambient is the sky's colour
+    float diffuse = max(u_sun.y, 0.0);
+    vec3 lit = albedo * (vec3(1.25, 1.18, 1.05) * diffuse + 0.55 * u_sky);
+    float fog = 1.0 - exp(-u_fog * distance(u_camera, v_position));
+    o_color = vec4(to_srgb(mix(lit, u_sky, fog)), 1.0);
+}
