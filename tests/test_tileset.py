@@ -27,7 +27,7 @@ from forest.bark.tileset import (
     default_classes,
     stitch_tiles,
 )
-from forest.bark.tilesets import default_dir, make_default
+from forest.bark.tilesets import SETS, default_dir, make_set, set_dir
 from forest.bench.tiles import procedural_examples, stitch_inputs, stitch_tile_python
 from forest.cli import main
 from forest.errors import ForestError, LimitError
@@ -154,9 +154,10 @@ def test_photo_tiles_meet_without_a_seam(photo_set: Path) -> None:
     check_joints(photo_set)
 
 
-def test_default_tiles_are_seamless() -> None:
-    check_borders(default_dir())
-    check_joints(default_dir())
+@pytest.mark.parametrize("name", SETS)
+def test_shipped_tiles_are_seamless(name: str) -> None:
+    check_borders(set_dir(name))
+    check_joints(set_dir(name))
 
 
 # ---------------------------------------------------------------- no repetition
@@ -202,8 +203,9 @@ def test_photo_tiles_do_not_repeat(photo_set: Path) -> None:
     check_no_repetition(photo_set)
 
 
-def test_default_tiles_do_not_repeat() -> None:
-    check_no_repetition(default_dir())
+@pytest.mark.parametrize("name", SETS)
+def test_shipped_tiles_do_not_repeat(name: str) -> None:
+    check_no_repetition(set_dir(name))
 
 
 def test_repetition_score_catches_copies() -> None:
@@ -257,20 +259,26 @@ def test_forest_generate_uses_the_built_set(photo_set: Path) -> None:
     assert t.max() == 11 and t[t >= 0].min() == 0
 
 
-def test_default_set_is_the_default_manifest() -> None:
-    m, tiles = load(default_dir())
+@pytest.mark.parametrize("name", SETS)
+def test_shipped_set_has_the_default_manifest_classes(name: str) -> None:
+    m, tiles = load(set_dir(name))
     assert [(c.id, c.first, c.count) for c in m.classes] == [
         (c.id, c.first, c.count) for c in DEFAULT_MANIFEST.classes
     ]
-    assert tiles.shape == (12, 128, 128, 3)
-    assert [s.file for s in m.sources] == ["procedural-bark-1.png", "procedural-bark-2.png"]
+    assert tiles.shape == (DEFAULT_MANIFEST.n_slices, 128, 128, 3)
+    prefix = "procedural-bark" if name == "default" else f"procedural-{name}"
+    assert [s.file for s in m.sources] == [f"{prefix}-1.png", f"{prefix}-2.png"]
+    size = sum(p.stat().st_size for p in set_dir(name).iterdir())
+    assert size < 1_000_000, f"{name} tile set is {size} bytes"
 
 
-def test_default_set_is_what_the_code_makes(tmp_path: Path) -> None:
+@pytest.mark.parametrize("name", SETS)
+def test_shipped_set_is_what_the_code_makes(name: str, tmp_path: Path) -> None:
     """The shipped files are current (rebuild them with ``python -m forest.bark.tilesets``).
-    Source checksums depend on the PNG encoder's version, so they are left out."""
-    ts = make_default(tmp_path)
-    m, tiles = load(default_dir())
+    Every set is rebuilt (about half a second each). Source checksums depend on the PNG
+    encoder's version, so they are left out."""
+    ts = make_set(name, tmp_path)
+    m, tiles = load(set_dir(name))
     assert np.array_equal(tiles, ts.tiles), "run `python -m forest.bark.tilesets`"
 
     def strip(man: TileSetManifest) -> dict:
@@ -393,13 +401,14 @@ def test_manifest_references_are_checked(photo_set: Path, tmp_path: Path) -> Non
     assert exc.value.path == str(folder / "manifest.json")
 
 
-def test_default_set_is_package_data() -> None:
+@pytest.mark.parametrize("name", SETS)
+def test_shipped_set_is_package_data(name: str) -> None:
     """Every shipped file matches a ``[tool.setuptools.package-data]`` pattern, so the wheel
     carries it."""
     config = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
     patterns = config["tool"]["setuptools"]["package-data"]["forest"]
     root = Path(__file__).parents[1] / "forest"
-    files = sorted(default_dir().iterdir())
+    files = sorted(set_dir(name).iterdir())
     assert len(files) == 18
     for f in files:
         rel = f.relative_to(root).as_posix()

@@ -1,41 +1,100 @@
-"""Tile sets shipped with the package.
+"""Tile sets shipped with the package, one folder per name in :data:`SETS`.
 
-``default/``: 8 bark and 4 fork tiles of 128 px (the classes of
-:data:`schemas.tileset.DEFAULT_MANIFEST`), quilted from two procedural bark examples of
-384 px made by :func:`forest.bark.barkgen.bark_example` (seeds 1 and 2), tile-set seed 7. Rebuild it
-with ``python -m forest.bark.tilesets`` after changing the quilting or the bark generator; a test
-fails while the shipped files differ from what the code makes.
+Each is 8 bark and 4 fork tiles of 128 px (the classes of
+:data:`schemas.tileset.DEFAULT_MANIFEST`: rebuild after classes are added there), quilted
+from two procedural bark examples of 384 px (seeds 1 and 2), tile-set seed 7:
+
+- ``default/``: furrowed bark from :func:`forest.bark.barkgen.bark_example`;
+- ``<species>/`` for each of :data:`forest.bark.barkgen.SPECIES` (oak, almond, birch, pine,
+  spruce, willow, poplar, hazel): that species' bark from
+  :func:`forest.bark.barkgen.species_example`.
+
+A grammar names its set in ``bark``. Rebuild them all with ``python -m forest.bark.tilesets``
+after changing the quilting, the bark generators or the manifest's classes; a test fails while
+the shipped files differ from what the code makes.
 """
 
 from __future__ import annotations
 
+import functools
 import tempfile
 from pathlib import Path
 
-from forest.bark.barkgen import bark_example
-from forest.bark.images import write_png
-from forest.bark.tileset import TileSet, default_classes, make_tileset
+import numpy as np
 
+from forest.bark.barkgen import SPECIES, bark_example, species_example
+from forest.bark.images import read_texture_array, write_png
+from forest.bark.tileset import ClassSpec, TileSet, make_tileset
+from schemas.tileset import DEFAULT_MANIFEST, TileEdges, TileSetManifest
+
+DEFAULT_SET = "default"
+SETS: tuple[str, ...] = (DEFAULT_SET, *SPECIES)
+"""Names of the shipped tile sets (the values a grammar's ``bark`` may take)."""
 DEFAULT_TILE_SIZE = 128
-DEFAULT_COUNTS = (8, 4)  # bark, fork
 DEFAULT_SEED = 7
 EXAMPLE_SIZE = 384
 EXAMPLE_SEEDS = (1, 2)
+# the paper's colouring (forest.bark.tileset): a class the manifest gives no edges keeps bark
+# colours all round, except fork, whose bottom edge lies on the crotch
+_BARK_EDGES = TileEdges(left="bark-v", right="bark-v", top="bark-h", bottom="bark-h")
+_NAMED_EDGES = {"fork": _BARK_EDGES.model_copy(update={"bottom": "crotch-h"})}
+
+
+def set_dir(name: str) -> Path:
+    """The folder of shipped tile set ``name`` (a real folder: the package is installed
+    unzipped, as setuptools does for package data). ``name`` must be one of :data:`SETS`."""
+    if name not in SETS:
+        raise ValueError(f"unknown bark tile set {name!r}; shipped: {', '.join(SETS)}")
+    return Path(__file__).parent / name
 
 
 def default_dir() -> Path:
-    """The folder of the shipped default tile set (a real folder: the package is installed
-    unzipped, as setuptools does for package data)."""
-    return Path(__file__).parent / "default"
+    """The folder of the shipped default tile set."""
+    return set_dir(DEFAULT_SET)
 
 
-def make_default(folder: Path) -> TileSet:
-    """Build the default tile set into ``folder`` (examples made on the fly)."""
+def manifest_classes(manifest: TileSetManifest = DEFAULT_MANIFEST) -> tuple[ClassSpec, ...]:
+    """The classes to build for ``manifest`` (names, ids, counts; its edges, else the
+    paper's colouring), in slice order."""
+    ordered = sorted(manifest.classes, key=lambda c: c.first)
+    return tuple(
+        ClassSpec(c.name, c.id, c.count, c.edges or _NAMED_EDGES.get(c.name, _BARK_EDGES))
+        for c in ordered
+    )
+
+
+def example(name: str, seed: int, size: int = EXAMPLE_SIZE) -> np.ndarray:
+    """``(size, size, 3)`` uint8: example ``seed`` of set ``name``."""
+    if name == DEFAULT_SET:
+        return bark_example(size, size, seed)
+    return species_example(name, size, size, seed)
+
+
+def make_set(name: str, folder: Path) -> TileSet:
+    """Build shipped set ``name`` into ``folder`` (examples made on the fly)."""
+    prefix = "procedural-bark" if name == DEFAULT_SET else f"procedural-{name}"
     with tempfile.TemporaryDirectory() as tmp:
         paths = []
         for seed in EXAMPLE_SEEDS:
-            path = Path(tmp) / f"procedural-bark-{seed}.png"
-            write_png(path, bark_example(EXAMPLE_SIZE, EXAMPLE_SIZE, seed))
+            path = Path(tmp) / f"{prefix}-{seed}.png"
+            write_png(path, example(name, seed))
             paths.append(path)
-        classes = default_classes(*DEFAULT_COUNTS)
-        return make_tileset(paths, folder, classes, size=DEFAULT_TILE_SIZE, seed=DEFAULT_SEED)
+        return make_tileset(
+            paths, folder, manifest_classes(), size=DEFAULT_TILE_SIZE, seed=DEFAULT_SEED
+        )
+
+
+def make_default(folder: Path) -> TileSet:
+    """Build the default tile set into ``folder``."""
+    return make_set(DEFAULT_SET, folder)
+
+
+@functools.cache
+def mean_colour(name: str) -> tuple[float, float, float]:
+    """Linear RGB (0 to 1) mean of shipped set ``name``'s tiles: the flat bark colour for
+    viewers that do not read the tiles."""
+    tiles = read_texture_array(set_dir(name) / "bark_array.tif")[..., :3]
+    lin = (tiles / 255.0 + 0.055) / 1.055
+    lin = np.where(tiles <= 10, tiles / (255.0 * 12.92), lin**2.4)
+    r, g, b = (float(v) for v in lin.reshape(-1, 3).mean(axis=0))
+    return (r, g, b)

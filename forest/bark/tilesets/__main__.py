@@ -1,17 +1,23 @@
-"""``python -m forest.bark.tilesets [FOLDER]``: rebuild the default tile set (into the package)."""
+"""``python -m forest.bark.tilesets [NAME ...]``: rebuild the shipped tile sets (all of
+:data:`forest.bark.tilesets.SETS` by default) into the package."""
 
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
-from forest.bark.tilesets import default_dir, make_default
+from forest.bark.tilesets import SETS, make_set, set_dir
 
 
 def main(argv: list[str]) -> int:
-    folder = Path(argv[0]) if argv else default_dir()
-    ts = make_default(folder)
-    print(f"wrote {folder}: {len(ts.tiles)} tiles of {ts.manifest.tile_size} px")
+    names = argv or list(SETS)
+    unknown = [n for n in names if n not in SETS]
+    if unknown:
+        print(f"unknown tile set(s) {', '.join(unknown)}; shipped: {', '.join(SETS)}")
+        return 2
+    for name in names:
+        folder = set_dir(name)
+        ts = make_set(name, folder)
+        print(f"wrote {folder}: {len(ts.tiles)} tiles of {ts.manifest.tile_size} px")
     return 0
 
 
