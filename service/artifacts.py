@@ -3,11 +3,12 @@ under their final name only once complete (temporary name, then rename)."""
 
 from __future__ import annotations
 
-import os
 import re
 import shutil
 import tempfile
 from pathlib import Path
+
+from forest.atomic import replaced_when_written
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
 JOB_ID = re.compile(r"^[0-9a-f]{32}$")
@@ -41,9 +42,10 @@ class ArtifactStore:
             raise ValueError(f"bad artifact name {name!r}")
         dest = self.folder(job_id)
         dest.mkdir(parents=True, exist_ok=True)
-        tmp = dest / f".{name}.{os.getpid()}.tmp"
-        shutil.move(src, tmp)
-        os.replace(tmp, dest / name)
+        # staged in a private folder in dest (a copy there when src is on another file
+        # system), then one rename: no other file is touched, no half file ever visible
+        with replaced_when_written(dest / name) as tmp:
+            shutil.move(src, tmp)
         return dest / name
 
     def size(self, job_id: str, name: str) -> int:

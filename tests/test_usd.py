@@ -11,6 +11,7 @@ import pytest
 from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
 
 from forest.errors import OutputError, SceneError
+from forest.geometry.pieces import PIECE_NAMES
 from forest.geometry.tolerances import INSTANCE_TRANSFORM_REL
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset, preset_names
@@ -47,7 +48,7 @@ def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> 
     stage = Usd.Stage.Open(str(write_scene(forest, tmp_path / "f.usdc", skinned=True)))
     meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
     # piece prototypes + the leaf-cloud prototype + (bark, proxy) per tree
-    assert len(meshes) == 4 + 1 + 2 * 2
+    assert len(meshes) == len(PIECE_NAMES) + 1 + 2 * 2
     for mesh in meshes:
         ok, why = UsdGeom.Mesh.ValidateTopology(
             mesh.GetFaceVertexIndicesAttr().Get(),

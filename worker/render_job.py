@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from forest.atomic import all_replaced_when_written
 from forest.bark.images import write_png
 from forest.errors import ForestError, OutputError
 from forest.usd.read import SceneArrays, read_scene
@@ -152,7 +153,6 @@ def render_file(req: RenderRequest) -> RenderMetrics:
             if k == 0:
                 preview = renderer.read_color()
         raise_gl_error(ctx, "rendering")
-        write_png(req.output, preview)
         metrics = render_metrics(
             renderer,
             stats,
@@ -161,8 +161,12 @@ def render_file(req: RenderRequest) -> RenderMetrics:
             cull=req.cull,
             warmup_frames=req.warmup,
         )
-        if req.metrics is not None:
-            write_metrics(req.metrics, metrics)
+        # the preview and its figures are replaced together or, on a failure, neither
+        outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
+        with all_replaced_when_written(outputs) as tmps:
+            write_png(tmps[0], preview)
+            if req.metrics is not None:
+                write_metrics(tmps[1], metrics)
         renderer.release()
         return metrics
     finally:

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import __version__
-from forest.atomic import write_text
+from forest.atomic import folder_updated_when_written, write_text
 from forest.bark.images import ExampleImage, read_example, write_png, write_texture_array
 from forest.bark.quilting import cut_mask, min_cut_paths, squared_error
 from forest.errors import ForestError, LimitError, OutputError
@@ -550,27 +550,34 @@ _UDIM_FILE = re.compile(re.escape(UDIM_PATTERN).replace(re.escape(UDIM_TOKEN), r
 def write_tileset(tileset: TileSet, folder: Path) -> list[Path]:
     """Write the slices (``bark.<UDIM>.png``), the texture array, the edge and corner patterns
     and, last, ``manifest.json``; remove ``bark.<UDIM>.png`` files of an earlier, larger set.
-    Returns the files written."""
+    Every file is written into a private staging folder first and renamed into ``folder``
+    only once all are complete, so a failed write leaves the old set whole. Returns the files
+    written."""
     m = tileset.manifest
     assert m.files is not None and m.corner is not None
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"cannot create folder: {exc.strerror}", path=str(folder)) from None
-    written = [
-        write_png(folder / name, t) for name, t in zip(m.files.slices, tileset.tiles, strict=True)
-    ]
+    with folder_updated_when_written(folder, last=[MANIFEST_FILE]) as staging:
+        names = list(m.files.slices)
+        for name, t in zip(m.files.slices, tileset.tiles, strict=True):
+            write_png(staging / name, t)
+        if m.files.array:
+            names.append(m.files.array)
+            write_texture_array(staging / m.files.array, tileset.tiles)
+        for p in m.edge_patterns:
+            names.append(p.file)
+            write_png(staging / p.file, tileset.patterns[p.name])
+        names.append(m.corner.file)
+        write_png(staging / m.corner.file, tileset.corner)
+        names.append(MANIFEST_FILE)
+        write_text(staging / MANIFEST_FILE, m.model_dump_json(indent=2) + "\n")
     keep = set(m.files.slices)
     for old in folder.iterdir():
         if _UDIM_FILE.fullmatch(old.name) and old.name not in keep:
             old.unlink()
-    if m.files.array:
-        written.append(write_texture_array(folder / m.files.array, tileset.tiles))
-    for p in m.edge_patterns:
-        written.append(write_png(folder / p.file, tileset.patterns[p.name]))
-    written.append(write_png(folder / m.corner.file, tileset.corner))
-    written.append(write_text(folder / MANIFEST_FILE, m.model_dump_json(indent=2) + "\n"))
-    return written
+    return [folder / name for name in names]
 
 
 def make_tileset(

@@ -19,6 +19,7 @@ the tube's local +Y, and quads are wound ``(a_i, b_i, b_i+1, a_i+1)`` so normals
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache
 
@@ -167,8 +168,9 @@ def _hermite_rings(p0: F64, t0: F64, p1: F64, t1: F64, n: int) -> list[F64]:
 class _PieceBuilder:
     """Shared steps of every piece: stems on the rim cone, branches to leaf rims, normals."""
 
-    def __init__(self, name: str, hub: F64, leaves: list[F64]) -> None:
+    def __init__(self, name: str, hub: F64, leaves: list[F64], universal_root: bool = True) -> None:
         self.name = name
+        self.universal_root = universal_root
         self.hub = np.asarray(hub, dtype=np.float64)
         self.leaves = leaves
         self.nj = 2 + len(leaves)
@@ -193,13 +195,19 @@ class _PieceBuilder:
         return w
 
     def stem(
-        self, heights: list[float], top: float, tip: int | None, leaf_frame: F64 | None
+        self,
+        heights: list[float],
+        top: float,
+        tip: int | None,
+        leaf_frame: F64 | None,
+        ring_at: Callable[[float], F64] = rim.cone_ring,
     ) -> list[NDArray[np.int64]]:
-        """Rings on the root cone at ``heights``; if ``leaf_frame`` is given the last ring is
-        that leaf rim (the stem is then one frustum of the cone). Returns the ring indices."""
+        """Rings ``ring_at(y)`` (default: on the root cone) at ``heights``; if ``leaf_frame`` is
+        given the last ring is that leaf rim (the stem is then one frustum of the cone).
+        Returns the ring indices."""
         rings = []
         for y in heights:
-            pts = rim.cone_ring(y)
+            pts = ring_at(float(y))
             rings.append(self.mesh.add(pts, self.stem_weights(np.full(6, y), top, tip)))
         self.root_rim = rings[0]
         if leaf_frame is not None:
@@ -251,14 +259,17 @@ class _PieceBuilder:
         tile_class = np.concatenate(self.mesh.classes).astype(np.int32)
         normals = _vertex_normals(pos, quads)
         assert self.root_rim is not None
-        normals[self.root_rim] = rim.rim_normals()
-        leaf_rims = np.stack([np.asarray(lr) for lr in self.leaf_rims]).astype(np.int32)
-        building = np.stack(self.leaves)
+        if self.universal_root:
+            normals[self.root_rim] = rim.rim_normals()
+        # a cap has no leaf rims: (0, 6) and (0, 4, 4), never a failed stack of nothing
+        leaf_rims = np.array([np.asarray(lr) for lr in self.leaf_rims], np.int32).reshape(-1, 6)
+        building = np.array(self.leaves, np.float64).reshape(-1, 4, 4)
         for r, frame in enumerate(self.leaves):
             # rim vertices carry the predetermined cone normals, so joints match exactly
             normals[leaf_rims[r]] = transform_vectors(frame, rim.rim_normals())
             pos[leaf_rims[r]] = transform_points(frame, rim.rim_ring())
-        pos[self.root_rim] = rim.rim_ring()
+        if self.universal_root:
+            pos[self.root_rim] = rim.rim_ring()
         dense = self.mesh.dense_weights()
         if dense.shape[1] < MAX_INFLUENCES:  # pad so every piece has four influence slots
             dense = np.pad(dense, ((0, 0), (0, MAX_INFLUENCES - dense.shape[1])))
@@ -392,7 +403,97 @@ def make_psi_piece(segments: int = 1) -> PieceArrays:
     return pb.finish()
 
 
-MAKERS = {"I": make_i_piece, "Y": make_y_piece, "T": make_side_piece, "Psi": make_psi_piece}
+def _profile_heights(
+    ring_at: Callable[[float], F64], y0: float, y1: float, segments: int
+) -> list[float]:
+    """Heights from ``y0`` to ``y1`` of the rings of the tube ``ring_at(y)`` (a ``(6, 3)`` ring
+    at height ``y``), spaced so every row is about as long along the tube as its ring edges:
+    rows split the arc length, measured in local edge lengths, evenly, and there are as many
+    rows as that length rounded (so bark tiles stay near square), times ``segments``."""
+    ys = np.linspace(y0, y1, 257)
+    rings = np.stack([ring_at(float(y)) for y in ys])  # (257, 6, 3)
+    edge = np.linalg.norm(rings - np.roll(rings, -1, axis=1), axis=-1).mean(axis=1)
+    step = np.linalg.norm(np.diff(rings, axis=0), axis=-1).mean(axis=1)
+    s = np.concatenate([[0.0], np.cumsum(step / (0.5 * (edge[1:] + edge[:-1])))])
+    n = max(1, round(float(s[-1]))) * segments
+    return [float(y) for y in np.interp(np.linspace(0.0, s[-1], n + 1), s, ys)]
+
+
+CAP_BASE = 0.95  # the row next to the root rim lies on the rim cone up to here
+CAP_TOP = 2.4  # height of the last ring, which the apex quads close
+CAP_TIP = 0.3  # circumradius of the last ring
+CAP_APEX = 0.35  # apex height above the last ring
+
+
+def _cap_ring(y: float) -> F64:
+    """``(6, 3)`` ring of the cap at height ``y``: the rim cone up to :data:`CAP_BASE`, then
+    a taper leaving the cone tangentially (to first order) and narrowing to :data:`CAP_TIP`."""
+    if y <= CAP_BASE:
+        return rim.cone_ring(y)
+    r1 = 1.0 - rim.CONE_SLOPE * CAP_BASE
+    t = (y - CAP_BASE) / (CAP_TOP - CAP_BASE)
+    return rim.rim_ring(y, CAP_TIP + (r1 - CAP_TIP) * (1.0 - t * t))
+
+
+def make_cap_piece(segments: int = 1) -> PieceArrays:
+    """Cap: closes a branch. A cone row on the root rim, a taper to a small hexagon, and three
+    quads around a raised apex close it, so a branch ends in a point (quad-only, no leaf rims;
+    joints: root and hub only)."""
+    pb = _PieceBuilder("Cap", np.array([0.0, CAP_BASE, 0.0]), [])
+    heights = [CAP_BASE * i / segments for i in range(segments)]
+    heights += _profile_heights(_cap_ring, CAP_BASE, CAP_TOP, segments)
+    rings = pb.stem(heights, CAP_TOP, None, None, _cap_ring)
+    for a, b in itertools.pairwise(rings):
+        pb.mesh.strip(a, b, BARK)
+    top = rings[-1]
+    apex = pb.mesh.add(np.array([0.0, CAP_TOP + CAP_APEX, 0.0]), _onehot(HUB, pb.nj))[0]
+    # a hexagon as three quads (apex, 2k+2, 2k+1, 2k): the ring runs clockwise seen from
+    # above, so this order is counter-clockwise there and the normals face outward (+Y)
+    k = 2 * np.arange(3)
+    pb.mesh.quads.append(
+        np.stack([np.full(3, apex), top[(k + 2) % 6], top[k + 1], top[k]], axis=-1)
+    )
+    pb.mesh.classes.append(np.full(3, BARK))
+    return pb.finish()
+
+
+FLARE_TOP = 2.2  # the flare has died out at this height; above it the stem is the rim cone
+FLARE = 0.6  # extra radius at the ground, as a fraction of the cone radius
+LOBE = 0.5  # buttress lobes: alternate vertices flare by (1 + LOBE) and (1 - LOBE) of FLARE
+
+
+def _flare_ring(y: float) -> F64:
+    """``(6, 3)`` ring of the flared trunk base at height ``y``."""
+    f = FLARE * max(0.0, 1.0 - y / FLARE_TOP) ** 2
+    k = 1.0 + f * (1.0 + LOBE * (-1.0) ** np.arange(rim.SIDES))
+    return rim.cone_ring(y) * np.stack([k, np.ones(rim.SIDES), k], axis=-1)
+
+
+def make_flare_piece(segments: int = 1) -> PieceArrays:
+    """Flare: a trunk base. Like I (one leaf rim straight up, the same building transform),
+    but the lower rings flare out into three buttress lobes.
+
+    Its root rim is the ground end of a tree and is attached to nothing, so it is *not* the
+    universal rim: wider than it, lobed, with normals from the mesh. Use Flare only as a tree's
+    first piece (its leaf rim is universal, so anything may grow on it)."""
+    leaf = translation([0.0, STEM_HEIGHT, 0.0]) @ scaling(STEM_SCALE)
+    pb = _PieceBuilder("Flare", np.array([0.0, STEM_HEIGHT / 2, 0.0]), [leaf], universal_root=False)
+    heights = _profile_heights(_flare_ring, 0.0, STEM_HEIGHT, segments)
+    rings = pb.stem(heights, STEM_HEIGHT, 0, leaf, _flare_ring)
+    for a, b in itertools.pairwise(rings):
+        pb.mesh.strip(a, b, BARK)
+    return pb.finish()
+
+
+# New pieces go at the end: a piece's index here is its prototype index in written scenes.
+MAKERS = {
+    "I": make_i_piece,
+    "Y": make_y_piece,
+    "T": make_side_piece,
+    "Psi": make_psi_piece,
+    "Cap": make_cap_piece,
+    "Flare": make_flare_piece,
+}
 PIECE_NAMES: tuple[str, ...] = tuple(MAKERS)
 
 

@@ -10,6 +10,7 @@ from pathlib import Path
 
 from pxr import Sdf, Usd, UsdUtils
 
+from forest.atomic import make_private_folder, move_into_place, remove_private_folder
 from forest.errors import OutputError
 
 FORMATS = (".usda", ".usdc", ".usdz")
@@ -31,61 +32,68 @@ def check_output_path(path: str | Path) -> Path:
         raise OutputError("folder is not writable", path=str(folder))
     if p.is_dir():
         raise OutputError("is a folder", path=str(p))
-    try:  # permissions alone do not tell (read-only mounts, /proc): try it
-        fd, probe = tempfile.mkstemp(prefix=f".{p.stem}.", dir=folder)
-        os.close(fd)
-        os.unlink(probe)
+    try:  # permissions alone do not tell (read-only mounts, /proc): try it, touching no file
+        os.rmdir(tempfile.mkdtemp(prefix=f".{p.name}.", suffix=".tmp", dir=folder))
     except OSError as exc:
         raise OutputError(f"folder is not writable ({exc.strerror})", path=str(folder)) from None
     return p
 
 
 def new_stage_layer(path: Path) -> tuple[Usd.Stage, Path]:
-    """A stage whose root layer is a temporary file beside ``path`` in the right format;
-    :func:`finish` moves it into place."""
+    """A stage whose root layer is a file in a private folder beside ``path``
+    (:func:`forest.atomic.make_private_folder`), in the right format; :func:`finish` moves it
+    into place and :func:`discard` removes the folder (call it in a ``finally``)."""
     suffix = ".usdc" if path.suffix.lower() == ".usdz" else path.suffix.lower()
-    try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=suffix, dir=path.parent)
-    except OSError as exc:
-        raise OutputError(f"cannot write: {exc.strerror}", path=str(path)) from None
-    os.close(fd)
-    os.unlink(tmp)  # Sdf wants to create the file itself
-    stage = Usd.Stage.CreateNew(tmp)
+    folder = make_private_folder(path)
+    # the stem is kept: a .usdz's inner layer is named after it, independent of the folder
+    tmp = folder / f"{path.stem}{suffix}"
+    stage = Usd.Stage.CreateNew(str(tmp))
     if stage is None:
+        remove_private_folder(folder)
         raise OutputError("cannot create a USD layer here", path=str(path))
-    return stage, Path(tmp)
+    return stage, tmp
+
+
+def discard(tmp: Path) -> None:
+    """Remove the private folder of a layer from :func:`new_stage_layer` and all it holds
+    (nothing is left once :func:`finish` has succeeded; after a failure, the partial layer)."""
+    remove_private_folder(tmp.parent)
 
 
 def finish(stage: Usd.Stage, tmp: Path, path: Path) -> None:
-    """Save and move into place; a .usdz packs the .usdc with fixed zip timestamps."""
+    """Save and move into place; a .usdz packs the .usdc with fixed zip timestamps. Only
+    ``path`` is ever replaced: every intermediate file lives in ``tmp``'s private folder."""
     try:
         stage.GetRootLayer().Save()
         if path.suffix.lower() == ".usdz":
-            _package_usdz(tmp, path)
+            _package_usdz(stage.GetRootLayer(), tmp, path)
         else:
-            os.replace(tmp, path)
+            move_into_place(tmp, path)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror}", path=str(path)) from None
     finally:
-        if tmp.exists():
-            tmp.unlink()
+        discard(tmp)
 
 
-def _package_usdz(usdc: Path, path: Path) -> None:
-    # the package's inner file name must not depend on the random temporary name
-    inner = usdc.with_name(f"{path.stem}.usdc")
+def _package_usdz(layer: Sdf.Layer, usdc: Path, path: Path) -> None:
+    """Pack ``usdc`` (named ``<stem>.usdc``, in its private folder) into ``path``. Relative
+    asset paths (bark tiles) mean relative to the scene's folder, not to the private one: they
+    are anchored there first, so the packager finds and embeds the same files it would have
+    found beside ``path`` (and renames them inside the package, so no absolute path leaks)."""
+    scene_folder = path.parent.resolve()
+
+    def anchored(asset: str) -> str:
+        if not asset or os.path.isabs(asset) or ":" in asset.split("/", 1)[0]:
+            return asset  # absolute, empty, or a URI / package path: not ours to move
+        return os.path.normpath(os.path.join(scene_folder, asset))
+
+    UsdUtils.ModifyAssetPaths(layer, anchored)
+    layer.Save()
     tmpz = usdc.with_suffix(".usdz")
-    os.replace(usdc, inner)
-    try:
-        layer = Sdf.Layer.FindOrOpen(str(inner))
-        if layer is None or not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(inner)), str(tmpz)):
-            raise OutputError("usdz packaging failed", path=str(path))
-        _zero_zip_times(tmpz)
-        os.replace(tmpz, path)
-    finally:
-        for p in (inner, tmpz):
-            if p.exists():
-                p.unlink()
+    if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(usdc)), str(tmpz)):
+        raise OutputError("usdz packaging failed", path=str(path))
+    _zero_zip_times(tmpz)
+    move_into_place(tmpz, path)
 
 
 def _zero_zip_times(path: Path) -> None:

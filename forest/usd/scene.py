@@ -22,7 +22,7 @@ from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
 from forest.geometry.transforms import F64, decompose_similarity
 from forest.growth.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
 from forest.growth.generate import Forest
-from forest.usd.files import check_output_path, finish, new_stage_layer
+from forest.usd.files import check_output_path, discard, finish, new_stage_layer
 from schemas.tileset import UDIM_PATTERN
 
 FOREST = "/World/Forest"
@@ -414,8 +414,7 @@ def write_scene(
         finish(stage, tmp, out)
     finally:
         del stage
-        if tmp.exists():
-            tmp.unlink()
+        discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
 
 
