@@ -122,7 +122,7 @@ def render_file(req: RenderRequest) -> RenderMetrics:
     check_scene(scene, scene.manifest.n_slices)  # before any GL or texture work
     ctx = create_context()
     try:
-        images = tile_images(scene.manifest, req.tiles, scene.tile_folder)
+        images = tile_images(scene.manifest, req.tiles, scene.tile_folder, bark=scene.bark_tile_set)
         renderer = Renderer(
             ctx,
             scene,

@@ -136,7 +136,7 @@ class Renderer:
         self.info = gl_info(ctx)
         self.scene = scene
         self.size = size
-        self.images = images or tile_images(scene.manifest)
+        self.images = images or tile_images(scene.manifest, bark=scene.bark_tile_set)
         self.buffers = SceneBuffers(ctx, scene, self.images.n_slices)
         self.texture = upload(ctx, self.images)
         self.color = ctx.texture(size, 4)

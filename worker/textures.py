@@ -6,8 +6,9 @@ Where the slices come from, first found wins:
    ``manifest.json``, default ``bark_array.tif``: one subimage per slice), else one image per
    slice (``files.slices``, default ``bark.<1001+k>.png``); the folder is given, or found
    through the scene's bark material (``/World/Looks/Bark/Tiles.inputs:file`` =
-   ``DIR/bark.<UDIM>.png``), or is the package's default set (``forest.bark.tilesets``) when the
-   scene uses the default tile classes;
+   ``DIR/bark.<UDIM>.png``), or is the package's shipped set the scene names
+   (``SceneArrays.bark_tile_set``, from the grammar's ``bark``: ``forest.bark.tilesets``) when
+   the scene uses the default tile classes;
 2. a procedural placeholder made here in numpy, with one slice per tile of the scene's
    manifest (at least max tile index + 1). Its slices share one periodic border pattern and
    differ only inside, so neighbouring quads meet without seams, as the paper's tiles do.
@@ -154,14 +155,18 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
     return TileImages(np.stack(images), source)
 
 
-def shipped_tile_folder(manifest: TileSetManifest) -> Path | None:
-    """The package's default tile set (``forest.bark.tilesets``), when it exists and has the
-    scene's tile classes."""
+def shipped_tile_folder(manifest: TileSetManifest, name: str = "default") -> Path | None:
+    """The package's tile set ``name`` (``forest.bark.tilesets``), when it exists and has the
+    scene's tile classes. An unknown name is a :class:`TileSetError`."""
     try:
-        from forest.bark.tilesets import default_dir
+        from forest.bark.tilesets import SETS, set_dir
     except ImportError:
         return None
-    folder = Path(default_dir())
+    if name not in SETS:
+        raise TileSetError(
+            f"no shipped bark tile set {name!r} (shipped: {', '.join(SETS)})", path="bark"
+        )
+    folder = set_dir(name)
     same = [(c.id, c.first, c.count) for c in manifest.classes] == [
         (c.id, c.first, c.count) for c in DEFAULT_MANIFEST.classes
     ]
@@ -173,15 +178,17 @@ def tile_images(
     folder: Path | None = None,
     scene_folder: Path | None = None,
     shipped: bool = True,
+    bark: str = "default",
 ) -> TileImages:
     """The scene's slices (``manifest.n_slices``): from ``folder``, else the folder the
     scene's material names (``SceneArrays.tile_folder``) if it exists, else the package's
-    default tile set (``shipped``), else the procedural placeholder."""
+    tile set ``bark`` (``SceneArrays.bark_tile_set``; with ``shipped``), else the procedural
+    placeholder."""
     n_slices = manifest.n_slices
     if folder is None and scene_folder is not None and scene_folder.is_dir():
         folder = scene_folder
     if folder is None and shipped:
-        folder = shipped_tile_folder(manifest)
+        folder = shipped_tile_folder(manifest, bark)
     if folder is not None:
         if not folder.is_dir():
             raise TileSetError("tile-set folder does not exist", path=str(folder))

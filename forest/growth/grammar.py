@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pydantic import ValidationError
 
+from forest.bark.tilesets import SETS as BARK_SETS
 from forest.errors import GrammarError, LimitError
 from forest.geometry.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
 from forest.settings import ForestSettings, get_settings
@@ -117,6 +118,10 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
     if g.axiom not in sid:
         raise GrammarError(
             f"axiom {g.axiom!r} has no rule (rules: {', '.join(symbols)})", path="axiom"
+        )
+    if g.bark not in BARK_SETS:
+        raise GrammarError(
+            f"no shipped bark tile set {g.bark!r} (shipped: {', '.join(BARK_SETS)})", path="bark"
         )
     for i, s in enumerate(g.foliage):
         if s not in sid:

@@ -12,14 +12,16 @@ import numpy as np
 from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
+from forest.bark.tilesets import DEFAULT_SET, SETS
 from forest.errors import SceneError
 from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
 from forest.growth.foliage import LeafCloud, anchor_positions
-from forest.usd.scene import BARK_TILES, FOLIAGE, FOREST, PIECES
+from forest.usd.scene import BARK_TILE_SET_ATTR, BARK_TILES, FOLIAGE, FOREST, LOOKS, PIECES
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
+BARK_MATERIAL = f"{LOOKS}/Bark"
 
 
 @dataclass(frozen=True, eq=False)
@@ -38,6 +40,9 @@ class SceneArrays:
     tile_folder: Path | None
     """The folder the bark material reads its UDIM tiles from (resolved against the scene
     file's folder), or None for a flat-colour material."""
+    bark_tile_set: str
+    """The shipped tile set the bark material names (``forest:barkTileSet``; ``"default"``
+    in scenes written before species bark): the renderer's tiles when no folder is given."""
     pieces: tuple[PieceArrays, ...]
     proto_indices: I32
     transforms: F64
@@ -211,6 +216,7 @@ def read_scene(path: str | Path) -> SceneArrays:
         options=options,
         manifest=manifest,
         tile_folder=_tile_folder(stage, Path(path)),
+        bark_tile_set=_bark_tile_set(stage),
         pieces=tuple(pieces),
         proto_indices=proto_idx,
         transforms=transforms,
@@ -227,6 +233,20 @@ def read_scene(path: str | Path) -> SceneArrays:
         palettes=palettes,
         **foliage,
     )
+
+
+def _bark_tile_set(stage: Usd.Stage) -> str:
+    prim = stage.GetPrimAtPath(BARK_MATERIAL)
+    attr = prim.GetAttribute(BARK_TILE_SET_ATTR) if prim else None
+    if not attr or not attr.HasAuthoredValue():
+        return DEFAULT_SET
+    name = attr.Get()
+    if not isinstance(name, str) or name not in SETS:
+        raise SceneError(
+            f"no shipped bark tile set {name!r} (shipped: {', '.join(SETS)})",
+            path=f"{BARK_MATERIAL}.{BARK_TILE_SET_ATTR}",
+        )
+    return name
 
 
 def _tile_folder(stage: Usd.Stage, path: Path) -> Path | None:

@@ -18,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
+from forest.bark.tilesets import DEFAULT_SET, mean_colour
 from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
 from forest.geometry.transforms import F64, decompose_similarity
 from forest.growth.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
@@ -31,7 +32,7 @@ FOLIAGE = "/World/Forest/Foliage"
 FOLIAGE_CLOUD = "/World/Forest/Foliage/Prototypes/LeafCloud"
 LOOKS = "/World/Looks"
 BARK_TILES = f"{LOOKS}/Bark/Tiles"  # the UsdUVTexture reading the UDIM tiles
-BARK_COLOR = (0.36, 0.27, 0.2)
+BARK_TILE_SET_ATTR = "forest:barkTileSet"  # on the bark material: the shipped set's name
 Progress = Callable[[str, int, int], None]
 
 
@@ -145,17 +146,23 @@ def write_prototype(
     return mesh
 
 
-def bark_material(stage: Usd.Stage, tiles: str | None = None) -> UsdShade.Material:
-    """UsdPreviewSurface bark. With ``tiles`` (a folder of ``bark.<UDIM>.png``, relative to
-    the scene) the colour comes from the UDIM tiles through ``st``; without, a flat colour,
-    so no scene references textures that do not exist."""
+def bark_material(
+    stage: Usd.Stage, tiles: str | None = None, bark: str = DEFAULT_SET
+) -> UsdShade.Material:
+    """UsdPreviewSurface bark. ``forest:barkTileSet`` names the shipped tile set ``bark``
+    (``forest.bark.tilesets``), which the renderer uses when no tile folder is given. With
+    ``tiles`` (a folder of ``bark.<UDIM>.png``, relative to the scene) the colour comes from
+    the UDIM tiles through ``st``; without, a flat colour, the mean of the set's tiles, so no
+    scene references textures that do not exist and a DCC shows the species' colour."""
     UsdGeom.Scope.Define(stage, LOOKS)
     mat = UsdShade.Material.Define(stage, f"{LOOKS}/Bark")
+    _attr(mat.GetPrim(), BARK_TILE_SET_ATTR, Sdf.ValueTypeNames.String, bark)
+    colour = mean_colour(bark)
     pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/Surface")
     pbr.CreateIdAttr("UsdPreviewSurface")
     pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.9)
     if tiles is None:
-        pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*BARK_COLOR))
+        pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*colour))
     else:
         reader = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/StReader")
         reader.CreateIdAttr("UsdPrimvarReader_float2")
@@ -167,6 +174,7 @@ def bark_material(stage: Usd.Stage, tiles: str | None = None) -> UsdShade.Materi
             Sdf.AssetPath(f"{tiles.rstrip('/')}/{UDIM_PATTERN}")
         )
         tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
+        tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
         tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
             reader.ConnectableAPI(), "result"
         )
@@ -396,7 +404,7 @@ def write_scene(
     stage, tmp = new_stage_layer(out)
     try:
         setup_stage(stage, forest)
-        material = bark_material(stage, tiles)
+        material = bark_material(stage, tiles, forest.grammar.bark)
         anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
         samples: list[tuple[float | None, F64]] = []
 

@@ -1,0 +1,44 @@
+"""Species bark on screen: a grammar with ``bark: birch`` renders with the birch tile set's
+pale slices, one with ``oak`` with dark grey-brown ones (no tile folder given)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.read import read_scene
+from forest.usd.scene import write_scene
+from worker.camera import Camera
+from worker.renderer import Renderer, TessSettings
+from worker.scene_buffers import scene_bounds
+
+
+def _bark_pixels(ctx: Any, path: Path) -> np.ndarray:
+    """``(k, 3)`` uint8 colours of the pixels the trunk and branches cover."""
+    scene = read_scene(path)
+    renderer = Renderer(ctx, scene, (64, 64), foliage=None)
+    lo, hi = scene_bounds(scene)
+    target = 0.5 * (lo + hi)
+    eye = target + np.array([0.0, 0.0, 1.2 * float(np.linalg.norm(hi - lo))])
+    renderer.draw(Camera(eye=eye, target=target, near=0.05, far=100.0), TessSettings(max_level=4))
+    covered = renderer.read_depth() < 1.0
+    return renderer.read_color()[..., :3][covered]
+
+
+@pytest.mark.parametrize("seed", [5])
+def test_birch_renders_pale_and_oak_dark(gl43: Any, tmp_path: Path, seed: int) -> None:
+    means = {}
+    for bark in ("birch", "oak"):
+        g = load_preset("almond").model_copy(update={"bark": bark})
+        forest = generate_forest(g, seed, ForestOptions(trees=1))
+        px = _bark_pixels(gl43, write_scene(forest, tmp_path / f"{bark}.usda"))
+        assert len(px) > 50
+        means[bark] = px.astype(np.float64).mean(axis=0)
+    assert means["birch"].mean() > means["oak"].mean() + 40, means
+    r, g, b = means["birch"]
+    assert b > 0.75 * r  # white, not tinted brown
