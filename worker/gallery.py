@@ -217,11 +217,10 @@ def _render(
     scene: SceneArrays,
     camera: Camera,
     size: tuple[int, int],
-    tiles: Path | None,
 ) -> NDArray[np.uint8]:
     """``(h, w, 4)`` uint8 frame 0 of ``scene`` on the ground under a sky gradient."""
-    # the species set is passed as a folder, so it wins over any other source
-    images = tile_images(scene.manifest, tiles, scene.tile_folder)
+    # the species' shipped bark set, as the grammar's ``bark`` names it
+    images = tile_images(scene.manifest, None, scene.tile_folder, bark=scene.bark_tile_set)
     renderer = Renderer(ctx, scene, size, images, staging=Staging())
     try:
         pts = scene_surface_points(scene)
@@ -233,28 +232,12 @@ def _render(
         renderer.release()
 
 
-def species_tiles(grammar: Grammar) -> Path | None:
-    """The shipped tile set the grammar names (``forest/bark/tilesets/<bark>``), when it is
-    there and not the default (which the renderer finds by itself)."""
-    from forest.bark.tilesets import default_dir
-
-    folder = default_dir().parent / grammar.bark
-    return folder if grammar.bark != "default" and folder.is_dir() else None
-
-
-def _scene(
-    grammar: Grammar, seed: int, options: ForestOptions, tiles: Path | None, path: Path
-) -> SceneArrays:
-    from forest.bark.tiles import manifest_for
-    from schemas.tileset import DEFAULT_MANIFEST
-
-    manifest = manifest_for(tiles) if tiles is not None else DEFAULT_MANIFEST
-    forest = generate_forest(grammar, seed, options, manifest)
-    return read_scene(write_scene(forest, path))
+def _scene(grammar: Grammar, seed: int, options: ForestOptions, path: Path) -> SceneArrays:
+    return read_scene(write_scene(generate_forest(grammar, seed, options), path))
 
 
 def _stand_scene(
-    grammar: Grammar, seed: int, trees: int, spacing: float, tiles: Path | None, path: Path
+    grammar: Grammar, seed: int, trees: int, spacing: float, path: Path
 ) -> tuple[SceneArrays, float, int]:
     """A stand of ``trees`` (fewer if the forest's piece cap says so) on a square that gives
     each tree about ``spacing`` metres; returns the scene, the square's side and the count."""
@@ -262,7 +245,7 @@ def _stand_scene(
         side = spacing * math.sqrt(trees)
         options = ForestOptions(trees=trees, area=(side, side))
         try:
-            return _scene(grammar, seed, options, tiles, path), side, trees
+            return _scene(grammar, seed, options, path), side, trees
         except LimitError:
             if trees <= 2:
                 raise
@@ -298,12 +281,11 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
         with tempfile.TemporaryDirectory() as tmp:
             for name in names:
                 grammar = load_preset(name)
-                tiles = species_tiles(grammar)
                 one = ForestOptions(trees=1, area=(1.0, 1.0))
-                scene = _scene(grammar, options.seed, one, tiles, Path(tmp) / f"{name}.usdc")
+                scene = _scene(grammar, options.seed, one, Path(tmp) / f"{name}.usdc")
                 root = scene.tree_transforms[0, :3, 3]
                 shot = frame_tree(scene_surface_points(scene), root, w / h)
-                image = Image.fromarray(_render(ctx, scene, shot.camera, (w, h), tiles)[..., :3])
+                image = Image.fromarray(_render(ctx, scene, shot.camera, (w, h))[..., :3])
                 _scale_bar(image, shot)
                 _caption(image, f"{name}: {shot.height:.1f} m tall, {scene.n_instances} pieces")
                 single = write_png(out / f"{name}.png", np.asarray(image))
@@ -318,12 +300,11 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
                     options.seed,
                     options.stand_trees,
                     spacing,
-                    tiles,
                     Path(tmp) / f"{name}_stand.usdc",
                 )
                 pts = scene_surface_points(stand)
                 cam = place_camera(CameraSpec(view="overview", fov=FOV), pts, h / w, ground=True)
-                image = Image.fromarray(_render(ctx, stand, cam, (h, w), tiles)[..., :3])
+                image = Image.fromarray(_render(ctx, stand, cam, (h, w))[..., :3])
                 _caption(image, f"{name}: {n} trees on {side:.0f} m x {side:.0f} m")
                 stand_path = write_png(out / f"{name}_stand.png", np.asarray(image))
                 echo(
