@@ -1,6 +1,6 @@
 #version 430 core
-// Leaf shading: the procedural leaf texture (alpha-tested blade), sun with some light through
-// the leaf from behind, sky ambient. Real geometry writes the final colour with fog; pass 1 of
+// Leaf shading: the family's procedural leaf texture (alpha-tested, neutral detail) times the
+// cloud's colour, sun with some light through the leaf from behind, sky ambient. Real geometry writes the final colour with fog; pass 1 of
 // the impostor (IMPOSTOR) writes the linear lit colour and, in alpha, where the leaf lies
 // between the front (0) and the back (1) of the cloud's bounding sphere along the view
 // direction: alpha = (s + r) / (2 r) for the signed distance s to the billboard plane (the
@@ -12,11 +12,12 @@ in Leaf {
     vec3 position;
     vec3 normal;
     vec2 st;
+    flat vec3 tint;  // the cloud's linear colour (white in pass 1: the billboard tints)
 } fs_in;
 
 layout(location = 0) out vec4 o_color;
 
-uniform sampler2D u_leaf;  // sRGB-encoded RGBA8, alpha: the blade
+uniform sampler2D u_leaf;  // sRGB-encoded RGBA8: neutral leaf detail; alpha: the leaf
 uniform vec3 u_sun;
 uniform vec3 u_sky;
 #ifdef IMPOSTOR
@@ -44,7 +45,7 @@ void main() {
     if (dot(n, view) < 0.0) {
         n = -n;  // cards are double sided
     }
-    vec3 albedo = to_linear(tex.rgb);
+    vec3 albedo = to_linear(tex.rgb) * fs_in.tint;
     float front = max(dot(n, u_sun), 0.0);
     float through = 0.35 * max(-dot(n, u_sun), 0.0);
     vec3 ambient = mix(vec3(0.22, 0.24, 0.16), u_sky, 0.5 + 0.5 * n.y);

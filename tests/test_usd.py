@@ -13,6 +13,7 @@ from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
 from forest.errors import OutputError, SceneError
 from forest.geometry.pieces import PIECE_NAMES
 from forest.geometry.tolerances import INSTANCE_TRANSFORM_REL
+from forest.growth.foliage import MODELS
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset, preset_names
 from forest.usd.read import read_scene
@@ -47,8 +48,8 @@ def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> 
     forest = generate_forest(load_preset(name), 2, ForestOptions(trees=2))
     stage = Usd.Stage.Open(str(write_scene(forest, tmp_path / "f.usdc", skinned=True)))
     meshes = [UsdGeom.Mesh(p) for p in stage.Traverse() if p.IsA(UsdGeom.Mesh)]
-    # piece prototypes + the leaf-cloud prototype + (bark, proxy) per tree
-    assert len(meshes) == len(PIECE_NAMES) + 1 + 2 * 2
+    # piece prototypes + the leaf-cloud models + (bark, proxy) per tree
+    assert len(meshes) == len(PIECE_NAMES) + MODELS + 2 * 2
     for mesh in meshes:
         ok, why = UsdGeom.Mesh.ValidateTopology(
             mesh.GetFaceVertexIndicesAttr().Get(),

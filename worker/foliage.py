@@ -1,24 +1,37 @@
 """Foliage as 2.5D impostors (paper 6), and the real leaf-cloud geometry to compare with.
 
-Every foliage instance shows the same leaf cloud (the scene's prototype mesh, unit diameter,
-never rotated), scaled by its diameter, at its centre: the palette entry of its piece's hub
-bone applied to its rest point, so clouds follow the wind with their branches.
+A scene's foliage shows a few leaf-cloud models (the PointInstancer's prototypes, unit
+diameter, one leaf family); every cloud shows one model turned about the vertical by its yaw,
+scaled by its diameter, tinted by its colour, at its centre: the palette entry of its piece's
+hub bone applied to its rest point, so clouds follow the wind with their branches.
 
 ``impostor`` mode, two passes:
 
-1. the cloud alone, in model space, through an orthographic camera looking along the main
-   camera's view direction (with the main camera's right and up) into an RGBA32F target: the
-   linear lit colour, and in alpha where the nearest leaf lies between the front (0) and the
-   back (1) of the cloud's bounding sphere, -1 where no leaf is. It reruns only when the view
-   direction (the camera's rotation) changes: wind and camera moves along the same direction
-   reuse the picture.
-2. one camera-facing billboard per cloud in one instanced draw call; the fragment shader
-   discards empty texels and writes ``gl_FragDepth`` of the point at the stored distance from
-   the billboard plane along the pixel's view ray, so billboards depth-test against the
-   branches and each other.
+1. every model at each of YAW_STEPS headings, alone, through an orthographic camera looking
+   along the main camera's view direction (with the main camera's right and up) into one
+   tile of an RGBA32F atlas (column: heading, row: model; one instanced draw call per model,
+   an instance per heading): the linear lit colour of the untinted leaves, and in alpha where
+   the nearest leaf lies between the front (0) and the back (1) of the cloud's bounding
+   sphere, -1 where no leaf is. It reruns only when the view direction (the camera's
+   rotation) changes: wind and camera moves along the same direction reuse the pictures.
+2. one camera-facing billboard per cloud in one instanced draw call, showing its model's
+   tile at its heading, tinted by its colour (lighting is linear in the albedo, so the tint
+   may come after); the fragment shader discards empty texels and writes ``gl_FragDepth`` of
+   the point at the stored distance from the billboard plane along the pixel's view ray, so
+   billboards depth-test against the branches and each other.
 
-``geometry`` mode draws the leaf-cloud mesh itself at every cloud, in one instanced draw call
-(the reference for tests, and the benchmark's baseline).
+Why headings are pre-rendered pictures (yaw buckets) rather than a per-instance view
+direction turned into the model's frame: the pictures depend only on the camera's rotation,
+so a turn of a cloud is exactly a turn of its model by the same yaw seen along the same view
+direction (one tile), with the world's lighting; looking up the nearest of a few view
+directions per instance would show wrong lighting and wrong parallax for every cloud. The
+generator draws yaws from the same YAW_STEPS headings, so impostors show exactly what the
+real geometry shows; a yaw between headings (a scene made elsewhere) shows the nearest one.
+The cost is YAW_STEPS pictures per model in pass 1 (a few thousand leaf triangles each time
+the view turns), against one picture before.
+
+``geometry`` mode draws the leaf-cloud meshes themselves at every cloud, turned and tinted,
+one instanced draw call per model (the reference for tests, and the benchmark's baseline).
 """
 
 from __future__ import annotations
@@ -31,7 +44,7 @@ from numpy.typing import NDArray
 
 from forest.errors import LimitError
 from forest.geometry.transforms import F64
-from forest.growth.foliage import LeafCloud, leaf_cloud, leaf_texture
+from forest.growth.foliage import YAW_STEPS, LeafCloud, cloud_models, leaf_texture
 from forest.usd.read import SceneArrays
 from forest.usd.scene import FOLIAGE
 from worker import shaders
@@ -43,7 +56,9 @@ if TYPE_CHECKING:
 FoliageMode = Literal["impostor", "geometry"]
 FOLIAGE_MODES: tuple[FoliageMode, ...] = ("impostor", "geometry")
 # std430 ``struct Cloud`` in shaders/leaves.vert and billboard.vert
-CLOUD_DTYPE = np.dtype([("rest_size", "<f4", 4), ("bone", "<i4", 4)])
+CLOUD_DTYPE = np.dtype(
+    [("rest_size", "<f4", 4), ("bone", "<i4", 4), ("tint", "<f4", 4), ("turn", "<f4", 4)]
+)
 LEAF_DTYPE = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("st", "<f4", 2)])
 LEAF_FORMAT = "3f 3f 2f"
 LEAF_ATTRIBUTES = ("in_position", "in_normal", "in_st")
@@ -53,6 +68,7 @@ CAPTURE_BINDING = 3
 # far below a texel; float noise of look_at for a camera moved along its view direction)
 VIEW_TOLERANCE = 1e-6
 CLOUD_BINDING = 4
+ORDER_BINDING = 5
 
 
 @dataclass(frozen=True)
@@ -90,22 +106,48 @@ class FoliageStats:
         return float(sum(t for t in times if t is not None))
 
 
+def scene_models(scene: SceneArrays) -> tuple[LeafCloud, ...]:
+    """The scene's cloud models (its prototypes; broad leaves for foliage without any)."""
+    return scene.foliage_clouds or cloud_models("broadleaf")
+
+
+def yaw_bucket(yaw: F64) -> NDArray[np.int32]:
+    """``(k,)`` the nearest of the YAW_STEPS headings (index) to each ``yaw`` (radians)."""
+    step = 2 * np.pi / YAW_STEPS
+    return (np.round(np.asarray(yaw) / step).astype(np.int64) % YAW_STEPS).astype(np.int32)
+
+
 def cloud_records(scene: SceneArrays) -> NDArray[np.void]:
-    """``(k,)`` CLOUD_DTYPE: rest point and diameter, palette entry of every cloud."""
+    """``(k,)`` CLOUD_DTYPE: rest point and diameter, palette entry, atlas tile (model row,
+    heading column) and model, colour, yaw and the model's bounding radius of every cloud."""
+    models = scene_models(scene)
+    radii = np.array([m.radius for m in models])
     rec = np.zeros(scene.n_foliage, CLOUD_DTYPE)
     rec["rest_size"][:, :3] = scene.foliage_rest
     rec["rest_size"][:, 3] = scene.foliage_sizes
     rec["bone"][:, 0] = scene.foliage_bone
+    rec["bone"][:, 1] = scene.foliage_model * YAW_STEPS + yaw_bucket(scene.foliage_yaw)
+    rec["bone"][:, 2] = scene.foliage_model
+    rec["tint"][:, :3] = scene.foliage_color
+    rec["turn"][:, 0] = scene.foliage_yaw
+    rec["turn"][:, 1] = radii[scene.foliage_model]
     return rec
 
 
-def leaf_vertices(cloud: LeafCloud) -> tuple[NDArray[np.void], NDArray[np.int32]]:
-    """Interleaved vertices and triangle indices of the leaf cloud."""
-    v = np.zeros(len(cloud.positions), LEAF_DTYPE)
-    v["position"] = cloud.positions
-    v["normal"] = cloud.normals
-    v["st"] = cloud.st
-    return v, cloud.triangles()
+def leaf_vertices(
+    models: tuple[LeafCloud, ...],
+) -> tuple[NDArray[np.void], NDArray[np.int32], NDArray[np.int64]]:
+    """Interleaved vertices and triangle indices of all ``models`` in one buffer, and the
+    ``(m + 1,)`` index offsets of each model's triangles (model i: indices
+    ``offsets[i]:offsets[i + 1]``)."""
+    v = np.zeros(sum(len(c.positions) for c in models), LEAF_DTYPE)
+    v["position"] = np.concatenate([c.positions for c in models])
+    v["normal"] = np.concatenate([c.normals for c in models])
+    v["st"] = np.concatenate([c.st for c in models])
+    first = np.cumsum([0] + [len(c.positions) for c in models])
+    tris = np.concatenate([c.triangles() + f for c, f in zip(models, first, strict=False)])
+    offsets = np.cumsum([0] + [3 * len(c.triangles()) for c in models]).astype(np.int64)
+    return v, tris.astype(np.int32), offsets
 
 
 def impostor_basis(camera: Camera) -> tuple[F64, F64, F64]:
@@ -128,12 +170,14 @@ def impostor_view_projection(camera: Camera, radius: float) -> F64:
 
 
 def foliage_points(scene: SceneArrays, frame: int = 0) -> F64:
-    """``(8 k, 3)`` corners of every cloud's box at ``frame`` (for framing the camera)."""
+    """``(8 k, 3)`` corners of every cloud's box at ``frame`` (for framing the camera): a box
+    that holds every model at any yaw (the largest distance from the vertical axis across,
+    the lowest and highest leaf up)."""
     if scene.n_foliage == 0:
         return np.zeros((0, 3))
-    cloud = scene.foliage_cloud or leaf_cloud()
-    lo, hi = cloud.positions.min(axis=0), cloud.positions.max(axis=0)
-    corners = box_corners(lo, hi)
+    pts = np.concatenate([c.positions for c in scene_models(scene)])
+    r = float(np.hypot(pts[:, 0], pts[:, 2]).max())
+    corners = box_corners(np.array([-r, pts[:, 1].min(), -r]), np.array([r, pts[:, 1].max(), r]))
     c = scene.foliage_at(frame)
     return (c[:, None] + scene.foliage_sizes[:, None, None] * corners[None]).reshape(-1, 3)
 
@@ -174,8 +218,8 @@ class FoliageRenderer:
         self.ctx = ctx
         self.scene = scene
         self.mode: FoliageMode = mode
-        self.cloud = scene.foliage_cloud or leaf_cloud()
-        self.radius = self.cloud.radius
+        self.models = scene_models(scene)
+        self.radii = [c.radius for c in self.models]
         records = cloud_records(scene)
         limit = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE", 2**27))
         if records.nbytes > limit:
@@ -185,16 +229,25 @@ class FoliageRenderer:
                 path=f"{FOLIAGE}.positions",
                 limit=limit,
             )
-        self.records = ctx.buffer(records.tobytes() if len(records) else b"\0" * 32)
-        verts, tris = leaf_vertices(self.cloud)
+        self.records = ctx.buffer(records.tobytes() if len(records) else b"\0" * 64)
+        # clouds by model, for geometry mode's one instanced draw per model
+        order = np.argsort(scene.foliage_model, kind="stable").astype(np.int32)
+        counts = np.bincount(scene.foliage_model, minlength=len(self.models))
+        self.model_counts = counts.astype(np.int64)
+        self.model_first = (np.cumsum(counts) - counts).astype(np.int64)
+        self.order = ctx.buffer(order.tobytes() if len(order) else b"\0" * 4)
+        verts, tris, self.index_offsets = leaf_vertices(self.models)
         self.n_triangles = len(tris)
         self.vbo = ctx.buffer(verts.tobytes())
         self.ibo = ctx.buffer(tris.astype(np.int32).tobytes())
-        tex = leaf_texture()
-        self.leaf = ctx.texture(tex.shape[1::-1], 4, np.ascontiguousarray(tex).tobytes())
-        self.leaf.build_mipmaps()
-        self.leaf.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
-        self.leaf.repeat_x = self.leaf.repeat_y = False
+        self.textures: dict[str, moderngl.Texture] = {}
+        for family in sorted({c.family for c in self.models}):
+            tex = leaf_texture(family)
+            t = ctx.texture(tex.shape[1::-1], 4, np.ascontiguousarray(tex).tobytes())
+            t.build_mipmaps()
+            t.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+            t.repeat_x = t.repeat_y = False
+            self.textures[family] = t
         self._programs: dict[str, Any] = {}
         self._vaos: dict[str, Any] = {}
         self.impostor_size = impostor_size
@@ -203,15 +256,30 @@ class FoliageRenderer:
         self._impostor_depth: moderngl.Renderbuffer | None = None
         if mode == "impostor":
             n = impostor_size
-            self.impostor = ctx.texture((n, n), 4, dtype="f4")
+            atlas = (n * YAW_STEPS, n * len(self.models))
+            max_size = int(ctx.info.get("GL_MAX_TEXTURE_SIZE", 16384))
+            if max(atlas) > max_size:
+                raise LimitError(
+                    f"an impostor atlas of {atlas[0]}x{atlas[1]} texels is more than this "
+                    f"driver's texture size limit of {max_size}",
+                    path="impostor_size",
+                    limit=max_size,
+                )
+            self.impostor = ctx.texture(atlas, 4, dtype="f4")
             self.impostor.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self.impostor.repeat_x = self.impostor.repeat_y = False
-            self._impostor_depth = ctx.depth_renderbuffer((n, n))
+            self._impostor_depth = ctx.depth_renderbuffer(atlas)
             self.impostor_fbo = ctx.framebuffer([self.impostor], self._impostor_depth)
         self._rotation: F64 | None = None
         self.impostor_renders = 0
         self._timer = timer_query
         self.queries = [ctx.query(time=timer_query, primitives=True) for _ in range(2)]
+
+    @property
+    def cloud(self) -> LeafCloud:
+        """The first cloud model (what callers of a one-model renderer read its card count
+        from; the generator's models all have CARDS cards)."""
+        return self.models[0]
 
     # -- programs ---------------------------------------------------------------------------
 
@@ -250,29 +318,42 @@ class FoliageRenderer:
         mgl, ctx = self._mgl, self.ctx
         prog, vao = self._program("leaves", "IMPOSTOR")
         forward = impostor_basis(camera)[2]
-        self.impostor_fbo.use()
-        self.impostor_fbo.viewport = (0, 0, self.impostor_size, self.impostor_size)
-        self.impostor_fbo.clear(0.0, 0.0, 0.0, -1.0, depth=1.0)
+        fbo = self.impostor_fbo
+        fbo.use()
+        fbo.viewport = (0, 0, *fbo.size)
+        fbo.clear(0.0, 0.0, 0.0, -1.0, depth=1.0)
         ctx.enable_only(mgl.DEPTH_TEST)
-        self.leaf.use(0)
         _set(
             prog,
             {
-                "u_view_projection": impostor_view_projection(camera, self.radius),
                 "u_forward": forward,
-                "u_radius": self.radius,
                 "u_sun": np.asarray(sun),
                 "u_sky": np.asarray(sky),
                 "u_leaf": 0,
+                "u_steps": YAW_STEPS,
+                "u_rows": len(self.models),
             },
         )
         q = self.queries[0]
         with q:
-            vao.render(mgl.TRIANGLES)
+            for m, cloud in enumerate(self.models):
+                self.textures[cloud.family].use(0)
+                r = self.radii[m]
+                _set(
+                    prog,
+                    {
+                        "u_view_projection": impostor_view_projection(camera, r),
+                        "u_radius": r,
+                        "u_row": m,
+                    },
+                )
+                lo, hi = self.index_offsets[m], self.index_offsets[m + 1]
+                vao.render(mgl.TRIANGLES, vertices=int(hi - lo), first=int(lo),
+                           instances=YAW_STEPS)  # fmt: skip
         self._rotation = camera.view()[:3, :3].copy()
         self.impostor_renders += 1
         return PassStats(
-            draw_calls=1,
+            draw_calls=len(self.models),
             primitives=int(q.primitives),
             gpu_ms=q.elapsed / 1e6 if self._timer else None,
         )
@@ -311,20 +392,30 @@ class FoliageRenderer:
                     "u_right": right,
                     "u_up": up,
                     "u_forward": forward,
-                    "u_radius": self.radius,
+                    "u_tiles": (YAW_STEPS, len(self.models)),
                     "u_impostor": 1,
                 },
             )
             with q:
                 vao.render(mgl.TRIANGLE_STRIP, vertices=4, instances=k)
+            calls = 1
         else:
             prog, vao = self._program("leaves")
-            self.leaf.use(0)
+            self.order.bind_to_storage_buffer(ORDER_BINDING)
             _set(prog, {**common, "u_leaf": 0})
+            calls = 0
             with q:
-                vao.render(mgl.TRIANGLES, instances=k)
+                for m, cloud in enumerate(self.models):
+                    n = int(self.model_counts[m])
+                    if n == 0:
+                        continue
+                    self.textures[cloud.family].use(0)
+                    _set(prog, {"u_first": int(self.model_first[m])})
+                    lo, hi = self.index_offsets[m], self.index_offsets[m + 1]
+                    vao.render(mgl.TRIANGLES, vertices=int(hi - lo), first=int(lo), instances=n)
+                    calls += 1
         return PassStats(
-            draw_calls=1,
+            draw_calls=calls,
             primitives=int(q.primitives),
             gpu_ms=q.elapsed / 1e6 if self._timer else None,
         )
@@ -351,11 +442,12 @@ class FoliageRenderer:
         )
 
     def read_impostor(self) -> NDArray[np.float32]:
-        """``(n, n, 4)`` float32 pass-1 picture, bottom row (t = 0) first."""
+        """``(m n, YAW_STEPS n, 4)`` float32 pass-1 atlas (a row of n x n tiles per model, a
+        tile per heading), bottom row (t = 0) first."""
         if self.impostor is None:
             raise ValueError("no impostor target in geometry mode")
-        n = self.impostor_size
-        return np.frombuffer(self.impostor.read(), np.float32).reshape(n, n, 4).copy()
+        w, h = self.impostor.size
+        return np.frombuffer(self.impostor.read(), np.float32).reshape(h, w, 4).copy()
 
     def capture_centres(self, camera: Camera) -> NDArray[np.float32]:
         """``(k, 4)`` every cloud's centre and diameter as the billboard shader computed them
@@ -390,6 +482,7 @@ class FoliageRenderer:
             self.impostor.release()
         if self._impostor_depth is not None:
             self._impostor_depth.release()
-        for buf in (self.records, self.vbo, self.ibo):
+        for buf in (self.records, self.order, self.vbo, self.ibo):
             buf.release()
-        self.leaf.release()
+        for tex in self.textures.values():
+            tex.release()

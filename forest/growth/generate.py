@@ -16,7 +16,7 @@ from forest.geometry.pieces import HUB, PieceArrays, piece_library
 from forest.geometry.transforms import F64
 from forest.growth.assembly import topological_transforms
 from forest.growth.expand import PieceGraph, expand
-from forest.growth.foliage import FoliageAnchors, foliage_anchors
+from forest.growth.foliage import FoliageAnchors, Season, foliage_anchors
 from forest.growth.grammar import CompiledGrammar, compile_grammar
 from forest.growth.scatter import Placement, tree_transforms
 from forest.growth.skeleton import (
@@ -46,6 +46,7 @@ class ForestOptions:
     placement: Placement = "poisson"
     segments: int = 1
     wind: Wind = field(default_factory=Wind)
+    season: Season = "summer"
 
     def check(self, settings: ForestSettings) -> None:
         if not 1 <= self.trees <= settings.max_trees:
@@ -154,9 +155,13 @@ class Forest:
         """Where leaf clouds sit: the hub of each foliage-bearing piece, following its hub bone
         (see :mod:`forest.growth.foliage`)."""
         hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
+        idx = self.foliage_instance
+        radius = np.cbrt(np.linalg.det(self.transforms[idx, :3, :3]))  # root rim radius 1
         return foliage_anchors(
-            self.foliage_instance, self.graph.piece, self.bones.offset, self.transforms, hubs
-        )
+            idx, self.graph.piece, self.bones.offset, hubs, radius, self.graph.tree[idx],
+            self.grammar.leaves, np.random.default_rng([self.seed, 0xF011A6E]),
+            self.options.season,
+        )  # fmt: skip
 
 
 def generate_forest(

@@ -16,7 +16,7 @@ from forest.bark.tilesets import DEFAULT_SET, SETS
 from forest.errors import SceneError
 from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
-from forest.growth.foliage import LeafCloud, anchor_positions
+from forest.growth.foliage import FAMILIES, LEAF_GREEN, LeafCloud, anchor_positions
 from forest.usd.scene import BARK_TILE_SET_ATTR, BARK_TILES, FOLIAGE, FOREST, LOOKS, PIECES
 from schemas.tileset import TileSetManifest
 
@@ -62,7 +62,14 @@ class SceneArrays:
     foliage_instance: I32
     foliage_bone: I32
     foliage_rest: F64
-    foliage_cloud: LeafCloud | None
+    foliage_clouds: tuple[LeafCloud, ...]
+    """The foliage prototypes, one per cloud model (none for Points foliage)."""
+    foliage_model: I32
+    """(k,) int32 each cloud's model: an index into foliage_clouds."""
+    foliage_yaw: F64
+    """(k,) float64 each cloud's turn about +y, radians."""
+    foliage_color: NDArray[np.float32]
+    """(k, 3) float32 each cloud's linear RGB tint."""
 
     @property
     def n_instances(self) -> int:
@@ -270,13 +277,26 @@ def _read_leaf_cloud(prim: Usd.Prim) -> LeafCloud:
             )
     if not (np.isfinite(pts).all() and np.isfinite(normals).all() and np.isfinite(st).all()):
         raise SceneError("non-finite values", path=f"{prim.GetPath()}.points")
-    return LeafCloud(positions=pts, normals=normals, st=st, quads=quads)
+    attr = prim.GetAttribute("forest:leafFamily")
+    family = str(attr.Get()) if attr and attr.HasAuthoredValue() else "broadleaf"
+    if family not in FAMILIES:
+        raise SceneError(
+            f"leaf family must be one of {FAMILIES}, got {family!r}",
+            path=f"{prim.GetPath()}.forest:leafFamily",
+        )
+    return LeafCloud(positions=pts, normals=normals, st=st, quads=quads, family=family)
+
+
+def _has(prim: Usd.Prim, name: str) -> bool:
+    attr = prim.GetAttribute(name)
+    return bool(attr) and attr.HasAuthoredValue()
 
 
 def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
     """The foliage fields of SceneArrays. A PointInstancer (this version's scenes) gives
-    centres, sizes, bones and the leaf-cloud mesh; plain Points (older scenes) give centres
-    and sizes that do not follow the wind."""
+    centres, sizes, bones, models, headings, colours and the leaf-cloud meshes (scenes of
+    one unturned, uncoloured prototype read as model 0, yaw 0, leaf green); plain Points
+    (older scenes) give centres and sizes that do not follow the wind."""
     prim = stage.GetPrimAtPath(FOLIAGE)
     empty_i = np.zeros(0, np.int32)
     out: dict[str, Any] = {
@@ -285,7 +305,10 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
         "foliage_instance": empty_i,
         "foliage_bone": empty_i,
         "foliage_rest": np.zeros((0, 3)),
-        "foliage_cloud": None,
+        "foliage_clouds": (),
+        "foliage_model": empty_i,
+        "foliage_yaw": np.zeros(0),
+        "foliage_color": np.zeros((0, 3), np.float32),
     }
     if not prim:
         return out
@@ -298,14 +321,17 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
             foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
             foliage_bone=np.full(k, -1, np.int32),
             foliage_rest=pos.copy(),
+            foliage_model=np.zeros(k, np.int32),
+            foliage_yaw=np.zeros(k),
+            foliage_color=np.tile(np.array(LEAF_GREEN, np.float32), (k, 1)),
         )
         return out
     if not prim.IsA(UsdGeom.PointInstancer):
         raise SceneError("foliage must be a PointInstancer (or Points)", path=FOLIAGE)
     targets = UsdGeom.PointInstancer(prim).GetPrototypesRel().GetTargets()
-    proto = stage.GetPrimAtPath(targets[0]) if len(targets) == 1 else None
-    if not proto or not proto.IsA(UsdGeom.Mesh):
-        raise SceneError("one leaf-cloud Mesh prototype expected", path=f"{FOLIAGE}.prototypes")
+    protos = [stage.GetPrimAtPath(t) for t in targets]
+    if not protos or not all(p and p.IsA(UsdGeom.Mesh) for p in protos):
+        raise SceneError("leaf-cloud Mesh prototypes expected", path=f"{FOLIAGE}.prototypes")
     pos = _array(prim, "positions", np.float64, (-1, 3))
     k = len(pos)
     scales = _array(prim, "scales", np.float64, (k, 3))
@@ -319,12 +345,34 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
     rest = _array(prim, "primvars:forest:restPosition", np.float64, (k, 3))
     if not (np.isfinite(rest).all() and np.isfinite(scales).all()):
         raise SceneError("non-finite values", path=f"{FOLIAGE}.primvars:forest:restPosition")
+    model = _array(prim, "protoIndices", np.int32, (k,))
+    if k and (model.min() < 0 or model.max() >= len(protos)):
+        raise SceneError(
+            f"prototype indices must lie in [0, {len(protos)})", path=f"{FOLIAGE}.protoIndices"
+        )
+    if _has(prim, "primvars:forest:yaw"):
+        yaw = _array(prim, "primvars:forest:yaw", np.float64, (k,))
+    elif _has(prim, "orientationsf") or _has(prim, "orientations"):
+        name = "orientationsf" if _has(prim, "orientationsf") else "orientations"
+        q = _array(prim, name, np.float64, (k, 4))  # xyzw: a turn about +y
+        yaw = 2.0 * np.arctan2(q[:, 1], q[:, 3])
+    else:
+        yaw = np.zeros(k)
+    if _has(prim, "primvars:displayColor"):
+        color = _array(prim, "primvars:displayColor", np.float32, (k, 3))
+    else:
+        color = np.tile(np.array(LEAF_GREEN, np.float32), (k, 1))
+    if not (np.isfinite(yaw).all() and np.isfinite(color).all()):
+        raise SceneError("non-finite values", path=f"{FOLIAGE}.primvars:forest:yaw")
     out.update(
         foliage_positions=pos,
         foliage_sizes=scales[:, 0].copy(),
         foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
         foliage_bone=bone.astype(np.int32),
         foliage_rest=rest,
-        foliage_cloud=_read_leaf_cloud(proto),
+        foliage_clouds=tuple(_read_leaf_cloud(p) for p in protos),
+        foliage_model=model,
+        foliage_yaw=yaw,
+        foliage_color=color,
     )
     return out

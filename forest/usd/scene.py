@@ -21,7 +21,13 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 from forest.bark.tilesets import DEFAULT_SET, mean_colour
 from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
 from forest.geometry.transforms import F64, decompose_similarity
-from forest.growth.foliage import LEAF_GREEN, FoliageAnchors, LeafCloud, leaf_cloud
+from forest.growth.foliage import (
+    LEAF_GREEN,
+    FoliageAnchors,
+    LeafCloud,
+    cloud_models,
+    yaw_quaternions,
+)
 from forest.growth.generate import Forest
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
 from schemas.tileset import UDIM_PATTERN
@@ -29,7 +35,8 @@ from schemas.tileset import UDIM_PATTERN
 FOREST = "/World/Forest"
 PIECES = "/World/Forest/Pieces"
 FOLIAGE = "/World/Forest/Foliage"
-FOLIAGE_CLOUD = "/World/Forest/Foliage/Prototypes/LeafCloud"
+FOLIAGE_PROTOTYPES = "/World/Forest/Foliage/Prototypes"
+FOLIAGE_CLOUD = f"{FOLIAGE_PROTOTYPES}/LeafCloud"  # + the model index: LeafCloud0, ...
 LOOKS = "/World/Looks"
 BARK_TILES = f"{LOOKS}/Bark/Tiles"  # the UsdUVTexture reading the UDIM tiles
 BARK_TILE_SET_ATTR = "forest:barkTileSet"  # on the bark material: the shipped set's name
@@ -252,14 +259,20 @@ def write_instancer(
 
 
 def leaf_material(stage: Usd.Stage) -> UsdShade.Material:
-    """UsdPreviewSurface leaves: a flat leaf green (the leaf texture is made by the renderer
-    from code, so no scene points at a texture file)."""
+    """UsdPreviewSurface leaves whose diffuse colour reads the ``displayColor`` primvar (the
+    foliage instancer's per-instance colour; leaf green where none reaches the mesh). The
+    leaf textures are made by the renderer from code, so no scene points at a texture file."""
     UsdGeom.Scope.Define(stage, LOOKS)
     mat = UsdShade.Material.Define(stage, f"{LOOKS}/Leaf")
     pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/Leaf/Surface")
     pbr.CreateIdAttr("UsdPreviewSurface")
     pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
-    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*LEAF_GREEN))
+    color = UsdShade.Shader.Define(stage, f"{LOOKS}/Leaf/DisplayColor")
+    color.CreateIdAttr("UsdPrimvarReader_float3")
+    color.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
+    color.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(*LEAF_GREEN))
+    out = color.CreateOutput("result", Sdf.ValueTypeNames.Float3)
+    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(out)
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
     return mat
 
@@ -267,11 +280,12 @@ def leaf_material(stage: Usd.Stage) -> UsdShade.Material:
 def write_leaf_cloud(
     stage: Usd.Stage, path: str, cloud: LeafCloud, material: UsdShade.Material
 ) -> UsdGeom.Mesh:
-    """The leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter)."""
+    """A leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter), its leaf family
+    in ``forest:leafFamily`` (which texture its st index). No displayColor of its own, so the
+    instancer's per-instance displayColor reaches it."""
     mesh = _quad_mesh(
         stage, path, cloud.positions, cloud.normals, cloud.quads, double_sided=True
     )
-    mesh.CreateDisplayColorAttr([Gf.Vec3f(*LEAF_GREEN)])
     _primvar(
         mesh.GetPrim(),
         "st",
@@ -279,6 +293,7 @@ def write_leaf_cloud(
         UsdGeom.Tokens.vertex,
         Vt.Vec2fArray.FromNumpy(cloud.st.astype(np.float32)),
     )
+    _attr(mesh.GetPrim(), "forest:leafFamily", Sdf.ValueTypeNames.Token, cloud.family)
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
     return mesh
 
@@ -289,21 +304,31 @@ def write_foliage(
     anchors: FoliageAnchors,
     samples: list[tuple[float | None, F64]],
 ) -> UsdGeom.PointInstancer:
-    """Leaf clouds as a PointInstancer of the leaf-cloud Mesh: one instance per anchor,
-    scaled by its diameter, at its centre on the posed forest (``samples``: time and
-    ``(k, 3)`` centres per palette sample, time-sampled with wind). Per instance: the piece it
-    sits on (``forest:instance``), that piece's ``forest:boneOffset`` and the joint it follows
+    """Leaf clouds as a PointInstancer of the leaf family's cloud models (one Mesh prototype
+    per model, ``protoIndices`` the model): one instance per anchor, turned about +y by its
+    yaw (``orientations``/``orientationsf``; the exact radians in ``forest:yaw``), scaled by
+    its diameter, at its centre on the posed forest (``samples``: time and ``(k, 3)`` centres
+    per palette sample, time-sampled with wind), tinted by ``primvars:displayColor`` (linear
+    RGB, vertex interpolation: one per instance). Per instance also: the piece it sits on
+    (``forest:instance``), that piece's ``forest:boneOffset`` and the joint it follows
     (``forest:joint``), and the rest point in the piece's model space
-    (``forest:restPosition``): the centre at any frame is
-    ``palette[boneOffset + joint]`` applied to the rest point."""
+    (``forest:restPosition``): the centre at any frame is ``palette[boneOffset + joint]``
+    applied to the rest point."""
     inst = UsdGeom.PointInstancer.Define(stage, FOLIAGE)
     prim = inst.GetPrim()
-    UsdGeom.Scope.Define(stage, f"{FOLIAGE}/Prototypes")
-    cloud = leaf_cloud()
-    mesh = write_leaf_cloud(stage, FOLIAGE_CLOUD, cloud, leaf_material(stage))
-    inst.CreatePrototypesRel().SetTargets([mesh.GetPath()])
+    UsdGeom.Scope.Define(stage, FOLIAGE_PROTOTYPES)
+    material = leaf_material(stage)
+    models = cloud_models(anchors.family)
+    meshes = [
+        write_leaf_cloud(stage, f"{FOLIAGE_CLOUD}{m}", cloud, material)
+        for m, cloud in enumerate(models)
+    ]
+    inst.CreatePrototypesRel().SetTargets([mesh.GetPath() for mesh in meshes])
     k = len(anchors)
-    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(np.zeros(k, np.int32)))
+    inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(anchors.model.astype(np.int32)))
+    q = yaw_quaternions(anchors.yaw)
+    inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))
+    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
     inst.CreateScalesAttr(
         Vt.Vec3fArray.FromNumpy(np.repeat(anchors.size[:, None], 3, axis=1).astype(np.float32))
     )
@@ -319,6 +344,20 @@ def write_foliage(
             )
     vertex = UsdGeom.Tokens.vertex
     ints = Sdf.ValueTypeNames.IntArray
+    _primvar(
+        prim,
+        "displayColor",
+        Sdf.ValueTypeNames.Color3fArray,
+        vertex,
+        Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(anchors.color, np.float32)),
+    )
+    _primvar(
+        prim,
+        "forest:yaw",
+        Sdf.ValueTypeNames.DoubleArray,
+        vertex,
+        Vt.DoubleArray.FromNumpy(np.ascontiguousarray(anchors.yaw, np.float64)),
+    )
     _primvar(prim, "forest:instance", ints, vertex, Vt.IntArray.FromNumpy(anchors.instance))
     _primvar(
         prim,
@@ -335,12 +374,11 @@ def write_foliage(
         vertex,
         Vt.Vec3fArray.FromNumpy(anchors.rest.astype(np.float32)),
     )
-    # extent over every sample: the clouds' boxes at every frame
-    lo_c, hi_c = (np.asarray(v, dtype=np.float64) for v in mesh.GetExtentAttr().Get())
+    # extent over every sample: every cloud's bounding ball (any yaw) at every frame
     pos_all = np.stack([p for _, p in samples])
-    s = anchors.size[None, :, None]
-    lo = (pos_all + s * lo_c).min(axis=(0, 1))
-    hi = (pos_all + s * hi_c).max(axis=(0, 1))
+    r = anchors.size[None, :, None] * max(c.radius for c in models)
+    lo = (pos_all - r).min(axis=(0, 1))
+    hi = (pos_all + r).max(axis=(0, 1))
     inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
     return inst
 
@@ -373,6 +411,7 @@ def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
                 "placement": opts.placement,
                 "segments": opts.segments,
                 "wind": vars(opts.wind),
+                "season": opts.season,
             },
             sort_keys=True,
         ),

@@ -20,6 +20,7 @@ from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
 from forest.cli import main
+from forest.growth.foliage import MODELS, YAW_STEPS
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import FOLIAGE, write_scene
@@ -236,7 +237,10 @@ def test_pass_one_reruns_only_when_the_view_direction_changes(
     cam = view(crown, 35.0)
     first = r.draw(cam, TESS, frame=0)
     assert first.foliage is not None and first.foliage.impostor_rendered
-    assert first.foliage.impostor.primitives == r.foliage.n_triangles == 512
+    # every model at every heading, one instanced call per model
+    assert r.foliage.n_triangles == MODELS * 512
+    assert first.foliage.impostor.primitives == YAW_STEPS * MODELS * 512
+    assert first.foliage.impostor.draw_calls == MODELS
     again = r.draw(cam, TESS, frame=1)  # wind: same view direction
     closer = dataclasses.replace(cam, eye=cam.eye + 0.3 * (cam.target - cam.eye))
     moved = r.draw(closer, TESS, frame=2)  # dolly along the view direction
@@ -246,12 +250,64 @@ def test_pass_one_reruns_only_when_the_view_direction_changes(
     turned = r.draw(view(crown, 60.0), TESS)
     assert turned.foliage is not None and turned.foliage.impostor_rendered
     assert r.foliage.impostor_renders == 2
-    # every frame: the branches' calls, then one instanced draw of all billboards
+    # every frame: the branches' calls, then one instanced draw of all billboards (here after
+    # pass 1 again: the view turned back)
     branches = r.draw(cam, TESS, branches=False)
-    assert branches.draw_calls == 1 + 1 and branches.foliage is not None
+    assert branches.draw_calls == MODELS + 1 and branches.foliage is not None
+    assert again.foliage is not None
     assert again.foliage.billboards.draw_calls == 1
     assert again.foliage.billboards.primitives == 2 * crown.n_foliage
     assert again.draw_calls == len(set(crown.proto_indices.tolist())) + 1
+
+
+# -- models, headings, colours ----------------------------------------------------------------
+
+
+def test_clouds_show_their_models_at_their_headings_in_both_modes(
+    gl43: Any, crown: SceneArrays
+) -> None:
+    """Turning every cloud by a quarter turn changes the picture, and the impostors follow
+    the real clouds there too; so does showing another model."""
+    assert len(set(crown.foliage_yaw.tolist())) > 1 and len(crown.foliage_clouds) == MODELS
+    cam = view(crown, 35.0, ORTHO["fov"])
+    variants = {
+        "as is": crown,
+        "turned": dataclasses.replace(crown, foliage_yaw=crown.foliage_yaw + np.pi / 2),
+        "model": dataclasses.replace(crown, foliage_model=(crown.foliage_model + 1) % MODELS),
+    }
+    shapes = {}
+    for name, scene in variants.items():
+        imp = Renderer(gl43, scene, SIZE, foliage="impostor")
+        geo = Renderer(gl43, scene, SIZE, foliage="geometry")
+        try:
+            d_imp, _ = render(imp, cam, branches=False)
+            d_geo, _ = render(geo, cam, branches=False)
+        finally:
+            imp.release()
+            geo.release()
+        assert iou(covered(d_imp), covered(d_geo)) >= ORTHO["iou"], name
+        shapes[name] = covered(d_geo)
+    assert iou(shapes["as is"], shapes["turned"]) < 0.9
+    assert iou(shapes["as is"], shapes["model"]) < 0.9
+
+
+def test_clouds_are_tinted_by_their_colours_in_both_modes(gl43: Any, crown: SceneArrays) -> None:
+    cam = view(crown, 35.0, ORTHO["fov"])
+    red = np.tile(np.array([0.5, 0.02, 0.02], np.float32), (crown.n_foliage, 1))
+    means = {}
+    for name, scene in (("own", crown), ("red", dataclasses.replace(crown, foliage_color=red))):
+        for mode in ("impostor", "geometry"):
+            r = Renderer(gl43, scene, SIZE, foliage=mode)
+            try:
+                depth, rgb = render(r, cam, branches=False)
+            finally:
+                r.release()
+            means[name, mode] = rgb[covered(depth)].reshape(-1, rgb.shape[-1])[:, :3].mean(axis=0)
+    for name in ("own", "red"):  # the tint after pass 1 is the tint on the real leaves
+        np.testing.assert_allclose(means[name, "impostor"], means[name, "geometry"], atol=12)
+    g, r_ = means["own", "impostor"], means["red", "impostor"]
+    assert g[1] > g[0] and g[1] > g[2]  # the palette's green
+    assert r_[0] > 1.5 * r_[1] and r_[0] > 1.5 * r_[2]  # (sRGB lifts the small channels)
 
 
 # -- wind --------------------------------------------------------------------------------------
@@ -330,9 +386,12 @@ def test_render_counts_pass_one_in_the_frame_that_runs_it(
     first, second = m.frames
     assert first.foliage is not None and second.foliage is not None
     assert first.foliage.impostor_rendered and not second.foliage.impostor_rendered
-    assert first.foliage.impostor.model_dump() == {"draw_calls": 1, "primitives": 512}
-    assert first.draw_calls == n_types + 2 and second.draw_calls == n_types + 1
-    assert first.primitives == second.primitives + 512
+    pass1 = YAW_STEPS * MODELS * 512
+    assert first.foliage.impostor.model_dump() == {"draw_calls": MODELS, "primitives": pass1}
+    assert first.draw_calls == n_types + 1 + MODELS and second.draw_calls == n_types + 1
+    # the rest is the branches (their tessellation may change by a few triangles with the
+    # wind) and the billboards
+    assert abs(first.primitives - pass1 - second.primitives) <= 0.01 * second.primitives
     assert m.foliage is not None and m.foliage.impostor_renders == 1
 
 
@@ -350,8 +409,11 @@ def test_bench_puts_impostors_beside_the_real_clouds(gl_session: Any) -> None:
     ]  # fmt: skip
     for imp, geo in zip(rows[::2], rows[1::2], strict=True):
         assert imp.clouds == geo.clouds > 0
-        assert imp.foliage_triangles == 512 + 2 * imp.clouds  # both passes, every frame
+        # both passes, every frame
+        assert imp.foliage_triangles == YAW_STEPS * MODELS * 512 + 2 * imp.clouds
         assert geo.foliage_triangles == 512 * geo.clouds
-        assert imp.draw_calls == geo.draw_calls + 1
+        # impostors: a pass-1 call per model and the billboards; geometry: a call per model
+        # that some cloud shows
+        assert 1 <= imp.draw_calls - geo.draw_calls <= MODELS
         assert imp.triangles - imp.foliage_triangles == geo.triangles - geo.foliage_triangles
     assert any("impostors" in line and "x as fast" in line for line in lines)
