@@ -11,6 +11,7 @@ Gf matrices use row vectors, so every matrix is transposed on its way out.
 from __future__ import annotations
 
 import json
+import posixpath
 from collections.abc import Callable
 from pathlib import Path
 
@@ -153,6 +154,17 @@ def write_prototype(
     return mesh
 
 
+def tile_asset_path(tiles: str) -> str:
+    """The UDIM asset path of the tile folder ``tiles`` (given relative to the scene):
+    ``./tiles/bark.<UDIM>.png``. The ``./`` anchors it to the layer, which USD resolves
+    against the layer's folder, where a bare ``tiles/...`` is a search path that Blender's
+    importer resolves against the working directory. Absolute and ``../`` paths are kept."""
+    folder = tiles.rstrip("/") or "/"
+    if not (posixpath.isabs(folder) or folder in (".", "..") or folder.startswith(("./", "../"))):
+        folder = f"./{folder}"
+    return posixpath.join(folder, UDIM_PATTERN)
+
+
 def bark_material(
     stage: Usd.Stage, tiles: str | None = None, bark: str = DEFAULT_SET
 ) -> UsdShade.Material:
@@ -178,7 +190,7 @@ def bark_material(
         tex = UsdShade.Shader.Define(stage, BARK_TILES)
         tex.CreateIdAttr("UsdUVTexture")
         tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
-            Sdf.AssetPath(f"{tiles.rstrip('/')}/{UDIM_PATTERN}")
+            Sdf.AssetPath(tile_asset_path(tiles))
         )
         tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
         tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
