@@ -47,11 +47,11 @@ float fbm(vec2 p) {
 void main() {
     vec2 xz = v_position.xz;
     vec3 grass = vec3(0.075, 0.13, 0.035);
-    vec3 dry = vec3(0.22, 0.20, 0.09);
+    vec3 dry = vec3(0.17, 0.17, 0.07);
     vec3 soil = vec3(0.14, 0.10, 0.06);
     float patches = fbm(xz / 7.0);
     float bare = fbm(xz / 0.6 + 17.0);
-    vec3 albedo = mix(grass, dry, smoothstep(0.45, 0.7, patches));
+    vec3 albedo = mix(grass, dry, smoothstep(0.5, 0.8, patches));
     albedo = mix(albedo, soil, 0.7 * smoothstep(0.6, 0.8, bare));
     albedo *= 0.75 + 0.5 * fbm(xz / 0.15 + 41.0);
     // the normal is +Y: the hemisphere ambient is the sky's colour
