@@ -62,7 +62,7 @@ CLOUD_DTYPE = np.dtype(
 LEAF_DTYPE = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("st", "<f4", 2)])
 LEAF_FORMAT = "3f 3f 2f"
 LEAF_ATTRIBUTES = ("in_position", "in_normal", "in_st")
-IMPOSTOR_SIZE = 256
+IMPOSTOR_SIZE = 128  # texels per side of one picture (a model at a heading) in the atlas
 CAPTURE_BINDING = 3
 # largest change of a camera rotation entry that keeps the pass-1 picture (about 1e-6 rad:
 # far below a texel; float noise of look_at for a camera moved along its view direction)

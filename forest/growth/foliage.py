@@ -156,14 +156,14 @@ def _needles(rng: np.random.Generator, model: int, cards: int) -> LeafCloud:
     dirs = _unit(dirs)
     start = 0.05 * rng.normal(size=(twigs, 3))
     which = rng.integers(twigs, size=cards)
-    t = rng.random(cards) ** 0.7
-    base = start[which] + (0.32 * t)[:, None] * dirs[which]
+    t = rng.random(cards) ** 0.6
+    base = start[which] + (0.3 * t)[:, None] * dirs[which]
     # a sprig leaves its twig at 30-70 degrees, on any side of it
     side = _unit(np.cross(dirs[which], rng.normal(size=(cards, 3))))
     angle = np.radians(rng.uniform(30, 70, cards))[:, None]
     along = np.cos(angle) * dirs[which] + np.sin(angle) * side
     # the sprig's plane holds its twig's direction (a flat brush along the twig)
-    return _cards(base, along, dirs[which], 0.17, 0.09, RECT, RECT_ST, "needles")
+    return _cards(base, along, dirs[which], 0.24, 0.15, RECT, RECT_ST, "needles")
 
 
 def _strands(rng: np.random.Generator, model: int, cards: int) -> LeafCloud:
@@ -243,9 +243,10 @@ def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDAr
     mottle = 1.0 + 0.06 * rng.standard_normal((size, size))
     if family == "needles":
         twig = (np.abs(x) < 0.06) & (tt > 0.03) & (tt < 0.97)
-        # needles leave the twig every 1/16 of its length at 55 degrees, 0.85 half-widths long
-        phase = (tt - 0.7 * np.abs(x)) * 16.0
-        needle = (np.abs(phase - np.round(phase)) < 0.16) & (np.abs(x) < 0.9)
+        # needles leave the twig every 1/11 of its length at 55 degrees, 0.9 half-widths long,
+        # thick enough to stay a few texels wide in a 256-texel impostor of the cloud
+        phase = (tt - 0.7 * np.abs(x)) * 11.0
+        needle = (np.abs(phase - np.round(phase)) < 0.24) & (np.abs(x) < 0.92)
         needle &= (tt - 0.7 * np.abs(x) > 0.02) & (tt < 0.99)
         shape = twig | needle
         value = np.where(twig, 0.55, 0.8 + 0.2 * np.abs(x)) * mottle
