@@ -304,3 +304,22 @@ def test_library_is_cached_and_deterministic() -> None:
             "building",
         ):
             np.testing.assert_array_equal(getattr(a, field), getattr(b, field))
+
+
+def tile_stretch(p: PieceArrays) -> np.ndarray:
+    """``(q,)`` along-branch over around-branch length of each quad's tile (QUAD_ST: v runs
+    along corners 0->1 and 3->2, u along 0->3 and 1->2): 1 for a square texel footprint."""
+    c = p.positions[p.quads]
+    along = np.linalg.norm(c[:, 1] - c[:, 0], axis=-1) + np.linalg.norm(c[:, 2] - c[:, 3], axis=-1)
+    around = np.linalg.norm(c[:, 3] - c[:, 0], axis=-1) + np.linalg.norm(c[:, 2] - c[:, 1], axis=-1)
+    return along / around
+
+
+@pytest.mark.parametrize("name", PIECE_NAMES)
+def test_tiles_are_near_square_at_default_resolution(name: str) -> None:
+    """Every quad maps one whole bark tile: at segments=1 no tile is stretched more than 1.5x
+    along or around the branch, rim rows included (no 'sausage links')."""
+    p = piece_library(1)[PIECE_NAMES.index(name)]
+    ratio = tile_stretch(p)
+    worst = int(np.argmax(np.maximum(ratio, 1 / ratio)))
+    assert ratio.min() >= 1 / 1.5 and ratio.max() <= 1.5, (name, worst, ratio[worst])

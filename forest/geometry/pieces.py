@@ -120,6 +120,13 @@ class _MeshBuilder:
     def positions(self) -> F64:
         return np.concatenate(self.points)
 
+    def move(self, idx: NDArray[np.int64], pts: F64) -> None:
+        """Set the positions of vertices ``idx`` (after they were added)."""
+        pos = self.positions()
+        pos[idx] = pts
+        self.points = [pos]
+        self.weights = [self.dense_weights()]
+
     def dense_weights(self) -> F64:
         return np.concatenate(self.weights)
 
@@ -152,17 +159,16 @@ def _align_ring(idx: NDArray[np.int64], pts: F64, frame: F64) -> NDArray[np.int6
     return np.roll(idx[order], -int(np.argmin(shifts)))
 
 
-def _hermite_rings(p0: F64, t0: F64, p1: F64, t1: F64, n: int) -> list[F64]:
-    """``n - 1`` rings strictly between ring ``p0`` and ring ``p1`` (each (6, 3)) on cubic
-    Hermite curves leaving along ``t0`` and arriving along ``t1`` (unit (3,))."""
-    out = []
+def _hermite_rings(p0: F64, t0: F64, p1: F64, t1: F64, us: F64) -> F64:
+    """``(k, 6, 3)`` rings at parameters ``us`` in [0, 1] (``(k,)``, or ``(k, 6)`` one per
+    vertex) between ring ``p0`` and ring ``p1`` (each (6, 3)) on cubic Hermite curves leaving
+    along ``t0`` and arriving along ``t1`` ((3,), tangents in units of each curve's chord)."""
+    u = np.asarray(us, np.float64)
+    u = u[:, None, None] if u.ndim == 1 else u[:, :, None]
     span = np.linalg.norm(p1 - p0, axis=-1, keepdims=True)
-    for i in range(1, n):
-        u = i / n
-        h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
-        h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
-        out.append(h00 * p0 + h10 * span * t0 + h01 * p1 + h11 * span * t1)
-    return out
+    h00, h10 = 2 * u**3 - 3 * u**2 + 1, u**3 - 2 * u**2 + u
+    h01, h11 = -2 * u**3 + 3 * u**2, u**3 - u**2
+    return h00 * p0 + h10 * span * t0 + h01 * p1 + h11 * span * t1
 
 
 class _PieceBuilder:
@@ -221,19 +227,37 @@ class _PieceBuilder:
         r: int,
         segments: int,
         cls_first: NDArray[np.int64] | int,
+        knee: float = 1.0,
     ) -> None:
         """A tube from the six-vertex loop ``start`` to leaf rim ``r``; the last quad ring lies
-        on the leaf's rim cone. ``cls_first`` is the tile class of the first quad ring."""
+        on the leaf's rim cone, ``knee`` leaf units deep. ``cls_first`` is the tile class of
+        the first quad ring."""
         frame = self.leaves[r]
         pos = self.mesh.positions()
         start = _align_ring(start, pos[start], frame)
         w_start = self.mesh.dense_weights()[start]
-        # the ring one cone step below the leaf rim, in leaf space
-        k_local = rim.cone_ring(-0.6)
+        # the ring one cone row below the leaf rim, in leaf space: ``knee`` deep, so that
+        # row's quads are about as long as they are wide
+        k_local = rim.cone_ring(-knee)
         k_pts = transform_points(frame, k_local)
         leaf_pts = transform_points(frame, rim.rim_ring())
         axis = transform_vectors(frame, np.array([[0.0, 1.0, 0.0]]))[0]
-        mids = _hermite_rings(pos[start], start_dir, k_pts, axis, segments)
+        # as many rows to the knee as the curves are long in ring edges; each vertex's curve
+        # is cut where its rows are equal shares of that length, so tiles stay near square
+        # where the tube narrows and on the short side of a leaning branch
+        probe_u = np.linspace(0.0, 1.0, 65)
+        path = _hermite_rings(pos[start], start_dir, k_pts, axis, probe_u)  # (65, 6, 3)
+        edge = np.linalg.norm(path - np.roll(path, -1, axis=1), axis=-1)  # (65, 6)
+        edge = 0.5 * (edge + np.roll(edge, 1, axis=1))  # about each vertex
+        step = np.linalg.norm(np.diff(path, axis=0), axis=-1)  # (64, 6)
+        s = np.cumsum(step / (0.5 * (edge[1:] + edge[:-1])), axis=0)
+        s = np.concatenate([np.zeros((1, rim.SIDES)), s])  # (65, 6) length in edges
+        n_rows = max(1, round(float(s[-1].mean()))) * segments
+        frac = np.linspace(0.0, 1.0, n_rows + 1)[1:-1]
+        us = np.stack(
+            [np.interp(frac * s[-1, j], s[:, j], probe_u) for j in range(rim.SIDES)], axis=-1
+        )
+        mids = list(_hermite_rings(pos[start], start_dir, k_pts, axis, us))
         ring_pts = [*mids, k_pts, leaf_pts]
         n = len(ring_pts)
         prev = start
@@ -314,8 +338,8 @@ def make_i_piece(segments: int = 1) -> PieceArrays:
     """I: a slightly narrowing cylinder, one leaf rim straight above the root rim."""
     leaf = translation([0.0, STEM_HEIGHT, 0.0]) @ scaling(STEM_SCALE)
     pb = _PieceBuilder("I", np.array([0.0, STEM_HEIGHT / 2, 0.0]), [leaf])
-    n = 2 * segments
-    rings = pb.stem([STEM_HEIGHT * i / n for i in range(n + 1)], STEM_HEIGHT, 0, leaf)
+    heights = _profile_heights(rim.cone_ring, 0.0, STEM_HEIGHT, segments)
+    rings = pb.stem(heights, STEM_HEIGHT, 0, leaf)
     for a, b in itertools.pairwise(rings):
         pb.mesh.strip(a, b, BARK)
     return pb.finish()
@@ -329,7 +353,7 @@ def make_y_piece(segments: int = 1) -> PieceArrays:
     right = _leaf_frame(base, -tilt, length, scale)
     left = _leaf_frame(base * [-1, 1, 1], tilt, length, scale)
     pb = _PieceBuilder("Y", np.array([0.0, y_j, 0.0]), [right, left])
-    rings = pb.stem([y_j * i / segments for i in range(segments + 1)], y_j, None, None)
+    rings = pb.stem(_profile_heights(rim.cone_ring, 0.0, y_j, segments), y_j, None, None)
     for a, b in itertools.pairwise(rings):
         pb.mesh.strip(a, b, BARK)
     top = rings[-1]
@@ -349,16 +373,24 @@ def make_y_piece(segments: int = 1) -> PieceArrays:
     return pb.finish()
 
 
+# Rings bounding the lateral holes of T and Psi (and one between); the rows around the holes
+# are about as tall as the stem is wide, so their tiles are near square.
+HOLE = (0.68, 1.36, 2.12)
+HOLE_DROP = 0.25  # how far below their ring the holes' upper corners sit
+
+
 def _stem_with_holes(
     pb: _PieceBuilder, columns: tuple[int, ...], segments: int, leaf: F64
 ) -> dict[int, NDArray[np.int64]]:
     """A full-height stem to leaf rim 0 with a two-quad hole in each of ``columns`` between
-    rings at heights 1.0 and 2.2; returns each hole's six-vertex loop."""
-    lower = [1.0 * i / segments for i in range(segments)]
-    upper = [2.2 + (STEM_HEIGHT - 2.2) * i / segments for i in range(1, segments + 1)]
-    heights = [*lower, 1.0, 1.6, 2.2, *upper]
+    rings at heights :data:`HOLE` (0.8 to 2.4: every row 0.8 high, so the stem's quads are
+    near square); returns each hole's six-vertex loop."""
+    lo, mid, hi = HOLE
+    lower = [lo * i / segments for i in range(segments)]
+    upper = [hi + (STEM_HEIGHT - hi) * i / (2 * segments) for i in range(1, 2 * segments + 1)]
+    heights = [*lower, lo, mid, hi, *upper]
     rings = pb.stem(heights, STEM_HEIGHT, 0, leaf)
-    i1 = segments  # ring at 1.0
+    i1 = segments  # ring at HOLE[0]
     for k, (a, b) in enumerate(itertools.pairwise(rings)):
         hole_row = i1 <= k < i1 + 2
         pb.mesh.strip(a, b, BARK, columns if hole_row else ())
@@ -366,14 +398,27 @@ def _stem_with_holes(
     loops = {}
     for c in columns:
         d = (c + 1) % rim.SIDES
+        # the hole's upper corners sit lower than their ring: the lateral leans up, so its
+        # upper side is short; this lengthens it (and its tiles) to match the lower side
+        top = np.array([r3[c], r3[d]])
+        pb.mesh.move(top, pb.mesh.positions()[top] - [0.0, HOLE_DROP, 0.0])
         loops[c] = np.array([r1[c], r1[d], r2[d], r3[d], r3[c], r2[c]])
     return loops
 
 
+LATERAL_KNEE = 0.7  # a short lateral's cone row below its leaf rim (quads still 0.69 square)
+
+
 def _lateral(pb: _PieceBuilder, loop: NDArray[np.int64], r: int, segments: int) -> None:
+    """A lateral from the hole ``loop`` to leaf rim ``r``. It leaves half way between the
+    hole's outward direction and its own axis, with half-length tangents: of the shapes
+    tried, the one whose quads are closest to square."""
     pos = pb.mesh.positions()[loop]
     out = pos.mean(axis=0) * [1.0, 0.0, 1.0]
-    pb.branch(loop, out / np.linalg.norm(out), r, segments, FORK)
+    out /= np.linalg.norm(out)
+    axis = pb.leaves[r][:3, 1] / np.linalg.norm(pb.leaves[r][:3, 1])
+    d = out + axis
+    pb.branch(loop, 0.5 * d / np.linalg.norm(d), r, segments, FORK, LATERAL_KNEE)
 
 
 def make_side_piece(segments: int = 1) -> PieceArrays:
