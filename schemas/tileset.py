@@ -28,6 +28,18 @@ ARRAY_FILE = "bark_array.tif"  # the texture array a written tile set carries
 MANIFEST_FILE = "manifest.json"
 SIDE_AXIS = {"left": "vertical", "right": "vertical", "top": "horizontal", "bottom": "horizontal"}
 """The edge-pattern axis each side of a tile takes."""
+BARK_V, BARK_H = "bark-v", "bark-h"
+"""Bark colours: every edge where two upright tiles meet."""
+CROTCH_V, CROTCH_H = "crotch-v", "crotch-h"
+"""A branch's crotch loop, where upright tiles meet across it."""
+CROTCH_CW, CROTCH_CCW = "crotch-cw", "crotch-ccw"
+"""Quarter-turn colours: where a tile meets a neighbour turned 90 degrees (around a crotch or
+a cap's apex the mesh cannot be one upright grid). Their pattern is vertical and, on top and
+bottom sides, is used turned a quarter: clockwise for ``-cw`` (so a tile's left side meets
+its neighbour's bottom, or its right side the neighbour's top), counter-clockwise for
+``-ccw`` (left meets top, right meets bottom)."""
+QUARTER_TURN = {CROTCH_CW: "cw", CROTCH_CCW: "ccw"}
+"""Quarter-turn colour -> the turn of its pattern on top and bottom sides."""
 MAX_UDIM_SLICES = 999
 """UDIM tiles run from 1001 to 1999 (ten columns, a hundred rows)."""
 
@@ -164,6 +176,8 @@ class TileSetManifest(BaseModel):
                 name = getattr(c.edges, side)
                 if name not in axis:
                     raise ValueError(f"class {c.name}: {side} edge colour {name!r} has no pattern")
+                if name in QUARTER_TURN:  # a vertical pattern, turned on top and bottom
+                    want = "vertical"
                 if axis[name] != want:
                     raise ValueError(
                         f"class {c.name}: {side} edge colour {name!r} is {axis[name]}, not {want}"
@@ -201,9 +215,57 @@ def udim_file(pattern: str, slice_index: int) -> str:
     return pattern.replace(UDIM_TOKEN, str(1001 + slice_index))
 
 
+def _edges(left: str, right: str, top: str, bottom: str) -> TileEdges:
+    return TileEdges(left=left, right=right, top=top, bottom=bottom)
+
+
+_LETTER = {BARK_V: "b", BARK_H: "b", CROTCH_V: "c", CROTCH_H: "c", CROTCH_CW: "r", CROTCH_CCW: "l"}
+_CROTCH_EDGES = [
+    # (left, right, top, bottom): every side set the pieces' crotches and apexes need
+    # (forest.geometry.pieces assigns them; a test checks each shared edge's two sides agree)
+    (BARK_V, BARK_V, BARK_H, CROTCH_CCW),
+    (BARK_V, BARK_V, BARK_H, CROTCH_CW),
+    (BARK_V, BARK_V, CROTCH_CW, BARK_H),
+    (BARK_V, BARK_V, CROTCH_H, BARK_H),
+    (BARK_V, CROTCH_CCW, BARK_H, BARK_H),
+    (BARK_V, CROTCH_CCW, BARK_H, CROTCH_CW),
+    (BARK_V, CROTCH_CCW, BARK_H, CROTCH_H),
+    (CROTCH_CCW, BARK_V, BARK_H, CROTCH_CCW),
+    (CROTCH_CCW, BARK_V, BARK_H, CROTCH_H),
+    (CROTCH_CCW, CROTCH_CW, CROTCH_CCW, BARK_H),
+    (CROTCH_CW, BARK_V, BARK_H, BARK_H),
+    (CROTCH_CW, CROTCH_CCW, BARK_H, BARK_H),
+    (CROTCH_CW, CROTCH_CCW, BARK_H, CROTCH_CCW),
+    (CROTCH_CW, CROTCH_CCW, CROTCH_CCW, BARK_H),
+    (CROTCH_CW, CROTCH_CCW, CROTCH_CCW, CROTCH_CCW),
+]
+CROTCH_TILES = 1
+"""Tiles per crotch class in the default manifest."""
+CLASS_EDGES: dict[int, TileEdges] = {
+    1: _edges(BARK_V, BARK_V, BARK_H, BARK_H),
+    2: _edges(BARK_V, BARK_V, BARK_H, CROTCH_H),
+    **{3 + k: _edges(*e) for k, e in enumerate(_CROTCH_EDGES)},
+}
+"""Edge colours of the default classes by id: the colours every piece's quads are laid out
+for (``forest.geometry.pieces``), and what ``forest tiles`` builds them with."""
+
 DEFAULT_MANIFEST = TileSetManifest(
     classes=[
         TileClass(name="bark", id=1, first=0, count=8),
         TileClass(name="fork", id=2, first=8, count=4),
+        *(
+            TileClass(
+                # named by the sides' colours, left right top bottom: b bark, c crotch,
+                # r and l the clockwise and counter-clockwise quarter-turn colours
+                name="crotch-" + "".join(_LETTER[e] for e in edges),
+                id=3 + k,
+                first=12 + CROTCH_TILES * k,
+                count=CROTCH_TILES,
+            )
+            for k, edges in enumerate(_CROTCH_EDGES)
+        ),
     ]
 )
+"""The classes every piece's quads use (edges in :data:`CLASS_EDGES`): bark, fork (the
+first ring of a branch, upright on its crotch loop) and one class per set of side colours
+around a crotch or a cap's apex."""

@@ -16,6 +16,7 @@ from forest.geometry.pieces import (
     piece_library,
 )
 from forest.geometry.transforms import invert_similarity, transform_points, transform_vectors
+from schemas.tileset import BARK_H, CLASS_EDGES, QUARTER_TURN, TileEdges
 
 SEGMENTS = (1, 2)
 CASES = [(s, name) for s in SEGMENTS for name in PIECE_NAMES]
@@ -229,12 +230,14 @@ def test_skeleton_layout(piece: PieceArrays) -> None:
 
 def test_tile_classes(piece: PieceArrays) -> None:
     assert piece.tile_class.shape == (len(piece.quads),)
-    assert set(np.unique(piece.tile_class).tolist()) <= {BARK, FORK}
+    assert set(np.unique(piece.tile_class).tolist()) <= set(CLASS_EDGES)
     assert (piece.tile_class == BARK).any()
     if piece.name in ("Y", "T", "Psi"):
         assert (piece.tile_class == FORK).any()
     else:
         assert not (piece.tile_class == FORK).any()
+    if piece.name in ("I", "Flare"):  # one upright grid: bark only
+        assert (piece.tile_class == BARK).all()
 
 
 def test_winding_consistent_and_boundary_only_on_rims(piece: PieceArrays) -> None:
@@ -323,3 +326,62 @@ def test_tiles_are_near_square_at_default_resolution(name: str) -> None:
     ratio = tile_stretch(p)
     worst = int(np.argmax(np.maximum(ratio, 1 / ratio)))
     assert ratio.min() >= 1 / 1.5 and ratio.max() <= 1.5, (name, worst, ratio[worst])
+
+
+SIDE_CORNERS = {"left": (0, 1), "top": (1, 2), "right": (3, 2), "bottom": (0, 3)}
+
+
+def edge_disagreements(
+    p: PieceArrays, edges: dict[int, TileEdges]
+) -> list[tuple[tuple[int, int], str, str, str, str]]:
+    """Shared edges whose two tiles do not continue one edge pattern: (edge, side and colour
+    of either quad). Tiles continue one pattern across an edge when both sides name the same
+    colour and the sides are opposite (left-right, top-bottom), or a quarter turn apart with
+    that turn's colour (left-bottom or right-top: clockwise; left-top or right-bottom:
+    counter-clockwise). The same side on both (a half turn) never continues a pattern."""
+    holders: dict[tuple[int, int], list[tuple[str, str]]] = {}
+    for q, quad in enumerate(p.quads):
+        e = edges[int(p.tile_class[q])]
+        for side, (i, j) in SIDE_CORNERS.items():
+            key = (min(int(quad[i]), int(quad[j])), max(int(quad[i]), int(quad[j])))
+            holders.setdefault(key, []).append((side, getattr(e, side)))
+    bad = []
+    for key, h in holders.items():
+        if len(h) != 2:
+            continue
+        (sa, ca), (sb, cb) = h
+        pair = {sa, sb}
+        if pair in ({"left", "right"}, {"top", "bottom"}):
+            ok = ca == cb and ca not in QUARTER_TURN
+        elif pair in ({"left", "bottom"}, {"right", "top"}):
+            ok = ca == cb and QUARTER_TURN.get(ca) == "cw"
+        elif pair in ({"left", "top"}, {"right", "bottom"}):
+            ok = ca == cb and QUARTER_TURN.get(ca) == "ccw"
+        else:
+            ok = False
+        if not ok:
+            bad.append((key, sa, ca, sb, cb))
+    return bad
+
+
+def test_tile_edge_colours_agree_on_every_shared_edge(piece: PieceArrays) -> None:
+    """Paper 5.1: every edge two quads share joins tiles whose sides carry one edge colour
+    (and whose patterns line up), so no seam shows at a crotch or an apex."""
+    assert set(np.unique(piece.tile_class).tolist()) <= set(CLASS_EDGES)
+    assert edge_disagreements(piece, CLASS_EDGES) == []
+
+
+def test_rim_edges_are_upright_bark(piece: PieceArrays) -> None:
+    """Across rims between pieces (any twist): the child's root-rim quads have their bottom
+    side, the parent's leaf-rim quads their top side on the rim, both bark-h."""
+    for ring, want in [(piece.root_rim, "bottom"), *((lr, "top") for lr in piece.leaf_rims)]:
+        rim_edges_ = rim_edges(ring)
+        found = 0
+        for q, quad in enumerate(piece.quads):
+            for side, (i, j) in SIDE_CORNERS.items():
+                key = (min(int(quad[i]), int(quad[j])), max(int(quad[i]), int(quad[j])))
+                if key in rim_edges_:
+                    found += 1
+                    assert side == want, (piece.name, q, side)
+                    assert getattr(CLASS_EDGES[int(piece.tile_class[q])], side) == BARK_H
+        assert found == rim.SIDES

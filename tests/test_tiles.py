@@ -32,8 +32,10 @@ def check_tiles(f: Forest) -> None:
         assert (block[:, nq:] == -1).all(), piece.name  # padding
         real = block[:, :nq]
         assert (real >= 0).all(), piece.name  # no -1 inside the piece's quads
-        lo = np.array([by_id[int(c)].first for c in piece.tile_class])
-        hi = lo + np.array([by_id[int(c)].count for c in piece.tile_class])
+        # a crotch class (id > 2) the manifest lacks draws from the fork class
+        cls = [by_id.get(int(c)) or by_id[2] for c in piece.tile_class]
+        lo = np.array([c.first for c in cls])
+        hi = lo + np.array([c.count for c in cls])
         assert ((real >= lo) & (real < hi)).all(), piece.name
 
 
@@ -50,7 +52,10 @@ def test_every_slice_of_every_class_is_used() -> None:
     f = generate_forest(load_preset("uniform"), 5, ForestOptions(trees=30))
     check_tiles(f)
     tiles, pieces = f.tile_indices, f.pieces
+    grown = [pieces[p] for p in np.unique(f.graph.piece)]
     for cls in DEFAULT_MANIFEST.classes:
+        if not any((p.tile_class == cls.id).any() for p in grown):
+            continue  # a class of pieces this grammar does not use (T, Psi, Cap)
         used = set()
         for pid, piece in enumerate(pieces):
             inst = np.nonzero(f.graph.piece == pid)[0]
@@ -63,6 +68,8 @@ def test_tiles_are_spread_evenly() -> None:
     """Multiply-shift of uint16 draws: every slice of a class comes up about equally often."""
     f = generate_forest(load_preset("uniform"), 9, ForestOptions(trees=60))
     for cls in DEFAULT_MANIFEST.classes:
+        if cls.count == 1:
+            continue  # one tile: nothing to spread
         counts = np.array(
             [(f.tile_indices == s).sum() for s in range(cls.first, cls.first + cls.count)]
         )
@@ -106,11 +113,18 @@ def test_class_tables() -> None:
     assert first.shape == count.shape == (len(pieces), n_quads.max())
     for i, p in enumerate(pieces):
         assert (count[i, n_quads[i] :] == 0).all()
-        bark = p.tile_class == 1
-        assert (first[i, : n_quads[i]][bark] == 0).all()
-        assert (count[i, : n_quads[i]][bark] == 8).all()
-        assert (first[i, : n_quads[i]][~bark] == 8).all()
-        assert (count[i, : n_quads[i]][~bark] == 4).all()
+        by_id = {c.id: c for c in DEFAULT_MANIFEST.classes}
+        want_first = [by_id[int(c)].first for c in p.tile_class]
+        want_count = [by_id[int(c)].count for c in p.tile_class]
+        np.testing.assert_array_equal(first[i, : n_quads[i]], want_first)
+        np.testing.assert_array_equal(count[i, : n_quads[i]], want_count)
+    # a set with bark and fork tiles only: crotch quads draw from the fork class
+    two = TileSetManifest(classes=DEFAULT_MANIFEST.classes[:2])
+    first, count, n_quads = class_tables(pieces, two)
+    for i, p in enumerate(pieces):
+        crotch = p.tile_class > 2
+        assert (first[i, : n_quads[i]][crotch] == 8).all()
+        assert (count[i, : n_quads[i]][crotch] == 4).all()
 
 
 def test_custom_manifest() -> None:
@@ -130,6 +144,13 @@ def test_custom_manifest() -> None:
         ]
     )
     assert (fork == 0).all()
+    crotch = np.concatenate(
+        [
+            f.tile_indices[i, : len(f.pieces[p].quads)][f.pieces[p].tile_class > 2]
+            for i, p in enumerate(f.graph.piece)
+        ]
+    )
+    assert len(crotch) and (crotch == 0).all()  # crotch classes fall back to fork
 
 
 def test_manifest_without_a_needed_class() -> None:

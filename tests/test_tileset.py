@@ -33,7 +33,13 @@ from forest.cli import main
 from forest.errors import ForestError, LimitError
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from schemas.tileset import DEFAULT_MANIFEST, TileEdges, TileSetManifest, udim_file
+from schemas.tileset import (
+    DEFAULT_MANIFEST,
+    QUARTER_TURN,
+    TileEdges,
+    TileSetManifest,
+    udim_file,
+)
 
 PHOTOS = ("brick", "grass", "gravel")
 # Repetition score (see `repetition_score`): an exact or shifted copy of a tile's interior
@@ -82,6 +88,13 @@ def patterns(folder: Path, m: TileSetManifest) -> dict[str, np.ndarray]:
     return {p.name: read_pixels(folder / p.file) for p in m.edge_patterns}
 
 
+def across(pats: dict[str, np.ndarray], name: str) -> np.ndarray:
+    """Colour ``name``'s pattern on a top or bottom side: a quarter-turn colour's vertical
+    pattern turned its quarter (clockwise for ``cw``)."""
+    turn = QUARTER_TURN.get(name)
+    return pats[name] if turn is None else np.rot90(pats[name], k=-1 if turn == "cw" else 1)
+
+
 def sets() -> list[Path]:
     return [default_dir()]
 
@@ -102,14 +115,18 @@ def check_borders(folder: Path) -> None:
     for c in m.classes:
         assert c.edges is not None
         left, right = pats[c.edges.left], pats[c.edges.right]
-        top, bottom = pats[c.edges.top], pats[c.edges.bottom]
+        top, bottom = across(pats, c.edges.top), across(pats, c.edges.bottom)
         assert left.shape == right.shape == (s, 2 * e, 3)
         assert top.shape == bottom.shape == (2 * e, s, 3)
         for t in tiles[c.first : c.first + c.count]:
             assert np.array_equal(t[:, :w], left[:, e : e + w])
             assert np.array_equal(t[:, s - w :], right[:, e - w : e])
-            assert np.array_equal(t[:w], top[e : e + w])
-            assert np.array_equal(t[s - w :], bottom[e - w : e])
+            # a quarter-turn pattern on top or bottom is the tile's only between the corners
+            # (the corners are the corner pattern's, from the left and right patterns)
+            a = e if c.edges.top in QUARTER_TURN else 0
+            assert np.array_equal(t[:w, a : s - a], top[e : e + w, a : s - a])
+            a = e if c.edges.bottom in QUARTER_TURN else 0
+            assert np.array_equal(t[s - w :, a : s - a], bottom[e - w : e, a : s - a])
             assert np.array_equal(t[:w, :w], corner[e : e + w, e : e + w])
             assert np.array_equal(t[:w, s - w :], corner[e : e + w, e - w : e])
             assert np.array_equal(t[s - w :, :w], corner[e - w : e, e : e + w])
@@ -136,9 +153,31 @@ def check_joints(folder: Path) -> None:
             joints += 1
         if ea.bottom == eb.top:
             band = np.concatenate([tiles[a][s - w :], tiles[b][:w]], axis=0)
-            assert np.array_equal(band, pats[ea.bottom][e - w : e + w])
+            c = e if ea.bottom in QUARTER_TURN else 0  # turned: between the corners only
+            assert np.array_equal(
+                band[:, c : s - c], across(pats, ea.bottom)[e - w : e + w, c : s - c]
+            )
             joints += 1
-    assert joints >= len(tiles) ** 2  # every pair meets at least one way
+        # quarter turns (schemas.tileset.QUARTER_TURN): b turned a quarter beside a, its
+        # bottom or top side on a's left or right edge, continues the vertical pattern
+        # between the corners (a quarter-turn edge ends where the grid is irregular, so the
+        # corner quadrants cannot all line up there)
+        for colour, turn in QUARTER_TURN.items():
+            k = 1 if turn == "cw" else -1  # b as it lies beside a (np.rot90: k=1 is ccw)
+            near, far = ("bottom", "top") if turn == "cw" else ("top", "bottom")
+            mid = slice(e, s - e)
+            if ea.left == colour and getattr(eb, near) == colour:
+                band = np.concatenate([np.rot90(tiles[b], k)[:, s - w :], tiles[a][:, :w]], 1)
+                assert np.array_equal(band[mid], pats[colour][mid, e - w : e + w])
+                joints += 1
+            if ea.right == colour and getattr(eb, far) == colour:
+                band = np.concatenate([tiles[a][:, s - w :], np.rot90(tiles[b], k)[:, :w]], 1)
+                assert np.array_equal(band[mid], pats[colour][mid, e - w : e + w])
+                joints += 1
+    # every pair of plain tiles (bark and fork) meets at least one way
+    plain = sum(1 for k in edges.values() if k is not None and QUARTER_TURN.keys().isdisjoint(
+        (k.left, k.right, k.top, k.bottom)))  # fmt: skip
+    assert joints >= plain**2
     a, b, c, d = tiles[0], tiles[-1], tiles[1], tiles[len(tiles) // 2]
     upper = np.concatenate([a[s - w :, s - w :], b[s - w :, :w]], axis=1)
     lower = np.concatenate([c[:w, s - w :], d[:w, :w]], axis=1)
@@ -269,7 +308,8 @@ def test_shipped_set_has_the_default_manifest_classes(name: str) -> None:
     prefix = "procedural-bark" if name == "default" else f"procedural-{name}"
     assert [s.file for s in m.sources] == [f"{prefix}-1.png", f"{prefix}-2.png"]
     size = sum(p.stat().st_size for p in set_dir(name).iterdir())
-    assert size < 1_000_000, f"{name} tile set is {size} bytes"
+    # 27 tiles (15 crotch classes of one tile each): under 2 MB a set
+    assert size < 2_000_000, f"{name} tile set is {size} bytes"
 
 
 @pytest.mark.parametrize("name", SETS)
@@ -409,7 +449,9 @@ def test_shipped_set_is_package_data(name: str) -> None:
     patterns = config["tool"]["setuptools"]["package-data"]["forest"]
     root = Path(__file__).parents[1] / "forest"
     files = sorted(set_dir(name).iterdir())
-    assert len(files) == 18
+    m = manifest_for(set_dir(name))
+    # slices, one pattern per edge colour, the array, the corner and the manifest
+    assert len(files) == m.n_slices + len(m.edge_patterns) + 3
     for f in files:
         rel = f.relative_to(root).as_posix()
         assert any(fnmatch.fnmatch(rel, p) for p in patterns), rel

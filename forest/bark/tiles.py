@@ -11,15 +11,25 @@ from pydantic import ValidationError
 
 from forest.errors import ForestError
 from forest.geometry.pieces import PieceArrays
-from schemas.tileset import DEFAULT_MANIFEST, MANIFEST_FILE, TileSetManifest
+from schemas.tileset import CLASS_EDGES, DEFAULT_MANIFEST, MANIFEST_FILE, TileSetManifest
+
+FORK_ID = 2  # the class crotch classes fall back to
 
 
 def class_tables(
     pieces: tuple[PieceArrays, ...], manifest: TileSetManifest
 ) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int32]]:
     """Per piece and padded quad: first slice ``(p, q)``, tile count ``(p, q)`` (0 marks
-    padding), and the quad counts ``(p,)``."""
+    padding), and the quad counts ``(p,)``.
+
+    A crotch class (id 3 and up, :data:`schemas.tileset.CLASS_EDGES`) the manifest lacks (a
+    set built with bark and fork tiles only, or written by hand) draws from the fork class:
+    the forest still renders, with seams at crotches and apexes."""
     by_id = {c.id: c for c in manifest.classes}
+    if FORK_ID in by_id:
+        for cid in CLASS_EDGES:
+            if cid > FORK_ID:
+                by_id.setdefault(cid, by_id[FORK_ID])
     n_quads = np.array([len(p.quads) for p in pieces], np.int32)
     first = np.zeros((len(pieces), n_quads.max()), np.int32)
     count = np.zeros_like(first)
@@ -71,8 +81,6 @@ def draw_tile_indices(
 
 
 _TILE_CHUNK = 8192  # rows per chunk: a multiple of 4, so chunks use whole 64-bit draws
-
-
 
 
 def manifest_for(folder: Path) -> TileSetManifest:

@@ -19,11 +19,15 @@ edge pattern's first and last ``e`` rows are the corner pattern's, stitched onto
 crop with the same minimum-error cut. So tiles meet without a seam along edges and at corners,
 whatever their classes, as long as the colours of the edges between them agree.
 
-Classes (paper Fig. 10): ``bark`` (id 1) has vertical colour ``bark-v`` on both sides and
-horizontal colour ``bark-h`` on top and bottom, so bark tiles wrap in both directions. The
-``fork`` class (id 2) marks the first quad ring of a branch where it leaves the crotch: its left,
-right and top neighbours on the mesh are bark or fork quads, so those edges keep the bark
-colours, and its bottom edge, which lies on the crotch, carries its own pattern ``crotch-h``.
+Classes (paper Fig. 10; the table is :data:`schemas.tileset.CLASS_EDGES`): ``bark`` (id 1)
+has vertical colour ``bark-v`` on both sides and horizontal colour ``bark-h`` on top and
+bottom, so bark tiles wrap in both directions. The ``fork`` class (id 2) is a branch's first
+quad ring standing upright on its crotch loop: bark colours but ``crotch-h`` at the bottom.
+Around a crotch or a cap's apex the quads cannot all stand upright, so some tiles meet a
+neighbour turned a quarter: those edges carry ``crotch-cw`` or ``crotch-ccw``, a vertical
+pattern that on a top or bottom side is used turned a quarter (clockwise, counter-clockwise),
+so it continues into the turned neighbour. One class per set of side colours that occurs
+(ids 3 and up) covers them; a half turn (a side meeting the same side) never occurs.
 """
 
 from __future__ import annotations
@@ -44,8 +48,11 @@ from forest.bark.quilting import cut_mask, min_cut_paths, squared_error
 from forest.errors import ForestError, LimitError, OutputError
 from schemas.tileset import (
     ARRAY_FILE,
+    CLASS_EDGES,
+    DEFAULT_MANIFEST,
     MANIFEST_FILE,
     MAX_UDIM_SLICES,
+    QUARTER_TURN,
     SIDE_AXIS,
     UDIM_PATTERN,
     UDIM_TOKEN,
@@ -125,18 +132,16 @@ class ClassSpec:
     edges: TileEdges
 
 
-def default_classes(bark: int, fork: int) -> tuple[ClassSpec, ...]:
-    """The paper's two classes (see the module docstring for the colouring)."""
-    return (
-        ClassSpec(
-            "bark", 1, bark, TileEdges(left="bark-v", right="bark-v", top="bark-h", bottom="bark-h")
-        ),
-        ClassSpec(
-            "fork",
-            2,
-            fork,
-            TileEdges(left="bark-v", right="bark-v", top="bark-h", bottom="crotch-h"),
-        ),
+def default_classes(bark: int, fork: int, crotch: int = 0) -> tuple[ClassSpec, ...]:
+    """Classes of :data:`schemas.tileset.DEFAULT_MANIFEST` (see the module docstring):
+    ``bark`` tiles of class bark, ``fork`` of class fork and, if ``crotch`` > 0, that many of
+    each crotch class. Without crotch classes a forest draws its crotch quads from the fork
+    class (``forest.bark.tiles``): seams show at crotches and apexes."""
+    count = {1: bark, 2: fork}
+    return tuple(
+        ClassSpec(c.name, c.id, count.get(c.id, crotch), CLASS_EDGES[c.id])
+        for c in sorted(DEFAULT_MANIFEST.classes, key=lambda c: c.first)
+        if count.get(c.id, crotch) > 0
     )
 
 
@@ -372,11 +377,15 @@ def choose_patch(
 
 def _check_classes(classes: Sequence[ClassSpec]) -> dict[str, str]:
     """Colour -> axis; the colours of left and right edges must be vertical, top and bottom
-    horizontal, and one colour cannot be both."""
+    horizontal, and one colour cannot be both, except a quarter-turn colour
+    (:data:`schemas.tileset.QUARTER_TURN`): its pattern is vertical, turned on top and
+    bottom."""
     axes: dict[str, str] = {}
     for c in classes:
         for side, axis in SIDE_AXIS.items():
             name = getattr(c.edges, side)
+            if name in QUARTER_TURN:
+                axis = "vertical"
             if axes.setdefault(name, axis) != axis:
                 raise ForestError(
                     f"edge colour {name!r} is used on both vertical and horizontal edges",
@@ -460,13 +469,21 @@ def build_tileset(
     o = geom.overlap
     corner = corner_src[o : o + 2 * e, o : o + 2 * e].copy()
 
+    def across(name: str) -> U8:
+        """The pattern of colour ``name`` on a top or bottom side: a quarter-turn colour's
+        vertical pattern turned its quarter (np.rot90 turns counter-clockwise for k=1)."""
+        turn = QUARTER_TURN.get(name)
+        if turn is None:
+            return patterns[name]
+        return np.ascontiguousarray(np.rot90(patterns[name], k=-1 if turn == "cw" else 1))
+
     # every tile: a frame from its class, an interior chosen by quilting error, one stitch
     frames_by_class = {
         c.id: class_frame(
             patterns[c.edges.left],
             patterns[c.edges.right],
-            patterns[c.edges.top],
-            patterns[c.edges.bottom],
+            across(c.edges.top),
+            across(c.edges.bottom),
             geom,
         )
         for c in classes

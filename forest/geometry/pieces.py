@@ -36,6 +36,15 @@ from forest.geometry.transforms import (
     transform_vectors,
     translation,
 )
+from schemas.tileset import (
+    BARK_H,
+    BARK_V,
+    CLASS_EDGES,
+    CROTCH_CCW,
+    CROTCH_CW,
+    CROTCH_H,
+    CROTCH_V,
+)
 
 BARK = 1
 FORK = 2
@@ -183,6 +192,7 @@ class _PieceBuilder:
         self.mesh = _MeshBuilder(self.nj)
         self.root_rim: NDArray[np.int64] | None = None
         self.leaf_rims: list[NDArray[np.int64] | None] = [None] * len(leaves)
+        self.crotch: set[tuple[int, int]] = set()
 
     def stem_weights(self, y: F64, top: float, tip: int | None) -> F64:
         """Weights along a vertical stem: root -> hub below the hub, hub -> tip above it."""
@@ -235,6 +245,8 @@ class _PieceBuilder:
         frame = self.leaves[r]
         pos = self.mesh.positions()
         start = _align_ring(start, pos[start], frame)
+        # the loop's edges are the crotch: where this branch meets the stem or its sibling
+        self.crotch.update(_edge_key(a, b) for a, b in zip(start, np.roll(start, -1), strict=True))
         w_start = self.mesh.dense_weights()[start]
         # the ring one cone row below the leaf rim, in leaf space: ``knee`` deep, so that
         # row's quads are about as long as they are wide
@@ -280,7 +292,9 @@ class _PieceBuilder:
     def finish(self) -> PieceArrays:
         pos = self.mesh.positions()
         quads = np.concatenate(self.mesh.quads).astype(np.int32)
-        tile_class = np.concatenate(self.mesh.classes).astype(np.int32)
+        rims = [np.asarray(self.root_rim), *(np.asarray(lr) for lr in self.leaf_rims)]
+        quads = _orient_quads(quads, np.concatenate(rims))
+        tile_class = _tile_classes(quads, self.crotch)
         normals = _vertex_normals(pos, quads)
         assert self.root_rim is not None
         if self.universal_root:
@@ -316,6 +330,122 @@ class _PieceBuilder:
             joint_rest=joint_rest,
             joint_parents=parents,
         )
+
+
+# Sides of a quad (a, b, c, d) as corner pairs in QUAD_ST terms: u runs a -> d, v runs a -> b.
+SIDE_CORNERS = {"left": (0, 1), "top": (1, 2), "right": (3, 2), "bottom": (0, 3)}
+_SIDES = tuple(SIDE_CORNERS)
+_OPPOSITE = {frozenset(("left", "right")), frozenset(("top", "bottom"))}
+# Quarter-turn joins (a tile meeting a neighbour turned 90 degrees, as around a crotch or an
+# apex, where the mesh cannot be one upright grid): the side pairs whose edge pattern must be
+# the horizontal one turned clockwise (see schemas.tileset) or counter-clockwise.
+_QUARTER_CW = {frozenset(("left", "bottom")), frozenset(("right", "top"))}
+_QUARTER_CCW = {frozenset(("left", "top")), frozenset(("right", "bottom"))}
+
+
+def _edge_key(a: int | np.integer, b: int | np.integer) -> tuple[int, int]:
+    return (int(min(a, b)), int(max(a, b)))
+
+
+def _quad_sides(quads: NDArray[np.int32]) -> dict[tuple[int, int], list[tuple[int, str]]]:
+    """Undirected edge -> the (quad, side) pairs holding it."""
+    out: dict[tuple[int, int], list[tuple[int, str]]] = {}
+    for q, quad in enumerate(quads):
+        for side, (i, j) in SIDE_CORNERS.items():
+            out.setdefault(_edge_key(quad[i], quad[j]), []).append((q, side))
+    return out
+
+
+def _joins(sa: str, sb: str) -> bool:
+    """Whether tiles can meet with sides ``sa`` and ``sb`` on one edge: opposite sides, or a
+    quarter turn; never the same side (a half turn: no edge pattern continues then)."""
+    pair = frozenset((sa, sb))
+    return sa != sb and (pair in _OPPOSITE or pair in _QUARTER_CW or pair in _QUARTER_CCW)
+
+
+def _side_of(quad: NDArray[np.int32], turn: int, a: int, b: int) -> str:
+    c = np.roll(quad, -turn)
+    return next(s for s, (i, j) in SIDE_CORNERS.items() if {int(c[i]), int(c[j])} == {a, b})
+
+
+def _orient_quads(quads: NDArray[np.int32], rim_vertices: NDArray[np.int64]) -> NDArray[np.int32]:
+    """Quads with their corners turned (a cyclic shift, so the winding stays) so that every
+    edge two quads share joins their tiles' sides as :func:`_joins` allows. Tubes are built
+    upright (v along the tube) and stay so; only quads near a crotch or an apex, where an
+    upright grid cannot close, turn: the fewest turns found by a depth-first search over the
+    quads within two steps of a bad edge, never one that touches a rim (rims join pieces
+    upright). ``(q, 4)`` int32 in, ``(q, 4)`` int32 out."""
+    edges = {k: v for k, v in _quad_sides(quads).items() if len(v) == 2}
+    nbrs: dict[int, list[tuple[int, int, int]]] = {q: [] for q in range(len(quads))}
+    for (a, b), [(qa, _), (qb, _)] in edges.items():
+        nbrs[qa].append((qb, a, b))
+        nbrs[qb].append((qa, a, b))
+    bad = {q for (qa, sa), (qb, sb) in edges.values() if not _joins(sa, sb) for q in (qa, qb)}
+    if not bad:
+        return quads
+    on_rim = np.isin(quads, rim_vertices).sum(axis=1) >= 2
+    near = set(bad)
+    for _ in range(2):
+        near |= {n for q in list(near) for n, _, _ in nbrs[q]}
+    free = [q for q in sorted(near) if not on_rim[q]]
+    turn = np.zeros(len(quads), np.int64)
+    done = np.ones(len(quads), bool)
+    done[free] = False
+
+    def fits(q: int) -> bool:
+        return all(
+            _joins(_side_of(quads[q], turn[q], a, b), _side_of(quads[n], turn[n], a, b))
+            for n, a, b in nbrs[q]
+            if done[n]
+        )
+
+    def search(i: int, budget: int) -> bool:
+        if i == len(free):
+            return True
+        q = free[i]
+        for t in (0, 1, 3, 2):
+            if t and not budget:
+                break
+            turn[q], done[q] = t, True
+            if fits(q) and search(i + 1, budget - (t != 0)):
+                return True
+        turn[q], done[q] = 0, False
+        return False
+
+    for budget in range(len(free) + 1):  # fewest turns first
+        if search(0, budget):
+            rows = (np.arange(4)[None] + turn[:, None]) % 4
+            return np.take_along_axis(quads, rows.astype(np.intp), axis=1)
+    raise AssertionError("no tile orientation joins every edge")  # pragma: no cover
+
+
+def _tile_classes(quads: NDArray[np.int32], crotch: set[tuple[int, int]]) -> NDArray[np.int32]:
+    """``(q,)`` int32 tile class of each quad: the class of
+    :data:`schemas.tileset.CLASS_EDGES` whose sides carry the colours of the quad's
+    edges. An edge's colour: a quarter-turn colour where it joins tiles turned a quarter
+    apart, a crotch colour on a branch's crotch loop, else bark (``-h`` on top and bottom,
+    ``-v`` on left and right)."""
+    colour: dict[tuple[int, int], str] = {}
+    for key, holders in _quad_sides(quads).items():
+        pair = frozenset(side for _, side in holders)
+        if pair in _QUARTER_CW:
+            colour[key] = CROTCH_CW
+        elif pair in _QUARTER_CCW:
+            colour[key] = CROTCH_CCW
+        elif key in crotch:
+            colour[key] = CROTCH_H if holders[0][1] in ("top", "bottom") else CROTCH_V
+    by_edges = {(e.left, e.right, e.top, e.bottom): cid for cid, e in CLASS_EDGES.items()}
+    out = np.empty(len(quads), np.int32)
+    for q, quad in enumerate(quads):
+        sides = {}
+        for side, (i, j) in SIDE_CORNERS.items():
+            plain = BARK_H if side in ("top", "bottom") else BARK_V
+            sides[side] = colour.get(_edge_key(quad[i], quad[j]), plain)
+        wanted = (sides["left"], sides["right"], sides["top"], sides["bottom"])
+        if wanted not in by_edges:
+            raise AssertionError(f"no tile class has edges {wanted}")  # a new crotch layout
+        out[q] = by_edges[wanted]
+    return out
 
 
 def _vertex_normals(pos: F64, quads: NDArray[np.int32]) -> F64:

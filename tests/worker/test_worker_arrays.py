@@ -13,6 +13,7 @@ import pytest
 from forest.errors import LimitError, SceneError
 from forest.geometry.pieces import QUAD_ST
 from forest.usd.read import SceneArrays
+from schemas.tileset import DEFAULT_MANIFEST
 from tests.helpers_skin import skin
 from worker import shaders
 from worker.camera import box_corners, frame_box
@@ -138,12 +139,12 @@ def test_tile_index_outside_the_tile_set_names_the_attribute(mixed_scene: SceneA
     tiles = mixed_scene.tile_indices.copy()
     tiles[5, 0] = 99
     with pytest.raises(SceneError) as err:
-        check_scene(_broken(mixed_scene, tile_indices=tiles), n_slices=12)
+        check_scene(_broken(mixed_scene, tile_indices=tiles), n_slices=DEFAULT_MANIFEST.n_slices)
     assert err.value.path == "/World/Forest/Pieces.primvars:forest:tileIndices"
     assert "99" in err.value.message
     tiles[5, 0] = -1  # padding inside a piece's quads
     with pytest.raises(SceneError, match="-1"):
-        check_scene(_broken(mixed_scene, tile_indices=tiles), n_slices=12)
+        check_scene(_broken(mixed_scene, tile_indices=tiles), n_slices=DEFAULT_MANIFEST.n_slices)
 
 
 def test_joint_index_outside_the_skeleton_names_the_prototype(mixed_scene: SceneArrays) -> None:

@@ -1,8 +1,8 @@
 """Tile sets shipped with the package, one folder per name in :data:`SETS`.
 
-Each is 8 bark and 4 fork tiles of 128 px (the classes of
+Each is 8 bark, 4 fork and 1 of each crotch class, tiles of 128 px (the classes of
 :data:`schemas.tileset.DEFAULT_MANIFEST`: rebuild after classes are added there), quilted
-from two procedural bark examples of 384 px (seeds 1 and 2), tile-set seed 7:
+from two procedural bark examples of 512 px (seeds 1 and 2), tile-set seed 7:
 
 - ``default/``: furrowed bark from :func:`forest.bark.barkgen.bark_example`;
 - ``<species>/`` for each of :data:`forest.bark.barkgen.SPECIES` (oak, almond, birch, pine,
@@ -25,19 +25,18 @@ import numpy as np
 from forest.bark.barkgen import SPECIES, bark_example, species_example
 from forest.bark.images import read_texture_array, write_png
 from forest.bark.tileset import ClassSpec, TileSet, make_tileset
-from schemas.tileset import DEFAULT_MANIFEST, TileEdges, TileSetManifest
+from schemas.tileset import CLASS_EDGES, DEFAULT_MANIFEST, TileSetManifest
 
 DEFAULT_SET = "default"
 SETS: tuple[str, ...] = (DEFAULT_SET, *SPECIES)
 """Names of the shipped tile sets (the values a grammar's ``bark`` may take)."""
 DEFAULT_TILE_SIZE = 128
 DEFAULT_SEED = 7
-EXAMPLE_SIZE = 384
+EXAMPLE_SIZE = 512  # 25 disjoint interiors of 96 px per example: 50 for 27 tiles
 EXAMPLE_SEEDS = (1, 2)
-# the paper's colouring (forest.bark.tileset): a class the manifest gives no edges keeps bark
-# colours all round, except fork, whose bottom edge lies on the crotch
-_BARK_EDGES = TileEdges(left="bark-v", right="bark-v", top="bark-h", bottom="bark-h")
-_NAMED_EDGES = {"fork": _BARK_EDGES.model_copy(update={"bottom": "crotch-h"})}
+# a class the manifest gives no edges takes the default colouring of its id (the colours the
+# pieces are laid out for), else bark colours all round
+_BARK_EDGES = CLASS_EDGES[1]
 
 
 def set_dir(name: str) -> Path:
@@ -58,7 +57,7 @@ def manifest_classes(manifest: TileSetManifest = DEFAULT_MANIFEST) -> tuple[Clas
     paper's colouring), in slice order."""
     ordered = sorted(manifest.classes, key=lambda c: c.first)
     return tuple(
-        ClassSpec(c.name, c.id, c.count, c.edges or _NAMED_EDGES.get(c.name, _BARK_EDGES))
+        ClassSpec(c.name, c.id, c.count, c.edges or CLASS_EDGES.get(c.id, _BARK_EDGES))
         for c in ordered
     )
 
