@@ -30,6 +30,7 @@ from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from schemas.metrics import RenderMetrics
+from schemas.tileset import DEFAULT_MANIFEST
 from worker.render_job import preview_view
 from worker.renderer import Renderer
 from worker.textures import procedural_tiles, read_image_subimages
@@ -151,20 +152,21 @@ def write_tile_folder(folder: Path, colour: tuple[int, int, int], as_array: bool
     import OpenImageIO as oiio
 
     folder.mkdir()
+    n = DEFAULT_MANIFEST.n_slices  # no manifest in the folder: the default classes' slices
     tile = np.zeros((8, 8, 3), np.uint8)
     tile[:] = colour
     if as_array:
         path = str(folder / "bark_array.tif")
         out = oiio.ImageOutput.create(path)
-        specs = [oiio.ImageSpec(8, 8, 3, "uint8") for _ in range(12)]
+        specs = [oiio.ImageSpec(8, 8, 3, "uint8") for _ in range(n)]
         assert out.open(path, specs)
-        for k in range(12):
+        for k in range(n):
             if k:
                 assert out.open(path, specs[k], "AppendSubimage")
             assert out.write_image(tile)
         out.close()
     else:
-        for k in range(12):
+        for k in range(n):
             write_png(
                 folder / f"bark.{1001 + k}.png",
                 np.dstack([tile, np.full((8, 8), 255)]).astype(np.uint8),
