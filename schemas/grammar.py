@@ -93,12 +93,19 @@ class Alternative(StrictModel):
     """Range of the angle in degrees between each lateral rim's axis and the stem (Y: each
     branch's angle from the fork's axis); the piece's built-in angle otherwise."""
     tropism: Tropism = Tropism()
+    taper: tuple[
+        Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)],
+        Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)],
+    ] = (1.0, 1.0)
+    """Range of the radius where the children leave over the piece's own root radius: the
+    branch narrows along its axis; the pipe model splits what is left."""
     min_depth: Annotated[int, Field(ge=0)] = 0
     max_depth: Annotated[int, Field(ge=0)] | None = None
     """Depth condition: the alternative applies when min_depth <= depth <= max_depth."""
 
     @model_validator(mode="after")
     def _depths(self) -> Alternative:
+        _ordered(self.taper, "taper")
         if self.max_depth is not None and self.max_depth < self.min_depth:
             raise ValueError(f"max_depth {self.max_depth} < min_depth {self.min_depth}")
         return self

@@ -5,14 +5,14 @@ from __future__ import annotations
 import itertools
 from collections.abc import Iterator
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cache, cached_property
 
 import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
-from forest.geometry.pieces import MAX_LEAF_RIMS
+from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, piece_library
 from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
 
@@ -28,7 +28,13 @@ class PieceGraph:
 
     tree, parent (-1 for a tree's root piece), parent_rim, depth, piece, symbol, alt, twist :
     (n,) int32. length : (n,) float64, the instance's length scale. radius : (n,) float64, the
-    scale its parent's terminal joint takes for it (1 for roots).
+    scale its parent's terminal joint takes for it (1 for roots). scale : (n,) float64, the
+    radius of the instance's root rim in metres, at rest (tree scale times every rim scale
+    and ``radius`` above it). order : (n,) int32 branch order: 0 on the trunk's axis, one more
+    on each lateral rim (rims after the first). height : (n,) float64 metres along the
+    trunk's axis where the instance starts (first-order branches: where they leave it).
+    taper : (n,) float64 the radius where the instance's children leave, over ``scale``
+    (the pipe model holds against ``taper * scale``).
     """
 
     tree: I32
@@ -41,6 +47,10 @@ class PieceGraph:
     twist: I32
     length: NDArray[np.float64]
     radius: NDArray[np.float64]
+    scale: NDArray[np.float64]
+    order: I32
+    height: NDArray[np.float64]
+    taper: NDArray[np.float64]
 
     def __len__(self) -> int:
         return len(self.tree)
@@ -103,109 +113,268 @@ def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np
     return lo_hi[..., 0] + u * (lo_hi[..., 1] - lo_hi[..., 0])
 
 
+@cache
+def rim_tables() -> tuple[NDArray[np.float64], ...]:
+    """Per piece type ``p`` and leaf rim ``r`` (building transforms do not depend on the
+    resolution): ``sigma (p, R)`` rest rim scale, 1 where no rim; ``rim_y (p, R)`` leaf-rim
+    height; ``hub_y (p,)`` hub height; ``rims (p,)`` leaf rims; ``tilt (p, R)`` rest angle of
+    the rim's axis from the piece's axis (radians) and ``tilt_az (p, R)`` the azimuth of the
+    horizontal axis a rotation about which (positive) tilts that rim further out."""
+    pieces = piece_library()
+    sigma = np.ones((len(pieces), MAX_LEAF_RIMS))
+    rim_y = np.zeros((len(pieces), MAX_LEAF_RIMS))
+    tilt = np.zeros((len(pieces), MAX_LEAF_RIMS))
+    tilt_az = np.zeros((len(pieces), MAX_LEAF_RIMS))
+    for i, p in enumerate(pieces):
+        k = p.n_leaf_rims
+        if k:
+            lin = p.building[:, :3, :3]
+            sigma[i, :k] = np.cbrt(np.linalg.det(lin))
+            rim_y[i, :k] = p.building[:, 1, 3]
+            axis = lin[:, :, 1] / np.linalg.norm(lin[:, :, 1], axis=1, keepdims=True)
+            tilt[i, :k] = np.arccos(np.clip(axis[:, 1], -1.0, 1.0))
+            tilt_az[i, :k] = np.arctan2(-axis[:, 0], axis[:, 2])  # of +Y x axis
+    hub_y = np.array([p.joint_rest[HUB, 1, 3] for p in pieces])
+    rims = np.array([p.n_leaf_rims for p in pieces], np.float64)
+    return sigma, rim_y, hub_y, rims, tilt, tilt_az
+
+
+def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Weber and Penn's shape ratio: the relative size of a first-order branch leaving the
+    trunk at ``t`` (0 at the crown's base, 1 at the top of the tree)."""
+    below = 1.0 - np.clip(t, 0.0, 1.0)  # W&P's ratio: 1 at the crown base, 0 at the top
+    if shape == "cone":
+        return 0.2 + 0.8 * below
+    if shape == "ellipsoid":
+        return 0.2 + 0.8 * np.sin(np.pi * np.clip(0.1 + 0.9 * below, 0, 1))
+    if shape == "dome":
+        return 0.2 + 0.8 * np.sin(0.5 * np.pi * below)
+    if shape == "column":
+        return 0.5 + 0.5 * below
+    if shape == "vase":
+        return 1.0 - 0.6 * below
+    # umbrella: W&P's flame, longest a third of the way down from the top
+    return 0.2 + 0.8 * np.where(below <= 0.35, below / 0.35, (1.0 - below) / 0.65)
+
+
+KNOT = 0.3  # a shed branch's stub, relative to the branch that would have grown
+
+
+class _Open:
+    """The open rims of one level, each about to grow one piece (arrays of equal length)."""
+
+    FIELDS = ("tree", "parent", "rim", "sym", "len", "rad", "scale", "order", "h", "roll", "cap")
+
+    def __init__(self, **cols: NDArray) -> None:
+        self.cols = cols
+
+    def __getattr__(self, name: str) -> NDArray:
+        return self.__dict__["cols"][name]
+
+    def __len__(self) -> int:
+        return len(self.cols["tree"])
+
+    def take(self, keep: NDArray) -> _Open:
+        return _Open(**{k: v[keep] for k, v in self.cols.items()})
+
+
 def expand(
-    cg: CompiledGrammar, n_trees: int, rng: np.random.Generator, settings: ForestSettings
+    cg: CompiledGrammar,
+    n_trees: int,
+    rng: np.random.Generator,
+    settings: ForestSettings,
+    tree_radius: NDArray[np.float64] | None = None,
 ) -> PieceGraph:
-    """Grow ``n_trees`` trees from the axiom; every draw is batched over one depth level."""
-    # the open rims of the current level
-    f_tree = np.arange(n_trees, dtype=np.int32)
-    f_parent = np.full(n_trees, -1, np.int32)
-    f_rim = np.zeros(n_trees, np.int32)
-    f_sym = np.full(n_trees, cg.axiom, np.int32)
-    f_len = np.ones(n_trees)
-    f_rad = np.ones(n_trees)
+    """Grow ``n_trees`` trees from the axiom; every draw is batched over one depth level.
+
+    ``tree_radius`` ``(n_trees,)`` is each tree's root-rim radius in metres (its model scale;
+    1 if not given). Botanical rules of the grammar apply per level, all vectorised: the pipe
+    model at forks, the trunk's taper to the crown height, the crown envelope on first-order
+    branches, phyllotaxis rolls, and the end of every branch thinner than ``twig_radius``;
+    every rim left open gets a cap piece (``close_tips``).
+    """
+    g = cg.grammar
+    sigma_t, rim_y_t, hub_y_t, rims_t, _, _ = rim_tables()
+    radius0 = np.ones(n_trees) if tree_radius is None else np.asarray(tree_radius, np.float64)
+    crown = g.crown
+    tree_h = rng.uniform(*crown.height, n_trees) if crown else np.full(n_trees, np.inf)
+    f = _Open(
+        tree=np.arange(n_trees, dtype=np.int32),
+        parent=np.full(n_trees, -1, np.int32),
+        rim=np.zeros(n_trees, np.int32),
+        sym=np.full(n_trees, cg.axiom, np.int32),
+        len=np.ones(n_trees),
+        rad=np.ones(n_trees),
+        scale=radius0.copy(),
+        order=np.zeros(n_trees, np.int32),
+        h=np.zeros(n_trees),
+        roll=np.zeros(n_trees),
+        cap=np.zeros(n_trees, bool),
+    )
+    close = g.close_tips and cg.cap_alt >= 0
     out: list[tuple[NDArray, ...]] = []
     count = 0
     per_tree = np.zeros(n_trees, np.int64)
-    for depth in range(cg.max_depth + 1):
+    for depth in range(cg.max_depth + 2):  # the last level holds only caps
         # np.take: several times faster than fancy indexing for these row gathers
-        cum = np.take(cg.choice_table(depth), f_sym, axis=0)
+        cum = np.take(cg.choice_table(depth), f.sym, axis=0)
         total = cum[:, -1]
-        u = rng.random(len(f_sym)) * total
+        u = rng.random(len(f)) * total
         alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
-        keep = total > 0  # no eligible alternative at this depth: the rim stays a tip
-        if not keep.all():
-            alt, f_tree, f_parent, f_rim, f_sym = (
-                alt[keep],
-                f_tree[keep],
-                f_parent[keep],
-                f_rim[keep],
-                f_sym[keep],
-            )
-            f_len, f_rad = f_len[keep], f_rad[keep]
+        ends = f.cap | (total <= 0)  # no eligible alternative at this depth: a tip
+        if close:
+            alt[ends] = cg.cap_alt
+        elif ends.any():
+            f, alt = f.take(~ends), alt[~ends]
         m = len(alt)
         if m == 0:
             break
         twist = np.take(cg.alt_twist, alt)
         twist = np.where(twist < 0, rng.integers(0, 6, m, dtype=np.int32), twist).astype(np.int32)
+        # phyllotaxis: the axis keeps its exact roll; each piece takes the twist that brings
+        # the rounded roll along, so rounding errors never add up
+        div = np.take(cg.alt_roll, alt)
+        rolled = ~np.isnan(div)
+        roll = f.roll + np.where(rolled, div, 60.0 * twist)
+        if rolled.any():
+            turn = np.round(roll / 60.0) - np.round(f.roll / 60.0)
+            twist = np.where(rolled, np.mod(turn, 6), twist).astype(np.int32)
+        piece = np.take(cg.alt_piece, alt)
         ids = np.arange(count, count + m, dtype=np.int32)
+        count += m
+        per_tree += np.bincount(f.tree, minlength=n_trees)
+        _check_limits(count, per_tree, settings)
+        # what the children get: radii (pipe model, taper), heights, lengths
+        succ = np.take(cg.alt_succ, alt, axis=0)
+        has_rim = np.arange(MAX_LEAF_RIMS) < np.take(rims_t, piece)[:, None]
+        sigma = np.take(sigma_t, piece, axis=0)
+        span = f.scale * f.len  # metres per model unit along this piece
+        alt_rim = alt[:, None] * MAX_LEAF_RIMS + np.arange(MAX_LEAF_RIMS)  # into (A * R, 2)
+        w = _uniform(rng, np.take(cg.alt_radius.reshape(-1, 2), alt_rim, axis=0))
+        c_len = _uniform(rng, np.take(cg.alt_length.reshape(-1, 2), alt_rim, axis=0))
+        lateral = np.arange(MAX_LEAF_RIMS) > 0
+        c_h = f.h[:, None] + np.where(
+            lateral, np.take(hub_y_t, piece)[:, None], np.take(rim_y_t, piece, axis=0)
+        ) * span[:, None]
+        first_order = (f.order == 0)[:, None] & lateral & has_rim
+        pruned = np.zeros_like(has_rim)
+        if crown:
+            # crown envelope: a first-order branch's share of the trunk by where it leaves
+            rel = c_h / np.take(tree_h, f.tree)[:, None]
+            t = (rel - crown.base) / (1.0 - crown.base)
+            bare = first_order & (rel < crown.base)
+            # below the crown a branch was shed long ago: a small knot ends its stub
+            w = np.where(first_order, w * np.where(bare, KNOT, crown_shape(crown.shape, t)), w)
+            pruned |= bare
+        if cg.pipe_exponent is not None:
+            e = cg.pipe_exponent
+            share = np.where(has_rim, w, 0.0) ** e
+            norm = np.maximum(share.sum(axis=1), 1e-300) ** (1.0 / e)
+            s = w / norm[:, None]  # one child: its radius is the parent's (times taper)
+        else:
+            s = sigma * w
+        taper = _uniform(rng, np.take(cg.alt_taper, alt, axis=0))
+        s *= taper[:, None]
+        if crown:
+            # the trunk's axis narrows like a cone to the crown's top (apical control)
+            top = np.take(tree_h, f.tree)
+            want = np.take(radius0, f.tree) * np.maximum(1.0 - c_h[:, 0] / top, 0.02)
+            trunk = f.order == 0
+            cone = np.ones(m)
+            cone[trunk] = np.clip(want[trunk] / (s[trunk, 0] * f.scale[trunk]), 0.3, 1.0)
+            s *= cone[:, None]
+            taper *= cone
+        c_scale = f.scale[:, None] * s
+        c_order = f.order[:, None] + lateral
+        if g.twig_radius is not None:
+            pruned |= c_scale < g.twig_radius
+        if crown:
+            pruned |= (c_order == 0) & (c_h >= np.take(tree_h, f.tree)[:, None])
         out.append(
             (
-                f_tree,
-                f_parent,
-                f_rim,
+                f.tree,
+                f.parent,
+                f.rim,
                 np.full(m, depth, np.int32),
-                np.take(cg.alt_piece, alt),
-                f_sym,
+                piece,
+                f.sym,
                 alt,
                 twist,
-                f_len,
-                f_rad,
+                f.len,
+                f.rad,
+                f.scale,
+                f.order,
+                f.h,
+                taper,
             )
         )
-        count += m
-        per_tree += np.bincount(f_tree, minlength=n_trees)
-        if count > settings.max_pieces_per_forest:
-            raise LimitError(
-                f"the forest grew past {settings.max_pieces_per_forest} pieces; "
-                "use fewer trees or a smaller grammar",
-                path="max_pieces_per_forest",
-                limit=settings.max_pieces_per_forest,
-            )
-        if per_tree.max() > settings.max_pieces_per_tree:
-            raise LimitError(
-                f"a tree grew past {settings.max_pieces_per_tree} pieces; "
-                "lower max_depth or the branching",
-                path="max_pieces_per_tree",
-                limit=settings.max_pieces_per_tree,
-            )
-        succ = np.take(cg.alt_succ, alt, axis=0)
-        if depth == cg.max_depth:
+        if depth >= cg.max_depth:
             if cg.grammar.max_depth is None and (succ >= 0).any():
                 raise GrammarError(
                     f"the rules did not terminate within {cg.max_depth} levels; set max_depth",
                     path="max_depth",
                 )
-            break
-        grow = np.flatnonzero(succ >= 0)  # (instance, rim) pairs, flattened
-        grow_i = grow // MAX_LEAF_RIMS
-        f_tree = f_tree[grow_i]
-        f_parent = ids[grow_i]
-        f_rim = (grow % MAX_LEAF_RIMS).astype(np.int32)
-        f_sym = np.take(succ, grow)
-        alt_rim = np.take(alt, grow_i) * MAX_LEAF_RIMS + f_rim  # into (A * R, 2) ranges
-        f_len = _uniform(rng, np.take(cg.alt_length.reshape(-1, 2), alt_rim, axis=0))
-        f_rad = _uniform(rng, np.take(cg.alt_radius.reshape(-1, 2), alt_rim, axis=0))
+            pruned |= has_rim
+        grows = has_rim & (succ >= 0) & ~pruned
+        opens = grows | (has_rim & ~grows) if close else grows
+        flat = np.flatnonzero(opens)  # (instance, rim) pairs, flattened
+        i = flat // MAX_LEAF_RIMS
+        r = (flat % MAX_LEAF_RIMS).astype(np.int32)
+        f = _Open(
+            tree=f.tree[i],
+            parent=ids[i],
+            rim=r,
+            sym=np.where(grows.ravel()[flat], succ.ravel()[flat], f.sym[i]).astype(np.int32),
+            len=c_len.ravel()[flat],
+            rad=(s / sigma).ravel()[flat],
+            scale=c_scale.ravel()[flat],
+            order=c_order.ravel()[flat].astype(np.int32),
+            h=c_h.ravel()[flat],
+            roll=np.where(r == 0, roll[i], 0.0),
+            cap=~grows.ravel()[flat],
+        )
     cols = [np.concatenate(c) for c in zip(*out, strict=True)]
-    tree, parent, rim, depth_a, piece, sym, alt_a, twist_a, length, radius = cols
+    tree, parent, rim, depth_a, piece_a, sym, alt_a, twist_a = cols[:8]
+    length, radius, scale, order, height, taper_a = cols[8:]
     # level order -> tree-major order; a stable sort keeps parents before children
-    order = np.argsort(tree, kind="stable")
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    parent = parent[order]
+    order_ix = np.argsort(tree, kind="stable")
+    rank = np.empty_like(order_ix)
+    rank[order_ix] = np.arange(len(order_ix))
+    parent = parent[order_ix]
     parent = np.where(parent >= 0, rank[np.maximum(parent, 0)], -1).astype(np.int32)
     return PieceGraph(
-        tree=tree[order].astype(np.int32),
+        tree=tree[order_ix].astype(np.int32),
         parent=parent,
-        parent_rim=rim[order],
-        depth=depth_a[order],
-        piece=piece[order],
-        symbol=sym[order],
-        alt=alt_a[order],
-        twist=twist_a[order],
-        length=length[order],
-        radius=radius[order],
+        parent_rim=rim[order_ix],
+        depth=depth_a[order_ix],
+        piece=piece_a[order_ix],
+        symbol=sym[order_ix],
+        alt=alt_a[order_ix],
+        twist=twist_a[order_ix],
+        length=length[order_ix],
+        radius=radius[order_ix],
+        scale=scale[order_ix],
+        order=order[order_ix].astype(np.int32),
+        height=height[order_ix],
+        taper=taper_a[order_ix],
     )
+
+
+def _check_limits(count: int, per_tree: NDArray[np.int64], settings: ForestSettings) -> None:
+    if count > settings.max_pieces_per_forest:
+        raise LimitError(
+            f"the forest grew past {settings.max_pieces_per_forest} pieces; "
+            "use fewer trees or a smaller grammar",
+            path="max_pieces_per_forest",
+            limit=settings.max_pieces_per_forest,
+        )
+    if per_tree.max() > settings.max_pieces_per_tree:
+        raise LimitError(
+            f"a tree grew past {settings.max_pieces_per_tree} pieces; "
+            "lower max_depth or the branching",
+            path="max_pieces_per_tree",
+            limit=settings.max_pieces_per_tree,
+        )
 
 
 def children_radius(graph: PieceGraph, radius: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from forest import __version__
 from forest.bark.tiles import draw_tile_indices
 from forest.errors import LimitError
-from forest.geometry.pieces import HUB, PieceArrays, piece_library
+from forest.geometry.pieces import HUB, PIECE_NAMES, PieceArrays, piece_library
 from forest.geometry.transforms import F64
 from forest.growth.assembly import topological_transforms
 from forest.growth.expand import PieceGraph, expand
@@ -24,6 +24,7 @@ from forest.growth.skeleton import (
     PoseParams,
     Poser,
     Wind,
+    apply_tropisms,
     build_bones,
     draw_pose,
     rest_palette,
@@ -164,6 +165,18 @@ class Forest:
         )  # fmt: skip
 
 
+def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:
+    """``(k,)`` the instances that bear leaf clouds: of a foliage symbol, not a cap, and no
+    thicker than the leaves' ``max_radius`` (leaves live on the last orders, not on trunks
+    and main limbs)."""
+    bears = cg.foliage[graph.symbol]
+    if "Cap" in PIECE_NAMES:
+        bears &= graph.piece != PIECE_NAMES.index("Cap")
+    if cg.grammar.leaves.max_radius is not None:
+        bears &= graph.scale <= cg.grammar.leaves.max_radius
+    return np.flatnonzero(bears).astype(np.int32)
+
+
 def generate_forest(
     grammar: Grammar,
     seed: int,
@@ -201,7 +214,8 @@ def generate_forest(
         options.placement,
     )
     note("grow", 1, 5)
-    graph = expand(cg, options.trees, rng_grow, settings)
+    tree_radius = np.cbrt(np.linalg.det(trees[:, :3, :3]))
+    graph = expand(cg, options.trees, rng_grow, settings, tree_radius)
     note("assemble", 2, 5)
     transforms = topological_transforms(graph, trees, pieces)
     note("bones", 3, 5)
@@ -215,7 +229,9 @@ def generate_forest(
             path="max_palette_matrices",
             limit=settings.max_palette_matrices,
         )
-    pose = draw_pose(graph, pieces, cg.alt_bend, cg.alt_spread, rng_pose, options.trees)
+    pose = draw_pose(graph, pieces, cg, rng_pose, options.trees)
+    if cg.alt_tropism.any():
+        pose = apply_tropisms(graph, bones, pieces, trees, transforms, pose, cg.alt_tropism)
     note("tiles", 4, 5)
     tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)
     note("done", 5, 5)
@@ -232,5 +248,5 @@ def generate_forest(
         pose=pose,
         tile_indices=tiles,
         manifest=manifest,
-        foliage_instance=np.nonzero(cg.foliage[graph.symbol])[0].astype(np.int32),
+        foliage_instance=foliage_bearers(cg, graph),
     )

@@ -15,7 +15,7 @@ from forest.bark.tilesets import SETS as BARK_SETS
 from forest.errors import GrammarError, LimitError
 from forest.geometry.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
 from forest.settings import ForestSettings, get_settings
-from schemas.grammar import Grammar
+from schemas.grammar import Alternative, Grammar
 
 # A grammar file is a few KiB; anything this big is not a grammar and would only cost time.
 MAX_GRAMMAR_BYTES = 1 << 20
@@ -82,7 +82,13 @@ class CompiledGrammar:
     alt_twist : (A,) int32 (-1 random) alt_succ : (A, MAX_LEAF_RIMS) int32 (-1 none)
     alt_length, alt_radius : (A, MAX_LEAF_RIMS, 2) float64 ranges
     alt_bend, alt_spread : (A, 2) float64 ranges in radians
+    alt_roll : (A,) float64 phyllotaxis divergence in degrees, NaN where none
+    alt_branch_angle : (A, 2) float64 range in radians, NaN where none
+    alt_tropism : (A, 2) float64 gravity and light strengths
+    alt_taper : (A, 2) float64 range of the radius at the children over the root radius
     foliage : (S,) bool
+    cap_alt : the alternative (last, weight 0, never drawn) that closes a tip with the Cap
+    piece; -1 when the piece library has none
     """
 
     grammar: Grammar
@@ -99,7 +105,13 @@ class CompiledGrammar:
     alt_radius: NDArray[np.float64]
     alt_bend: NDArray[np.float64]
     alt_spread: NDArray[np.float64]
+    alt_roll: NDArray[np.float64]
+    alt_branch_angle: NDArray[np.float64]
+    alt_tropism: NDArray[np.float64]
+    alt_taper: NDArray[np.float64]
     foliage: NDArray[np.bool_]
+    cap_alt: int
+    pipe_exponent: float | None
     expected_pieces: float
 
     def choice_table(self, depth: int) -> NDArray[np.float64]:
@@ -143,6 +155,9 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
                         f"unknown symbol {succ.symbol!r}", path=f"{where}.successors[{r}].symbol"
                     )
             rows.append((sid[s], alt))
+    has_cap = "Cap" in PIECE_NAMES
+    if has_cap:  # never drawn (weight 0): expansion puts it on every tip it closes
+        rows.append((0, Alternative(piece="Cap", weight=1.0, successors=[])))
     n_alt = len(rows)
     big = np.iinfo(np.int32).max
     alt_succ = np.full((n_alt, MAX_LEAF_RIMS), -1, np.int32)
@@ -155,6 +170,9 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
                 alt_length[a, r] = succ.length
                 alt_radius[a, r] = succ.radius
     max_depth = g.max_depth if g.max_depth is not None else settings.depth_limit
+    cap_alt = n_alt - 1 if has_cap else -1
+    alts = [alt for _, alt in rows]
+    nan2 = (float("nan"), float("nan"))
     cg = CompiledGrammar(
         grammar=g,
         symbols=symbols,
@@ -162,7 +180,7 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         max_depth=max_depth,
         alt_symbol=np.array([s for s, _ in rows], np.int32),
         alt_piece=np.array([PIECE_NAMES.index(alt.piece) for _, alt in rows], np.int32),
-        alt_weight=np.array([alt.weight for _, alt in rows]),
+        alt_weight=np.array([alt.weight for _, alt in rows]) * (np.arange(n_alt) != cap_alt),
         alt_depth=np.array(
             [[alt.min_depth, big if alt.max_depth is None else alt.max_depth] for _, alt in rows],
             np.int32,
@@ -175,7 +193,15 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         alt_radius=alt_radius,
         alt_bend=np.deg2rad([alt.pose.bend for _, alt in rows]).reshape(n_alt, 2),
         alt_spread=np.deg2rad([alt.pose.spread for _, alt in rows]).reshape(n_alt, 2),
+        alt_roll=np.array([np.nan if a.roll is None else a.roll for a in alts]),
+        alt_branch_angle=np.deg2rad([a.branch_angle or nan2 for a in alts]).reshape(n_alt, 2),
+        alt_tropism=np.array([[a.tropism.gravity, a.tropism.light] for a in alts]).reshape(
+            n_alt, 2
+        ),
+        alt_taper=np.array([a.taper for a in alts]).reshape(n_alt, 2),
         foliage=np.isin(np.arange(len(symbols)), [sid[s] for s in g.foliage]),
+        cap_alt=cap_alt,
+        pipe_exponent=g.pipe_exponent,
         expected_pieces=0.0,
     )
     if cg.choice_table(0)[cg.axiom, -1] <= 0:
@@ -185,7 +211,12 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         )
     if g.max_depth is None:
         _check_terminates(cg)
-    expected = _expected_pieces(cg)
+    if g.twig_radius is not None or g.crown is not None:
+        # growth ends by thickness and height, which counting by depth cannot see: grow a
+        # small sample (its own fixed seed; the per-tree cap still stops a runaway)
+        expected = _sampled_pieces(cg, settings)
+    else:
+        expected = _expected_pieces(cg)
     object.__setattr__(cg, "expected_pieces", expected)
     if expected > settings.max_pieces_per_tree:
         raise LimitError(
@@ -197,13 +228,27 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
     return cg
 
 
+SAMPLE_TREES = 4
+
+
+def _sampled_pieces(cg: CompiledGrammar, settings: ForestSettings) -> float:
+    """Mean pieces per tree of a few trees of average size (1.15 x: a margin for the spread
+    of sizes)."""
+    from forest.growth.expand import expand  # expand builds on this module's tables
+
+    g = cg.grammar
+    radius = np.full(SAMPLE_TREES, g.trunk_radius * sum(g.tree_scale) / 2)
+    graph = expand(cg, SAMPLE_TREES, np.random.default_rng(0), settings, radius)
+    return 1.15 * len(graph) / SAMPLE_TREES
+
+
 def _check_terminates(cg: CompiledGrammar) -> None:
     """Without max_depth every reachable symbol must be able to end in a finite tree."""
     n = len(cg.symbols)
     ends = np.zeros(n, bool)
     while True:
         succ_ok = np.where(cg.alt_succ < 0, True, ends[np.maximum(cg.alt_succ, 0)])
-        alt_ok = succ_ok.all(axis=1)
+        alt_ok = succ_ok.all(axis=1) & (np.arange(len(cg.alt_symbol)) != cg.cap_alt)
         new = np.zeros(n, bool)
         new[cg.alt_symbol[alt_ok]] = True
         if (new == ends).all():

@@ -11,7 +11,8 @@ points straight to world space.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 from functools import cache, cached_property
 
 import numpy as np
@@ -21,9 +22,11 @@ from forest.geometry import affine, rim
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
 from forest.geometry.transforms import F64, invert_similarity
 from forest.growth.assembly import building_twist_table
-from forest.growth.expand import LevelBlock, PieceGraph, children_radius
+from forest.growth.expand import LevelBlock, PieceGraph, children_radius, rim_tables
+from forest.growth.grammar import CompiledGrammar
 
 I32 = NDArray[np.int32]
+LevelHook = Callable[[NDArray[np.intp], F64], None]
 
 
 @dataclass(frozen=True)
@@ -106,27 +109,102 @@ class PoseParams:
 def draw_pose(
     graph: PieceGraph,
     pieces: tuple[PieceArrays, ...],
-    alt_bend: F64,
-    alt_spread: F64,
+    cg: CompiledGrammar,
     rng: np.random.Generator,
     n_trees: int,
 ) -> PoseParams:
+    """Random bends and spreads from the grammar's ranges; lateral rims turned to their
+    ``branch_angle`` within the plane of their rest tilt."""
     n = len(graph)
-    bend = np.take(alt_bend, graph.alt, axis=0)
-    spread = np.take(alt_spread, graph.alt, axis=0)
+    bend = np.take(cg.alt_bend, graph.alt, axis=0)
+    spread = np.take(cg.alt_spread, graph.alt, axis=0)
     sigma = np.take(_rest_tip_scale(pieces), graph.piece, axis=0)
     tree_phase = rng.random(n_trees) * 2 * np.pi
     radius = graph.radius.astype(np.float16).astype(np.float64)
+    spread_azimuth = rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi)
+    spread_angle = spread[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
+        spread[:, None, 1] - spread[:, None, 0]
+    )
+    angle = np.take(cg.alt_branch_angle, graph.alt, axis=0)
+    if not np.isnan(angle[:, 0]).all():
+        _, _, _, _, tilt_t, tilt_az_t = rim_tables()
+        tilt = np.take(tilt_t, graph.piece, axis=0)
+        want = angle[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
+            angle[:, None, 1] - angle[:, None, 0]
+        )
+        turn = np.where(np.isnan(want) | (tilt < 1e-3), 0.0, want - tilt)
+        spread_azimuth, spread_angle = _add_tilts(
+            spread_azimuth, spread_angle, np.take(tilt_az_t, graph.piece, axis=0), turn
+        )
     return PoseParams(
         bend_azimuth=rng.random(n) * (2 * np.pi),
         bend_angle=bend[:, 0] + rng.random(n) * (bend[:, 1] - bend[:, 0]),
-        spread_azimuth=rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi),
-        spread_angle=spread[:, None, 0]
-        + rng.random((n, MAX_LEAF_RIMS)) * (spread[:, None, 1] - spread[:, None, 0]),
+        spread_azimuth=spread_azimuth,
+        spread_angle=spread_angle,
         tip_scale=sigma * children_radius(graph, radius),
         length=graph.length,
         phase=np.take(tree_phase, graph.tree) + 0.35 * graph.depth,
     )
+
+
+def _add_tilts(az0: F64, angle0: F64, az1: F64, angle1: F64) -> tuple[F64, F64]:
+    """Two rotations about horizontal axes (azimuth, angle) as one, by adding their rotation
+    vectors (exact for a common axis, close for the small angles of poses)."""
+    x = angle0 * np.cos(az0) + angle1 * np.cos(az1)
+    z = angle0 * np.sin(az0) + angle1 * np.sin(az1)
+    return np.arctan2(z, x), np.hypot(x, z)
+
+
+def apply_tropisms(
+    graph: PieceGraph,
+    bones: Bones,
+    pieces: tuple[PieceArrays, ...],
+    tree_transforms: F64,
+    transforms: F64,
+    pose: PoseParams,
+    alt_tropism: F64,
+) -> PoseParams:
+    """The pose with each piece's hub bend turned toward the vertical (gravitropism) and the
+    light (outward from its trunk, 45 degrees up) by the fractions ``alt_tropism`` ``(A, 2)``
+    of the angles between the piece's axis and those directions.
+
+    A piece's axis depends on every bend below it, so the bends are found level by level
+    inside one forward-kinematics pass of the palette (the same closed forms, so what is
+    measured is what is drawn)."""
+    out = replace(pose, bend_azimuth=pose.bend_azimuth.copy(), bend_angle=pose.bend_angle.copy())
+    strength = np.take(alt_tropism, graph.alt, axis=0)
+    centre = tree_transforms[:, :3, 3]
+
+    def bend_level(idx: NDArray[np.intp], root: F64) -> None:
+        gravity, light = strength[idx, 0], strength[idx, 1]
+        on = (gravity != 0) | (light != 0)
+        if not on.any():
+            return
+        idx, lin, pos = idx[on], root[affine.LIN][:, on], root[affine.TRANS][:, on]
+        gravity, light = gravity[on], light[on]
+        up = np.zeros((3, len(idx)))
+        up[1] = np.sign(gravity)
+        out_xz = pos - np.take(centre, graph.tree[idx], axis=0).T
+        out_xz[1] = 0.0
+        flat = np.linalg.norm(out_xz, axis=0)
+        sun = out_xz / np.maximum(flat, 1e-12)
+        sun[1] = 1.0
+        sun /= np.linalg.norm(sun, axis=0)
+        az, ang = out.bend_azimuth[idx], out.bend_angle[idx]
+        for direction, k in ((up, np.abs(gravity)), (sun, light)):
+            # the direction in the piece's frame (R^T d; R is a rotation times a scale)
+            local = affine.apply_linear(affine.transpose_linear(lin), direction)
+            local /= np.maximum(np.linalg.norm(local, axis=0), 1e-300)
+            side = np.hypot(local[0], local[2])
+            off = np.arccos(np.clip(local[1], -1.0, 1.0))
+            # rotating about +Y x d closes the angle; straight away from d: no preferred side
+            az, ang = _add_tilts(
+                az, ang, np.arctan2(-local[0], local[2]), np.where(side > 1e-9, k * off, 0.0)
+            )
+        out.bend_azimuth[idx], out.bend_angle[idx] = az, ang
+
+    Poser(graph, bones, pieces, tree_transforms, transforms, out).palette(level_hook=bend_level)
+    return out
 
 
 def rest_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> PoseParams:
@@ -321,18 +399,29 @@ class Poser:
         return out
 
     def palette(
-        self, wind: Wind | None = None, time: float = 0.0, row_vectors: bool = False
+        self,
+        wind: Wind | None = None,
+        time: float = 0.0,
+        row_vectors: bool = False,
+        level_hook: LevelHook | None = None,
     ) -> F64:
         """``(b, 4, 4)`` skinning matrices ``G @ inv(J)``, computed block by block of whole
         trees (small enough for the temporaries to stay in cache); transposed for USD with
-        ``row_vectors``, so a scene writer needs no second copy."""
+        ``row_vectors``, so a scene writer needs no second copy. ``level_hook(idx, root)``
+        sees each level's root globals ``(12, m)`` before that level's rotations are read."""
         pal = np.empty((len(self.bones), 4, 4))
         for blk in self.graph.blocks:
-            self._palette_block(blk, pal, wind, time, row_vectors)
+            self._palette_block(blk, pal, wind, time, row_vectors, level_hook)
         return pal
 
     def _palette_block(
-        self, blk: LevelBlock, pal: F64, wind: Wind | None, time: float, row_vectors: bool
+        self,
+        blk: LevelBlock,
+        pal: F64,
+        wind: Wind | None,
+        time: float,
+        row_vectors: bool,
+        level_hook: LevelHook | None = None,
     ) -> None:
         """Forward kinematics of one block, a depth level at a time, in closed forms that
         skip the hubs' and terminals' globals.
@@ -371,6 +460,8 @@ class Poser:
                     np.take(tab.building_twist, bt, axis=1),
                     out=root,
                 )
+            if level_hook is not None:
+                level_hook(idx, root)
             rot = self._rotations(idx, wind, time)
             h = np.take(tab.hub_t, piece, axis=1)
             local = np.empty((12, n))
@@ -388,7 +479,9 @@ class Poser:
                 + th
                 - affine.apply_linear(local[affine.LIN], th)
             )
-            per_tip = hub if k == n else np.repeat(hub, rot.rims, axis=1)
+            # one terminal per instance (k == n with no rimless cap among them): no repeat
+            one_each = k == n and (n == 0 or rot.rims.min() == 1)
+            per_tip = hub if one_each else np.repeat(hub, rot.rims, axis=1)
             affine.compose(per_tip, local, out=cols[:, at + 2 * n : at + 2 * n + k])
             off = b.offset[idx] - b0
             bone[at : at + n] = off

@@ -1,0 +1,146 @@
+"""What a forester would measure on each generated tree, computed from the posed arrays:
+height, trunk diameter at breast height, crown width and base, pieces, the thinnest rims.
+
+Used by the species tests (figures against ``shared/SPECIES.md``), the gallery's captions and
+``forest presets --figures``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.geometry.pieces import HUB
+from forest.geometry.transforms import F64
+from forest.growth.generate import Forest
+
+BREAST_HEIGHT = 1.3  # metres: where foresters measure a trunk's diameter (DBH)
+# A hexagonal rim of circumradius r has the area of a circle of diameter 2 r * this
+HEX_AREA_DIAMETER = float(np.sqrt(3.0 * np.sqrt(3.0) / (2.0 * np.pi)))
+
+
+@dataclass(frozen=True)
+class TreeFigures:
+    """Per tree ``(t,)`` float64 in metres unless said: height (ground to the highest
+    branch point or leaf cloud top), dbh (area-equivalent trunk diameter at 1.3 m), crown_width
+    (mean of the x and z extents of branches and clouds), crown_base (lowest leaf cloud's
+    bottom), pieces ``(t,)`` int64, tip_radius (largest radius of a rim that ends its branch),
+    trunk_radius (root rim radius)."""
+
+    height: F64
+    dbh: F64
+    crown_width: F64
+    crown_base: F64
+    pieces: NDArray[np.int64]
+    tip_radius: F64
+    trunk_radius: F64
+
+    @property
+    def slenderness(self) -> F64:
+        """Height over DBH (both in metres)."""
+        return self.height / self.dbh
+
+    @property
+    def crown_ratio(self) -> F64:
+        """Crown width over height."""
+        return self.crown_width / self.height
+
+
+def piece_points(forest: Forest, palette: F64 | None = None) -> tuple[F64, F64]:
+    """``(n, 3)`` world root-rim centre and ``(n, 3)`` hub of every piece, posed (no wind)."""
+    pal = forest.palette() if palette is None else palette
+    off = forest.bones.offset
+    roots = pal[off, :3, 3]
+    hub_rest = np.stack([p.joint_rest[HUB, :3, 3] for p in forest.pieces])[forest.graph.piece]
+    hub_m = pal[off + HUB]
+    hubs = np.einsum("nij,nj->ni", hub_m[:, :3, :3], hub_rest) + hub_m[:, :3, 3]
+    return roots, hubs
+
+
+def rim_radius(forest: Forest, palette: F64 | None = None) -> F64:
+    """``(n,)`` posed root-rim radius of every piece in metres."""
+    pal = forest.palette() if palette is None else palette
+    return np.cbrt(np.linalg.det(pal[forest.bones.offset, :3, :3]))
+
+
+def tree_figures(forest: Forest) -> TreeFigures:
+    g = forest.graph
+    n_trees = forest.options.trees
+    pal = forest.palette()
+    roots, hubs = piece_points(forest, pal)
+    radius = rim_radius(forest, pal)
+    base = forest.tree_transforms[:, :3, 3]
+    rel_roots = roots - base[g.tree]
+    rel_hubs = hubs - base[g.tree]
+    anchors = forest.foliage_anchors()
+    cloud = anchors.positions(pal) - base[g.tree[anchors.instance]]
+    half = anchors.size / 2
+    top = np.zeros(n_trees)
+    np.maximum.at(top, g.tree, np.maximum(rel_roots[:, 1], rel_hubs[:, 1]))
+    np.maximum.at(top, g.tree[anchors.instance], cloud[:, 1] + half)
+    lo = np.full((n_trees, 2), np.inf)
+    hi = np.full((n_trees, 2), -np.inf)
+    for pts, tree, pad in (
+        (rel_hubs[:, [0, 2]], g.tree, 0.0),
+        (cloud[:, [0, 2]], g.tree[anchors.instance], half),
+    ):
+        np.minimum.at(lo, tree, pts - np.asarray(pad)[..., None])
+        np.maximum.at(hi, tree, pts + np.asarray(pad)[..., None])
+    crown_base = np.full(n_trees, np.inf)
+    np.minimum.at(crown_base, g.tree[anchors.instance], cloud[:, 1] - half)
+    # DBH: the trunk-axis piece that holds breast height (the highest starting below it)
+    trunk = np.flatnonzero((g.order == 0) & (rel_roots[:, 1] <= BREAST_HEIGHT))
+    best = np.full(n_trees, -1)
+    key = rel_roots[trunk, 1]
+    by_height = trunk[np.lexsort((key, g.tree[trunk]))]
+    best[g.tree[by_height]] = by_height  # the last write per tree is its highest
+    dbh = 2 * HEX_AREA_DIAMETER * np.where(best >= 0, radius[np.maximum(best, 0)], np.nan)
+    ends = _ending_rims(forest, radius)
+    tip = np.zeros(n_trees)
+    np.maximum.at(tip, g.tree[ends[0]], ends[1])
+    return TreeFigures(
+        height=top,
+        dbh=dbh,
+        crown_width=(hi - lo).mean(axis=1),
+        crown_base=crown_base,
+        pieces=np.bincount(g.tree, minlength=n_trees).astype(np.int64),
+        tip_radius=tip,
+        trunk_radius=radius[g.parent < 0],
+    )
+
+
+def _ending_rims(forest: Forest, radius: F64) -> tuple[NDArray[np.intp], F64]:
+    """Instances whose root rim ends a branch (capped, or an open tip's parent rim) and
+    that rim's radius."""
+    g = forest.graph
+    names = [p.name for p in forest.pieces]
+    if "Cap" in names:
+        caps = np.flatnonzero(g.piece == names.index("Cap"))
+        return caps, radius[caps]
+    # no caps: a piece with no children ends at its own leaf rims (radius * rim scale)
+    has_child = np.zeros(len(g), bool)
+    has_child[g.parent[g.parent >= 0]] = True
+    leaf = np.flatnonzero(~has_child)
+    return leaf, radius[leaf] * forest.pose.tip_scale[leaf, 0]
+
+
+def fork_pipe_ratios(forest: Forest, exponent: float) -> F64:
+    """``(f,)`` ``sum(r_child^e) / (taper * r_parent)^e`` at every piece with two or more
+    children (rest radii from the graph)."""
+    g = forest.graph
+    kids = g.parent >= 0
+    n_kids = np.bincount(g.parent[kids], minlength=len(g))
+    total = np.zeros(len(g))
+    np.add.at(total, g.parent[kids], g.scale[kids] ** exponent)
+    forks = np.flatnonzero(n_kids >= 2)
+    return total[forks] / (g.taper[forks] * g.scale[forks]) ** exponent
+
+
+def tip_directions(forest: Forest) -> F64:
+    """``(k, 3)`` unit world axes of the pieces that end branches (posed, no wind)."""
+    pal = forest.palette()
+    ends, _ = _ending_rims(forest, rim_radius(forest, pal))
+    ax = pal[forest.bones.offset[ends] + HUB, :3, 1]
+    return ax / np.linalg.norm(ax, axis=1, keepdims=True)
