@@ -9,6 +9,7 @@ tree's root joint is the identity and every other local transform is the generat
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import fast_simplification
 import numpy as np
@@ -132,32 +133,11 @@ def write_skinned_trees(
 ) -> None:
     UsdGeom.Scope.Define(stage, TREES)
     times = forest.frame_times()
-    b = forest.bones
-    rest = _rest_locals(forest)
-    # Joint frames are stored without scale (DCC bones cannot hold one): with s_j the rest
-    # scale of joint j in tree space, each local becomes S(s_parent) @ L @ S(1 / s_j), i.e.
-    # the translation times s_parent and the scale divided by the rest local scale.
-    rest_scale = _scale(rest)
-    binds = _bind_transforms(forest)
-    bind_scale = _scale(binds)
-    binds[:, :3, :3] /= bind_scale[:, None, None]
-    parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
-    tree_root = b.offset[forest.graph.parent < 0]
-    parent_scale[tree_root] = 1.0
-
-    def unscaled(
-        local: F64,
-    ) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]:
-        t, q, scale = decompose_similarity(local)
-        t *= parent_scale[:, None]
-        # the pose's own scale (the rounded radius scale) is all that is left: exact in half
-        s = np.repeat((scale / rest_scale)[:, None], 3, axis=1).astype(np.float16)
-        t[tree_root], q[tree_root], s[tree_root] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
-        return t.astype(np.float32), q.astype(np.float32), s
-
+    frames_of = joint_frames(forest)
+    binds = frames_of.binds
     # a still forest's pose is one sample at time 0: DCC importers read only samples
-    frames = [(t, unscaled(forest.local_bones(t))) for t in times]
-    rest_unscaled = unscaled(rest)
+    frames = [(t, frames_of.unscaled(forest.local_bones(t))) for t in times]
+    rest_unscaled = frames_of.unscaled(frames_of.rest)
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/Tree_{k:05d}"
@@ -213,6 +193,55 @@ def write_skinned_trees(
             )
         if progress:
             progress("skinned trees", k + 1, len(slices))
+
+
+JointTQS = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]
+
+
+@dataclass(frozen=True, eq=False)
+class JointFrames:
+    """A forest's joints as DCC bones (no scale in their frames), shared by every skinned
+    export (USD here, glTF in :mod:`forest.gltf`).
+
+    binds : (b, 4, 4) unscaled rest joint frames in their tree's space
+    rest : (b, 4, 4) rest local transforms (tree roots at identity), scaled as the generator's
+    rest_scale, parent_scale : (b,) rest scale of each joint and of its parent, tree space
+    tree_root : (t,) int the bone of each tree's root
+    """
+
+    binds: F64
+    rest: F64
+    rest_scale: F64
+    parent_scale: F64
+    tree_root: NDArray[np.int32]
+
+    def unscaled(self, local: F64) -> JointTQS:
+        """Local transforms ``(b, 4, 4)`` -> translations (b, 3) float32, xyzw rotations
+        (b, 4) float32 and scales (b, 3) float16 of the unscaled joints."""
+        t, q, scale = decompose_similarity(local)
+        t *= self.parent_scale[:, None]
+        # the pose's own scale (the rounded radius scale) is all that is left: exact in half
+        s = np.repeat((scale / self.rest_scale)[:, None], 3, axis=1).astype(np.float16)
+        root = self.tree_root
+        t[root], q[root], s[root] = 0.0, (0.0, 0.0, 0.0, 1.0), 1.0
+        return t.astype(np.float32), q.astype(np.float32), s
+
+
+def joint_frames(forest: Forest) -> JointFrames:
+    """The forest's joints without scale in their frames.
+
+    Joint frames are stored without scale (DCC bones cannot hold one): with s_j the rest
+    scale of joint j in tree space, each local becomes S(s_parent) @ L @ S(1 / s_j), i.e.
+    the translation times s_parent and the scale divided by the rest local scale."""
+    b = forest.bones
+    rest = _rest_locals(forest)
+    binds = _bind_transforms(forest)
+    bind_scale = _scale(binds)
+    binds[:, :3, :3] /= bind_scale[:, None, None]
+    parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
+    tree_root = b.offset[forest.graph.parent < 0]
+    parent_scale[tree_root] = 1.0
+    return JointFrames(binds, rest, _scale(rest), parent_scale, tree_root)
 
 
 def _scale(m: F64) -> F64:
