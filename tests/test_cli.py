@@ -32,14 +32,17 @@ def test_presets_lists_every_preset(tmp_path: Path) -> None:
     out = forest("presets", cwd=tmp_path)
     assert out.returncode == 0
     names = [line.split()[0] for line in out.stdout.splitlines()]
-    assert names == ["almond", "alternating", "conifer", "shrub", "uniform"]
+    assert names == [
+        "almond", "alternating", "birch", "hazel", "oak", "pine", "poplar", "spruce", "uniform",
+        "willow",
+    ]  # fmt: skip
 
 
 def test_generate_writes_a_forest(tmp_path: Path) -> None:
     out = forest(
         "generate",
         "--preset",
-        "conifer",
+        "hazel",
         "--seed",
         "4",
         "--trees",
@@ -63,8 +66,8 @@ def test_demo_says_what_it_wrote(tmp_path: Path) -> None:
     out = forest("demo", "-o", "d", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     written = sorted(p.name for p in (tmp_path / "d").iterdir())
-    assert written == ["almond_skinned.usdz", "conifers.usda", "forest.usdc", "metrics.json",
-                       "preview.png"]
+    assert written == ["almond_skinned.usdz", "forest.usdc", "metrics.json", "preview.png",
+                       "spruces.usda"]
     for name in written:
         assert name in out.stdout
 

@@ -216,7 +216,7 @@ def test_reader_names_what_is_wrong(tmp_path: Path, skinned_scene: Path) -> None
     with pytest.raises(SceneError, match="not a readable USD file"):
         read_scene(junk)
     truncated = tmp_path / "cut.usdc"
-    data = write_scene(generate_forest(load_preset("shrub"), 1), tmp_path / "ok.usdc").read_bytes()
+    data = write_scene(generate_forest(load_preset("hazel"), 1), tmp_path / "ok.usdc").read_bytes()
     truncated.write_bytes(data[: len(data) // 2])
     with pytest.raises(SceneError):
         read_scene(truncated)

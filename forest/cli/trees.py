@@ -154,8 +154,8 @@ def demo(output: Path) -> None:
     except OSError as exc:
         raise ForestError(f"cannot create folder: {exc.strerror}", path=str(output)) from None
     jobs = [
-        ("forest.usdc", "almond", ForestOptions(trees=25, area=(30.0, 30.0), frames=48), False),
-        ("conifers.usda", "conifer", ForestOptions(trees=6, area=(12.0, 12.0)), False),
+        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), False),
+        ("spruces.usda", "spruce", ForestOptions(trees=3, area=(16.0, 16.0)), False),
         ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
     ]
     for name, preset, options, skinned in jobs:

@@ -157,7 +157,7 @@ def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
     return 0.2 + 0.8 * np.where(below <= 0.35, below / 0.35, (1.0 - below) / 0.65)
 
 
-KNOT = 0.3  # a shed branch's stub, relative to the branch that would have grown
+KNOT = 0.15  # a shed branch's stub, relative to the branch that would have grown
 
 
 class _Open:

@@ -157,9 +157,9 @@ class Forest:
         (see :mod:`forest.growth.foliage`)."""
         hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
         idx = self.foliage_instance
-        radius = np.cbrt(np.linalg.det(self.transforms[idx, :3, :3]))  # root rim radius 1
         return foliage_anchors(
-            idx, self.graph.piece, self.bones.offset, hubs, radius, self.graph.tree[idx],
+            idx, self.graph.piece, self.bones.offset, hubs, self.graph.scale[idx],
+            self.graph.tree[idx],
             self.grammar.leaves, np.random.default_rng([self.seed, 0xF011A6E]),
             self.options.season,
         )  # fmt: skip

@@ -89,11 +89,11 @@ def test_forest_job_then_render(server: Server, tmp_path: Path) -> None:
 def test_tree_is_answered_synchronously(
     server: Server, tmp_path: Path, fmt: str, media: str
 ) -> None:
-    body = {"preset": "conifer", "seed": 3, "format": fmt}
+    body = {"preset": "almond", "seed": 3, "format": fmt}
     r = server.post("/v1/trees", body)
     assert r.status_code == 200, r.text
     assert r.headers["content-type"] == media
-    assert r.headers["content-disposition"] == f'attachment; filename="conifer-3.{fmt}"'
+    assert r.headers["content-disposition"] == f'attachment; filename="almond-3.{fmt}"'
     assert r.content == reference_scene(tmp_path, body | {"trees": 1}, "tree")
     path = tmp_path / f"tree.{fmt}"
     path.write_bytes(r.content)
@@ -139,7 +139,7 @@ def test_client_errors_name_the_field(server: Server) -> None:
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
     r = server.post("/v1/trees", {})
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
-    bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/shrub.json").read_text())
+    bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/hazel.json").read_text())
     first = next(iter(bad["rules"]))
     bad["rules"][first][0]["successors"] = [{"symbol": "Nowhere"}] * len(
         bad["rules"][first][0]["successors"]

@@ -27,7 +27,7 @@ from service_harness import (
     served,
 )
 
-BODY = {"preset": "shrub", "trees": 4, "seed": 31, "format": "usdc"}
+BODY = {"preset": "hazel", "trees": 4, "seed": 31, "format": "usdc"}
 
 
 @pytest.fixture(scope="module")

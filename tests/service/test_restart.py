@@ -9,7 +9,7 @@ from pathlib import Path
 
 from service_harness import Server
 
-BODY = {"preset": "shrub", "format": "usdc"}
+BODY = {"preset": "hazel", "format": "usdc"}
 
 
 def test_api_restart_loses_nothing(

@@ -1,0 +1,22 @@
+"""Typical figures of each species preset (``shared/SPECIES.md``): height and DBH in metres,
+crown width over height. Tests allow SLACK around them: the table gives typical ranges of
+mature open-grown trees, not rules."""
+
+SLACK = 0.15
+
+SPECIES = {
+    # name: (height range, DBH range, crown ratio range)
+    "oak": ((20, 35), (0.8, 1.8), (0.7, 1.1)),
+    "almond": ((4, 9), (0.2, 0.4), (0.8, 1.2)),
+    "birch": ((15, 25), (0.3, 0.5), (0.35, 0.5)),
+    "pine": ((20, 35), (0.4, 1.0), (0.3, 0.6)),
+    "spruce": ((30, 50), (0.6, 1.5), (0.25, 0.4)),
+    "willow": ((10, 20), (0.5, 1.0), (0.9, 1.3)),
+    "poplar": ((25, 30), (0.5, 1.0), (0.12, 0.25)),
+    "hazel": ((3, 6), (0.05, 0.15), (0.8, 1.2)),
+}
+
+
+def within(value: float, lo_hi: tuple[float, float]) -> bool:
+    lo, hi = lo_hi
+    return lo * (1 - SLACK) <= value <= hi * (1 + SLACK)
