@@ -37,7 +37,16 @@ class ServiceSettings(BaseSettings):
 
     lease_s: float = Field(30.0, gt=0)
     """A claimed job whose heartbeat is older than this is handed to another worker."""
-    heartbeat_s: float = Field(5.0, gt=0)
+    heartbeat_s: float = Field(2.0, gt=0)
+    """The worker extends its lease (and reads the cancel flag) this often: a canceled job's
+    process is killed within about this long."""
+    job_memory_mb: int = Field(6144, ge=0)
+    """Address-space limit of a job's process (``RLIMIT_AS``, MiB; 0: none): a scene that would
+    take more fails as that job's error instead of taking the worker down."""
+    job_cpu_s: int = Field(3600, ge=0)
+    """CPU-time limit of a job's process (``RLIMIT_CPU``, seconds; 0: none)."""
+    max_upload_time_samples: int = Field(10_000, gt=0)
+    """Time samples an uploaded scene may author in all (counted before it is read)."""
     reaper_interval_s: float = Field(5.0, gt=0)
     requeue_after_s: float = Field(60.0, gt=0)
     """A queued job this long without a worker is sent to the broker again (lost messages)."""
@@ -52,6 +61,9 @@ class ServiceSettings(BaseSettings):
     max_image_size: int = Field(4096, gt=0)
     max_render_frames: int = Field(240, gt=0)
 
+    test_hook: str = ""
+    """Test hook of a job's process: ``abort-on-read`` (the reader crashes),
+    ``hold-gil:SECONDS`` (a C call holding the GIL before drawing). Empty in production."""
     test_pause_s: float = Field(0.0, ge=0)
     """Test hook: a job's first attempt pauses this long after it is claimed (heartbeating,
     checking cancel), so a test can kill or cancel it mid-task. 0 in production."""

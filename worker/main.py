@@ -21,9 +21,11 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
         )
     import forest.usd.scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
     from forest.geometry.pieces import piece_library
+    from worker.supervise import preload
     from worker.tasks import app, runtime
 
     piece_library(1)  # built once per process (about a second): not inside the first job
+    preload()  # each job runs in a child of a fork server that imported pxr and forest once
     settings = get_settings()
     migrate(settings.db_url)
     settings.artifacts.mkdir(parents=True, exist_ok=True)

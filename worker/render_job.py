@@ -8,6 +8,7 @@ unmeasured (shader compilation, first uploads), then ``N`` measured frames ``F, 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -110,9 +111,34 @@ def preview_view(
     return camera, tess
 
 
-def render_file(req: RenderRequest) -> RenderMetrics:
+# what a malformed (or hostile) file makes the USD reader raise besides SceneError
+READ_ERRORS = (RuntimeError, TypeError, ValueError, KeyError, IndexError, UnicodeDecodeError)
+
+
+def load_scene(path: Path) -> SceneArrays:
+    """:func:`read_scene`, with the reader's own errors on a malformed file (pxr's
+    ``Tf.ErrorException`` is a RuntimeError) as a :class:`ForestError` naming ``scene``."""
+    try:
+        return read_scene(path)
+    except ForestError:
+        raise
+    except READ_ERRORS as exc:
+        lines = str(exc).strip().splitlines()
+        why = f"{type(exc).__name__}: {lines[-1][:200]}" if lines else type(exc).__name__
+        raise ForestError(f"the scene could not be read ({why})", path="scene") from None
+
+
+def render_file(
+    req: RenderRequest, on_stage: Callable[[str], None] | None = None
+) -> RenderMetrics:
+    """Render ``req``; ``on_stage`` hears ``read`` before the scene is read and ``render``
+    after (a supervisor tells a reader crash from a renderer crash by it)."""
     req.check()
-    scene = read_scene(req.scene)
+    if on_stage is not None:
+        on_stage("read")
+    scene = load_scene(req.scene)
+    if on_stage is not None:
+        on_stage("render")
     n_frames = len(scene.palettes)
     if req.frame >= n_frames:
         raise ForestError(

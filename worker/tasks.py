@@ -1,11 +1,13 @@
 """Celery tasks: ``forest.run_job(job_id)`` claims the job in the job table and runs its kind.
 
 The registry :data:`KINDS` maps a job kind to the code that runs it; a worker lists what it
-runs with ``forest worker --list``. A task holds a lease on its job and a heartbeat thread
-extends it (and records progress, and reads the cancel flag); a worker killed mid-task stops
-heartbeating, the reaper re-enqueues the job and another worker runs it from the start. Outputs
-are written into a scratch folder and renamed into the artifact store, so a half-written file
-never shows.
+runs with ``forest worker --list``. The worker holds a lease on the job and runs the attempt in
+a child process (:mod:`worker.supervise`): the worker heartbeats the lease whatever the child
+does (and records its progress, and reads the cancel flag), kills the child on cancel, and
+tells a crash or a resource limit of the child (a permanent failure of that job) from a lost
+worker (the reaper re-enqueues the job after the lease and another worker runs it from the
+start). Outputs are written into a scratch folder and renamed into the artifact store, so a
+half-written file never shows.
 """
 
 from __future__ import annotations
@@ -14,12 +16,10 @@ import logging
 import os
 import shutil
 import socket
-import threading
 import time
-import traceback
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -27,24 +27,18 @@ from forest.errors import ForestError
 from service.artifacts import ArtifactStore
 from service.dispatch import TASK_NAME, Dispatcher, make_celery
 from service.settings import ServiceSettings, get_settings
-from service.store import Claim, JobStore
+from service.store import JobStore
+from worker.supervise import job_limits, scrub_paths, supervise, under
 
 log = logging.getLogger(__name__)
 OWNER = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
 
 
-class Canceled(Exception):
-    """The job's cancel flag was set: stop and record ``canceled``."""
-
-
-class LeaseLost(Exception):
-    """The reaper handed the job to another worker: stop without recording anything."""
-
-
 @dataclass
 class JobContext:
-    """What a task kind gets: its parameters, a scratch folder and a way to report progress
-    (which raises :class:`Canceled` once cancel was asked)."""
+    """What a task kind gets (in the job's child process): its parameters, a scratch folder
+    and a way to report progress, which the supervising worker records with its heartbeat.
+    Cancel needs no check: the worker kills the child."""
 
     job_id: str
     params: dict[str, Any]
@@ -52,18 +46,14 @@ class JobContext:
     artifacts: ArtifactStore
     stage: str = "started"
     progress: float = 0.0
-    cancel: threading.Event = field(default_factory=threading.Event)
-    lost: threading.Event = field(default_factory=threading.Event)
+    on_report: Callable[[str, float], None] | None = None
+    test_hook: str = ""
+    max_time_samples: int = 10_000
 
     def report(self, stage: str, fraction: float) -> None:
         self.stage, self.progress = stage, fraction
-        self.check()
-
-    def check(self) -> None:
-        if self.lost.is_set():
-            raise LeaseLost(self.job_id)
-        if self.cancel.is_set():
-            raise Canceled(self.job_id)
+        if self.on_report is not None:
+            self.on_report(stage, fraction)
 
 
 @dataclass(frozen=True)
@@ -105,15 +95,24 @@ def run_forest(ctx: JobContext) -> Outcome:
 
 
 def run_render(ctx: JobContext) -> Outcome:
-    """A render job: the scene -> ``preview.png`` + ``metrics.json`` (EGL; GPU or llvmpipe)."""
+    """A render job: the scene -> ``preview.png`` + ``metrics.json`` (EGL; GPU or llvmpipe).
+    An uploaded scene is untrusted: :func:`worker.scene_guard.check_scene_file` bounds it
+    before the reader runs."""
+    from worker.metrics import write_metrics
     from worker.render_job import RenderRequest, render_file
+    from worker.scene_guard import check_scene_file
 
     p = ctx.params
     # a forest job's scene, or the file uploaded with this job
     scene = ctx.artifacts.path(p.get("forest_job") or ctx.job_id, p["scene"])
     if scene is None:
         raise ForestError("the forest job's scene is gone from the artifact store", path="scene")
-    ctx.report("render", 0.1)
+    ctx.report("check", 0.05)
+    if p.get("forest_job") is None:
+        check_scene_file(scene, ctx.max_time_samples)
+    if ctx.test_hook == "abort-on-read":  # tests: a reader that crashes (as pxr can)
+        ctx.report("read", 0.1)
+        os.abort()
     req = RenderRequest(
         scene=scene,
         output=ctx.scratch / "preview.png",
@@ -124,7 +123,16 @@ def run_render(ctx: JobContext) -> Outcome:
         frame=p["frame"],
         frames=p["frames"],
     )
-    metrics = render_file(req)
+
+    def stage(name: str) -> None:
+        ctx.report(name, {"read": 0.1, "render": 0.3}.get(name, 0.5))
+        if name == "render" and ctx.test_hook.startswith("hold-gil:"):
+            _hold_gil(float(ctx.test_hook.split(":", 1)[1]))
+
+    metrics = render_file(req, on_stage=stage)
+    # metrics.json names the scene by its artifact name, never by a server path
+    metrics = metrics.model_copy(update={"scene": p["scene"]})
+    write_metrics(ctx.scratch / "metrics.json", metrics)
     result = {
         "renderer": metrics.renderer,
         "cpu_ms": metrics.median.cpu_ms,
@@ -134,6 +142,13 @@ def run_render(ctx: JobContext) -> Outcome:
     }
     files = {"preview.png": req.output, "metrics.json": ctx.scratch / "metrics.json"}
     return Outcome(files, result)
+
+
+def _hold_gil(seconds: float) -> None:
+    """Tests: a C call that keeps the GIL (``sleep`` through ``PyDLL``), as a long GL draw does."""
+    import ctypes
+
+    ctypes.PyDLL(None).usleep(int(seconds * 1e6))
 
 
 KINDS: dict[str, TaskKind] = {"forest": run_forest, "render": run_render}
@@ -159,27 +174,29 @@ def runtime() -> Runtime:
     return _runtime
 
 
-def _heartbeat(rt: Runtime, claim: Claim, ctx: JobContext, stop: threading.Event) -> None:
-    s = rt.settings
-    while not stop.wait(s.heartbeat_s):
-        try:
-            flag = rt.store.heartbeat(claim, s.lease_s, ctx.progress, ctx.stage)
-        except Exception:  # the database is away: the lease may expire, the reaper decides
-            log.exception("heartbeat of job %s failed", claim.job_id)
-            continue
-        if flag is None:
-            ctx.lost.set()
-            return
-        if flag:
-            ctx.cancel.set()
-
-
-def _test_pause(ctx: JobContext, seconds: float) -> None:
-    end = time.monotonic() + seconds
-    ctx.report("test-pause", 0.0)
-    while time.monotonic() < end:
-        time.sleep(0.05)
-        ctx.check()
+def run_attempt(
+    report: Callable[[str, float], None],
+    kind: TaskKind,
+    job_id: str,
+    params: dict[str, Any],
+    scratch: Path,
+    artifacts_root: Path,
+    pause_s: float,
+    test_hook: str,
+    max_time_samples: int,
+) -> tuple[dict[str, str], dict[str, Any]]:
+    """The child's side of an attempt: run ``kind``; its files (names -> paths in the scratch
+    folder) and result."""
+    ctx = JobContext(
+        job_id, params, scratch, ArtifactStore(artifacts_root), on_report=report,
+        test_hook=test_hook, max_time_samples=max_time_samples,
+    )
+    if pause_s > 0:  # test hook: a window in which a test kills or cancels the job
+        ctx.report("test-pause", 0.0)
+        time.sleep(pause_s)
+    ctx.report("started", 0.0)
+    outcome = kind(ctx)
+    return {name: str(path) for name, path in outcome.files.items()}, outcome.result
 
 
 def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
@@ -190,45 +207,63 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
     if claim is None:
         return "skipped"  # finished, canceled, or leased by a live worker
     kind = (kinds or KINDS).get(claim.kind)
-    scratch = rt.artifacts.scratch(job_id)
-    ctx = JobContext(job_id, claim.params, scratch, rt.artifacts)
-    stop = threading.Event()
-    beat = threading.Thread(target=_heartbeat, args=(rt, claim, ctx, stop), daemon=True)
-    beat.start()
-    try:
-        if kind is None:
-            raise ForestError(f"no worker code for job kind {claim.kind!r}", path="kind")
-        if s.test_pause_s > 0 and claim.attempt == 1:
-            _test_pause(ctx, s.test_pause_s)
-        outcome = kind(ctx)
-        ctx.check()
-        for name, path in outcome.files.items():
-            rt.artifacts.publish(job_id, path, name)
-        done = rt.store.finish(
-            claim, "completed", artifacts=sorted(outcome.files), result=outcome.result
-        )
-        return "completed" if done else "lost"
-    except Canceled:
-        rt.store.finish(claim, "canceled", error="canceled on request")
-        return "canceled"
-    except LeaseLost:
-        return "lost"
-    except ForestError as exc:  # bad input: retrying cannot help
-        rt.store.finish(claim, "failed", error=str(exc))
-        return "failed"
-    except Exception as exc:
-        error = f"{type(exc).__name__}: {exc}"
-        log.error("job %s attempt %d: %s", job_id, claim.attempt, traceback.format_exc())
-        if claim.attempt < claim.max_attempts:
-            if rt.store.retry(claim, error):
-                rt.dispatcher.send(job_id, claim.kind, countdown=s.retry_delay_s)
-            return "retry"
+    if kind is None:
+        error = f"kind: no worker code for job kind {claim.kind!r}"
         rt.store.finish(claim, "failed", error=error)
         return "failed"
+    scratch = rt.artifacts.scratch(job_id)
+
+    def heartbeat(progress: float, stage: str) -> bool | None:
+        try:
+            return rt.store.heartbeat(claim, s.lease_s, progress, stage)
+        except Exception:  # the database is away: the lease may expire, the reaper decides
+            log.exception("heartbeat of job %s failed", claim.job_id)
+            return False
+
+    pause = s.test_pause_s if claim.attempt == 1 else 0.0
+    try:
+        end = supervise(
+            run_attempt,
+            (
+                kind, job_id, claim.params, scratch, rt.artifacts.root, pause, s.test_hook,
+                s.max_upload_time_samples,
+            ),
+            job_limits(s.job_memory_mb, s.job_cpu_s),
+            heartbeat,
+            s.heartbeat_s,
+        )
+        if end.status == "ok":
+            files = {n: Path(p) for n, p in (end.files or {}).items()}
+            if not all(under(scratch, p) for p in files.values()):
+                raise RuntimeError("a job's file lies outside its scratch folder")
+            for name, path in files.items():
+                rt.artifacts.publish(job_id, path, name)
+            done = rt.store.finish(
+                claim, "completed", artifacts=sorted(files), result=end.result
+            )
+            return "completed" if done else "lost"
+        if end.status == "canceled":
+            rt.store.finish(claim, "canceled", error="canceled on request")
+            return "canceled"
+        if end.status == "lost":
+            return "lost"
+        if end.status in ("bad", "crash"):  # the input cannot work: retrying cannot help
+            log.warning("job %s attempt %d failed: %s", job_id, claim.attempt, end.message)
+            rt.store.finish(claim, "failed", error=end.message)
+            return "failed"
+        error = end.message
+    except Exception as exc:  # the worker's own side (publish, store): retried
+        log.exception("job %s attempt %d", job_id, claim.attempt)
+        error = scrub_paths(f"{type(exc).__name__}: {exc}")
     finally:
-        stop.set()
-        beat.join(timeout=5)
         shutil.rmtree(scratch, ignore_errors=True)
+    log.error("job %s attempt %d: %s", job_id, claim.attempt, error)
+    if claim.attempt < claim.max_attempts:
+        if rt.store.retry(claim, error):
+            rt.dispatcher.send(job_id, claim.kind, countdown=s.retry_delay_s)
+        return "retry"
+    rt.store.finish(claim, "failed", error=error)
+    return "failed"
 
 
 app = make_celery(get_settings())

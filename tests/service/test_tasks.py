@@ -1,13 +1,19 @@
-"""A job's delivery run in-process (``worker.tasks.execute``) with stand-in task kinds: retries
-up to the attempt cap then failed with the error, bad input failed at once, cancel, and a
-duplicate delivery skipped. The job store is SQLite in a temporary folder; the broker is
-replaced by a recorder."""
+"""A job's delivery run in-process (``worker.tasks.execute``) with stand-in task kinds, each
+attempt in its supervised child process: retries up to the attempt cap then failed with the
+error, bad input failed at once, a crash or a memory limit of the child failed at once (not
+a lost worker), cancel kills the child, a child holding its GIL keeps the lease, a duplicate
+delivery skipped. The job store is SQLite in a temporary folder; the broker is replaced by a
+recorder. (Kinds are module functions: the child imports them by name.)"""
 
 from __future__ import annotations
 
+import os
+import threading
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from forest.errors import ForestError
@@ -15,12 +21,16 @@ from service.db import migrate
 from service.settings import ServiceSettings, override_settings
 from service.store import JobStore
 from worker import tasks
+from worker.supervise import scrub_paths
 from worker.tasks import JobContext, Outcome, execute
 
 
 @pytest.fixture
 def store(tmp_path: Path) -> Iterator[JobStore]:
-    settings = ServiceSettings(data_dir=tmp_path, max_attempts=2, retry_delay_s=0)
+    settings = ServiceSettings(
+        data_dir=tmp_path, max_attempts=2, retry_delay_s=0, lease_s=1.0, heartbeat_s=0.2,
+        job_memory_mb=1024,
+    )
     override_settings(settings)
     migrate(settings.db_url)
     yield JobStore(settings.db_url)
@@ -29,7 +39,7 @@ def store(tmp_path: Path) -> Iterator[JobStore]:
 
 
 def broken(ctx: JobContext) -> Outcome:
-    raise RuntimeError("disk on fire")
+    raise RuntimeError(f"disk on fire at {ctx.scratch}")
 
 
 def bad_input(ctx: JobContext) -> Outcome:
@@ -41,6 +51,28 @@ def write_one(ctx: JobContext) -> Outcome:
     out = ctx.scratch / "scene.usda"
     out.write_text("#usda 1.0\n")
     return Outcome({"scene.usda": out}, {"ok": True})
+
+
+def crash_reading(ctx: JobContext) -> Outcome:
+    ctx.report("read", 0.1)
+    os.abort()
+
+
+def hog_memory(ctx: JobContext) -> Outcome:
+    ctx.report("read", 0.1)
+    blocks = [np.ones(1 << 27) for _ in range(64)]  # 64 GiB, far over the 1 GiB limit
+    return Outcome({}, {"n": len(blocks)})
+
+
+def hold_gil(ctx: JobContext) -> Outcome:
+    tasks._hold_gil(4.0)  # four lease periods in one C call that keeps the GIL
+    return write_one(ctx)
+
+
+def sleep_long(ctx: JobContext) -> Outcome:
+    ctx.report("render", 0.3)
+    tasks._hold_gil(60.0)
+    return write_one(ctx)
 
 
 def test_retries_then_fails_with_the_error(
@@ -60,7 +92,8 @@ def test_retries_then_fails_with_the_error(
     assert execute(row.id, {"forest": broken}) == "failed"
     job = store.get(row.id)
     assert job is not None and job.state == "failed" and job.attempts == 2
-    assert job.error == "RuntimeError: disk on fire"
+    assert job.error is not None and job.error.startswith("RuntimeError: disk on fire at .")
+    assert "/" not in job.error  # no server path
 
 
 def test_bad_input_fails_at_once(store: JobStore) -> None:
@@ -81,14 +114,57 @@ def test_completes_once_and_publishes(store: JobStore, tmp_path: Path) -> None:
     assert job is not None and job.artifacts == ["scene.usda"] and job.result == {"ok": True}
 
 
-def test_cancel_flag_stops_the_task(store: JobStore) -> None:
+def test_reader_crash_is_a_permanent_failure(store: JobStore) -> None:
+    row, _ = store.create("render", {}, max_attempts=2)
+    assert execute(row.id, {"render": crash_reading}) == "failed"
+    job = store.get(row.id)
+    assert job is not None and job.attempts == 1
+    assert job.error == "the scene could not be read: the USD reader crashed (SIGABRT)"
+
+
+def test_memory_limit_is_a_permanent_failure(store: JobStore) -> None:
+    row, _ = store.create("render", {}, max_attempts=2)
+    assert execute(row.id, {"render": hog_memory}) == "failed"
+    job = store.get(row.id)
+    assert job is not None and job.attempts == 1
+    assert job.error == "the job ran out of memory (its limit is 1024 MiB)"
+
+
+def test_a_child_holding_its_gil_keeps_the_lease(store: JobStore) -> None:
     row, _ = store.create("forest", {}, max_attempts=2)
+    beats: list[object] = []
 
-    def cancel_midway(ctx: JobContext) -> Outcome:
-        store.cancel(ctx.job_id)
-        ctx.cancel.set()  # what the heartbeat thread does when it reads the flag
-        return write_one(ctx)
+    def watch() -> None:  # the lease must be extended while the child holds its GIL
+        for _ in range(30):
+            job = store.get(row.id)
+            if job is not None and job.heartbeat_at is not None:
+                beats.append(job.heartbeat_at)
+            time.sleep(0.1)
 
-    assert execute(row.id, {"forest": cancel_midway}) == "canceled"
+    t = threading.Thread(target=watch)
+    t.start()
+    assert execute(row.id, {"forest": hold_gil}) == "completed"
+    t.join()
+    job = store.get(row.id)
+    assert job is not None and job.attempts == 1 and job.state == "completed"
+    assert len(set(beats)) >= 5  # heartbeats went on during the 4 s C call
+
+
+def test_cancel_kills_the_child_within_seconds(store: JobStore) -> None:
+    row, _ = store.create("render", {}, max_attempts=2)
+
+    def cancel_soon() -> None:
+        time.sleep(1.0)
+        store.cancel(row.id)
+
+    threading.Thread(target=cancel_soon).start()
+    t0 = time.monotonic()
+    assert execute(row.id, {"render": sleep_long}) == "canceled"
+    assert time.monotonic() - t0 < 5.0  # the child's 60 s C call was cut short
     job = store.get(row.id)
     assert job is not None and job.state == "canceled" and job.artifacts == []
+
+
+def test_scrub_paths() -> None:
+    msg = "no such file @/srv/forest/artifacts/ab/upload.usdc@ (at /tmp/x/y.usda: line 3)"
+    assert scrub_paths(msg) == "no such file @upload.usdc@ (at y.usda: line 3)"
