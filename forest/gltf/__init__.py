@@ -1,0 +1,13 @@
+"""glTF 2.0 binary (.glb) export of a forest, for game engines and web viewers.
+
+One module per concept: :mod:`~forest.gltf.buffer` (the binary chunk, buffer views and
+accessors), :mod:`~forest.gltf.skin` (each tree's skeleton, inverse binds and wind
+animation), :mod:`~forest.gltf.bark` (the bark atlas, its UVs and PBR material),
+:mod:`~forest.gltf.leaves` (leaf clouds as alpha-tested cards on their hub joints),
+:mod:`~forest.gltf.instancing` (the pieces instanced with ``EXT_mesh_gpu_instancing``) and
+:mod:`~forest.gltf.document` (the whole file, written atomically).
+"""
+
+from __future__ import annotations
+
+GLB_SUFFIX = ".glb"

@@ -1,0 +1,132 @@
+"""Leaf clouds as alpha-tested cards (``alphaMode: MASK``, double sided) that follow their hub
+joints: each cloud is a child node of the joint its piece's hub bone became, so the wind
+moves it with its branch.
+
+The cloud models of the forest's leaf family (:func:`forest.growth.foliage.cloud_models`) are
+stored once; every tree gets a material tinted by its clouds' mean colour (glTF has no
+per-instance colour in core) and one mesh per model it uses, sharing the model's accessors.
+At rest a cloud stands where the USD instancer puts it (the hub's rest point on the piece),
+turned by its yaw about the world's vertical, scaled to its diameter; posed and in the wind
+it turns with its joint.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pygltflib as gl
+
+from forest.geometry.transforms import F64, compose_similarity
+from forest.gltf.bark import png_bytes
+from forest.gltf.buffer import Blob
+from forest.gltf.skin import TreeSkin, trs
+from forest.growth.foliage import FoliageAnchors, cloud_models, leaf_texture, yaw_quaternions
+from forest.growth.generate import Forest
+
+ALPHA_CUTOFF = 0.5
+ROUGHNESS = 0.7
+
+
+class LeafLibrary:
+    """The family's cloud models (accessors) and leaf texture, added to ``gltf`` once."""
+
+    def __init__(self, gltf: gl.GLTF2, blob: Blob, anchors: FoliageAnchors) -> None:
+        self.gltf = gltf
+        models = cloud_models(anchors.family)
+        image = blob.image(png_bytes(leaf_texture(anchors.family)), f"leaf-{anchors.family}")
+        gltf.samplers.append(
+            gl.Sampler(
+                magFilter=gl.LINEAR,
+                minFilter=gl.LINEAR_MIPMAP_LINEAR,
+                wrapS=gl.CLAMP_TO_EDGE,
+                wrapT=gl.CLAMP_TO_EDGE,
+            )
+        )
+        gltf.textures.append(gl.Texture(sampler=len(gltf.samplers) - 1, source=image, name="leaf"))
+        self.texture = len(gltf.textures) - 1
+        self.attributes: list[gl.Attributes] = []
+        self.indices: list[int] = []
+        for cloud in models:
+            self.attributes.append(
+                gl.Attributes(
+                    POSITION=blob.accessor(
+                        cloud.positions.astype(np.float32), gl.ARRAY_BUFFER, bounds=True
+                    ),
+                    NORMAL=blob.accessor(cloud.normals.astype(np.float32), gl.ARRAY_BUFFER),
+                    # leaf_texture's row 0 is t = 0, as glTF's v = 0 is the image's top row
+                    TEXCOORD_0=blob.accessor(cloud.st.astype(np.float32), gl.ARRAY_BUFFER),
+                )
+            )
+            tris = cloud.triangles().astype(
+                np.uint16 if len(cloud.positions) < 65536 else np.uint32
+            )
+            self.indices.append(blob.accessor(tris.ravel(), gl.ELEMENT_ARRAY_BUFFER))
+
+    def tree_meshes(self, tree: int, colour: F64, models: set[int]) -> dict[int, int]:
+        """A material tinted ``colour`` (linear RGB) and one mesh per model in ``models``;
+        model -> mesh index."""
+        self.gltf.materials.append(
+            gl.Material(
+                name=f"Leaves_{tree:05d}",
+                pbrMetallicRoughness=gl.PbrMetallicRoughness(
+                    baseColorFactor=[*(float(c) for c in colour), 1.0],
+                    baseColorTexture=gl.TextureInfo(index=self.texture),
+                    metallicFactor=0.0,
+                    roughnessFactor=ROUGHNESS,
+                ),
+                alphaMode=gl.MASK,
+                alphaCutoff=ALPHA_CUTOFF,
+                doubleSided=True,
+            )
+        )
+        material = len(self.gltf.materials) - 1
+        out = {}
+        for m in sorted(models):
+            prim = gl.Primitive(
+                attributes=self.attributes[m], indices=self.indices[m], material=material
+            )
+            self.gltf.meshes.append(gl.Mesh(name=f"LeafCloud{m}_{tree:05d}", primitives=[prim]))
+            out[m] = len(self.gltf.meshes) - 1
+        return out
+
+
+def cloud_locals(forest: Forest, anchors: FoliageAnchors, joint_world_rest: F64) -> F64:
+    """``(k, 4, 4)`` each cloud's transform relative to its joint: at rest (joint world frame
+    ``joint_world_rest`` ``(k, 4, 4)``) the cloud sits at its rest centre, turned by its yaw,
+    scaled to its diameter."""
+    centre = anchors.positions(forest.rest_palette())
+    q = yaw_quaternions(anchors.yaw)
+    world = compose_similarity(centre, q, anchors.size)
+    return np.linalg.inv(joint_world_rest) @ world
+
+
+def add_tree_clouds(
+    gltf: gl.GLTF2,
+    library: LeafLibrary,
+    forest: Forest,
+    anchors: FoliageAnchors,
+    pick: np.ndarray,
+    tree: int,
+    skin: TreeSkin,
+    bones: slice,
+) -> None:
+    """The clouds ``pick`` (indices into ``anchors``) of one tree as child nodes of their
+    hub joints."""
+    if len(pick) == 0:
+        return
+    colour = anchors.color[pick].astype(np.float64).mean(axis=0)
+    meshes = library.tree_meshes(tree, colour, {int(m) for m in anchors.model[pick]})
+    joint = anchors.bone[pick] - bones.start
+    # the joint's world frame at rest: the tree transform and the (unscaled) bind frame
+    world_rest = forest.tree_transforms[tree] @ np.linalg.inv(skin.inverse_binds[joint])
+    sub = FoliageAnchors(
+        instance=anchors.instance[pick], bone=anchors.bone[pick], rest=anchors.rest[pick],
+        size=anchors.size[pick], model=anchors.model[pick], yaw=anchors.yaw[pick],
+        color=anchors.color[pick], family=anchors.family,
+    )  # fmt: skip
+    local = cloud_locals(forest, sub, world_rest)
+    for c in range(len(pick)):
+        node = gl.Node(
+            name=f"Leaves_{int(pick[c])}", mesh=meshes[int(sub.model[c])], **trs(local[c])
+        )
+        gltf.nodes.append(node)
+        gltf.nodes[skin.nodes[int(joint[c])]].children.append(len(gltf.nodes) - 1)

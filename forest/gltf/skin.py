@@ -1,0 +1,146 @@
+"""Each tree's skeleton as glTF joint nodes, a skin (inverse bind matrices) and the wind as
+animation channels (translation, rotation and scale of every joint, time in seconds).
+
+The joints are those of the USD skinned form (:func:`forest.usd.skinned.joint_frames`): no
+scale in their frames, parent-first, the tree's root joint at identity under the tree's node,
+which carries the tree transform.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pygltflib as gl
+from numpy.typing import NDArray
+
+from forest.geometry.transforms import F64, decompose_similarity, invert_similarity
+from forest.gltf.buffer import Blob
+from forest.growth.generate import Forest
+from forest.usd.skinned import JointFrames, JointTQS, joint_paths
+
+
+@dataclass(frozen=True)
+class Pose:
+    """Unscaled joint locals of every bone at each sample: translations ``(f, b, 3)``,
+    xyzw rotations ``(f, b, 4)`` (signs continuous along f, so linear keys never take the
+    long way), scales ``(f, b, 3)``, all float32; ``times`` ``(f,)`` float32 seconds, or
+    None for a still forest (one posed sample, no animation)."""
+
+    t: NDArray[np.float32]
+    q: NDArray[np.float32]
+    s: NDArray[np.float32]
+    times: NDArray[np.float32] | None
+
+
+def sample_pose(forest: Forest, frames: JointFrames) -> Pose:
+    samples: list[JointTQS] = [frames.unscaled(forest.local_bones(t)) for t in forest.frame_times()]
+    t = np.stack([x[0] for x in samples]).astype(np.float32)
+    q = np.stack([x[1] for x in samples]).astype(np.float64)
+    q /= np.linalg.norm(q, axis=-1, keepdims=True)
+    # flip each key onto the hemisphere of the one before it (q and -q are one rotation)
+    flip = np.ones(q.shape[:2])
+    flip[1:] = np.where(np.einsum("fbi,fbi->fb", q[1:], q[:-1]) < 0, -1.0, 1.0)
+    q *= np.cumprod(flip, axis=0)[..., None]
+    s = np.stack([x[2] for x in samples]).astype(np.float32)
+    times = None
+    if forest.animated:
+        times = (np.arange(forest.options.frames) / forest.options.fps).astype(np.float32)
+    return Pose(t, q.astype(np.float32), s, times)
+
+
+def trs(m: F64) -> dict[str, list[float]]:
+    """A similarity ``(4, 4)`` as a node's translation / rotation / scale (identity parts
+    left out, as glTF's defaults)."""
+    t, q, s = decompose_similarity(m[None])
+    q = q[0] / np.linalg.norm(q[0])
+    out: dict[str, list[float]] = {}
+    if np.any(t[0] != 0):
+        out["translation"] = [float(v) for v in t[0]]
+    if not np.allclose(q, (0, 0, 0, 1), rtol=0, atol=1e-12):
+        out["rotation"] = [float(v) for v in q]
+    if abs(s[0] - 1.0) > 1e-12:
+        out["scale"] = [float(s[0])] * 3
+    return out
+
+
+def _node_trs(t: NDArray[np.float32], q: NDArray[np.float32], s: NDArray[np.float32]) -> gl.Node:
+    node = gl.Node()
+    if np.any(t != 0):
+        node.translation = [float(v) for v in t]
+    if np.any(q[:3] != 0) or q[3] != 1:
+        node.rotation = [float(v) for v in q]
+    if np.any(s != 1):
+        node.scale = [float(v) for v in s]
+    return node
+
+
+@dataclass(frozen=True)
+class TreeSkin:
+    """One tree's skin: ``nodes`` the joint node indices (parent-first, in the tree's bone
+    order), ``skin`` its index in ``skins``, ``inverse_binds`` ``(j, 4, 4)`` float64."""
+
+    nodes: list[int]
+    skin: int
+    inverse_binds: F64
+
+
+def add_tree_skeleton(
+    gltf: gl.GLTF2,
+    blob: Blob,
+    forest: Forest,
+    frames: JointFrames,
+    pose: Pose,
+    tree: int,
+    inst: slice,
+    bones: slice,
+) -> TreeSkin:
+    """The tree's node (tree transform) with its joint hierarchy under it, posed at the first
+    sample, and its skin. Appends the tree node to the default scene."""
+    names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones)]
+    parent = forest.bones.parent[bones] - bones.start
+    first = len(gltf.nodes)
+    tree_node = gl.Node(name=f"Tree_{tree:05d}", **trs(forest.tree_transforms[tree]))
+    gltf.nodes.append(tree_node)
+    nodes: list[int] = []
+    for j, name in enumerate(names):
+        b = bones.start + j
+        node = _node_trs(pose.t[0, b], pose.q[0, b], pose.s[0, b])
+        node.name = name
+        gltf.nodes.append(node)
+        nodes.append(len(gltf.nodes) - 1)
+        host = tree_node if parent[j] < 0 else gltf.nodes[nodes[parent[j]]]
+        host.children.append(nodes[-1])
+    gltf.scenes[0].nodes.append(first)
+    inverse = invert_similarity(frames.binds[bones])
+    ibm = blob.accessor(inverse.astype(np.float32))
+    gltf.skins.append(
+        gl.Skin(name=f"Tree_{tree:05d}", inverseBindMatrices=ibm, joints=nodes, skeleton=nodes[0])
+    )
+    return TreeSkin(nodes, len(gltf.skins) - 1, inverse)
+
+
+def add_wind(gltf: gl.GLTF2, blob: Blob, pose: Pose, skins: list[tuple[TreeSkin, slice]]) -> None:
+    """One animation "Wind": a LINEAR sampler per joint and path, all reading one time
+    accessor; each path's keys of every joint lie in one buffer view (joint-major)."""
+    if pose.times is None:
+        return
+    times = blob.accessor(pose.times, bounds=True)
+    anim = gl.Animation(name="Wind")
+    f = len(pose.times)
+    for path, keys in (("translation", pose.t), ("rotation", pose.q), ("scale", pose.s)):
+        joint_major = np.ascontiguousarray(np.swapaxes(keys, 0, 1))  # (b, f, c)
+        view = blob.view(joint_major.tobytes())
+        per_joint = f * keys.shape[2] * 4
+        for tree_skin, bones in skins:
+            for j, node in enumerate(tree_skin.nodes):
+                b = bones.start + j
+                out = blob.accessor(joint_major[b], view=view, offset=b * per_joint)
+                anim.samplers.append(gl.AnimationSampler(input=times, output=out))
+                anim.channels.append(
+                    gl.AnimationChannel(
+                        sampler=len(anim.samplers) - 1,
+                        target=gl.AnimationChannelTarget(node=node, path=path),
+                    )
+                )
+    gltf.animations.append(anim)
