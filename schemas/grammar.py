@@ -14,6 +14,9 @@ from pydantic import Field, model_validator
 
 from schemas.base import StrictModel
 
+MAX_DEPTH_BOUND = 65_536
+"""Upper bound of an alternative's ``min_depth``/``max_depth`` (no tree grows that deep)."""
+
 PieceName = Literal["I", "Y", "T", "Psi", "Cap", "Flare"]
 Symbol = Annotated[str, Field(pattern=r"^[A-Za-z_][A-Za-z0-9_]{0,63}$")]
 
@@ -78,7 +81,8 @@ class Tropism(StrictModel):
 class Alternative(StrictModel):
     piece: PieceName
     # bounded so the cumulative weights of any rule stay far from float overflow
-    weight: Annotated[float, Field(gt=0, le=1e9, allow_inf_nan=False)] = 1.0
+    # and from denormals: a weight of 5e-324 sums to a cumulative table that never reaches 1
+    weight: Annotated[float, Field(ge=1e-6, le=1e9, allow_inf_nan=False)] = 1.0
     successors: list[Successor | None]
     """One entry per leaf rim of ``piece`` (I: 1, Y: 2, T: 2, Psi: 3)."""
     twist: Literal["random"] | Annotated[int, Field(ge=0, le=5)] = "random"
@@ -99,8 +103,9 @@ class Alternative(StrictModel):
     ] = (1.0, 1.0)
     """Range of the radius where the children leave over the piece's own root radius: the
     branch narrows along its axis; the pipe model splits what is left."""
-    min_depth: Annotated[int, Field(ge=0)] = 0
-    max_depth: Annotated[int, Field(ge=0)] | None = None
+    # bounded: depths are compared as int32 arrays (2^31 overflowed)
+    min_depth: Annotated[int, Field(ge=0, le=MAX_DEPTH_BOUND)] = 0
+    max_depth: Annotated[int, Field(ge=0, le=MAX_DEPTH_BOUND)] | None = None
     """Depth condition: the alternative applies when min_depth <= depth <= max_depth."""
 
     @model_validator(mode="after")

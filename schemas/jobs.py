@@ -6,10 +6,11 @@ caps (``service/settings.py``) are checked on top and answered with the same 422
 
 from __future__ import annotations
 
+import math
 from datetime import datetime
 from typing import Annotated, Any, Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from schemas.base import StrictModel
 from schemas.grammar import Grammar
@@ -21,7 +22,38 @@ UsdFormat = Literal["usda", "usdc", "usdz"]
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
 
 
-class TreeRequest(StrictModel):
+def non_finite(value: Any, path: str = "") -> str | None:
+    """The path (``grammar.rules.A[0].weight``) of the first NaN or infinite float in a JSON
+    value, or None. JSON parsers accept ``NaN``, ``Infinity`` and ``1e400`` (inf)."""
+    if isinstance(value, float):
+        return None if math.isfinite(value) else path or "body"
+    if isinstance(value, dict):
+        for k, v in value.items():
+            found = non_finite(v, f"{path}.{k}" if path else str(k))
+            if found is not None:
+                return found
+    elif isinstance(value, list | tuple):
+        for i, v in enumerate(value):
+            found = non_finite(v, f"{path}[{i}]")
+            if found is not None:
+                return found
+    return None
+
+
+class FiniteModel(StrictModel):
+    """A request: every float in it, however deep, is finite (checked before field parsing,
+    so a NaN in a field without bounds cannot reach the library)."""
+
+    @model_validator(mode="before")
+    @classmethod
+    def _finite(cls, data: Any) -> Any:
+        found = non_finite(data)
+        if found is not None:
+            raise ValueError(f"{found}: must be a finite number (not NaN or infinite)")
+        return data
+
+
+class TreeRequest(FiniteModel):
     """One tree from a preset name or a grammar object, answered synchronously as USD."""
 
     preset: Annotated[str, Field(min_length=1, max_length=64)] | None = None
@@ -48,7 +80,7 @@ class ForestRequest(TreeRequest):
     placement: Literal["poisson", "grid"] = "poisson"
 
 
-class RenderRequest(StrictModel):
+class RenderRequest(FiniteModel):
     """A render job of a finished forest job's scene (the camera frames the forest itself)."""
 
     forest_job: Annotated[str, Field(min_length=1, max_length=64)]

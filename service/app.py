@@ -12,6 +12,7 @@ from service.artifacts import ArtifactStore
 from service.db import migrate
 from service.deps import Services
 from service.dispatch import Dispatcher
+from service.errors import install_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import Metrics, MetricsMiddleware
 from service.reaper import Reaper
@@ -53,6 +54,7 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
         lifespan=lifespan,
     )
     app.state.services = services
+    install_handlers(app)
     for module in (presets, trees, forests, renders, jobs, health):
         app.include_router(module.router)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)

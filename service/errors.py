@@ -3,12 +3,21 @@ so a library error's ``.path`` names the request field just as pydantic's errors
 
 from __future__ import annotations
 
+import logging
+import math
 import re
+from typing import Any
 
+from fastapi import FastAPI, Request
+from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from sqlalchemy.exc import DBAPIError
 
 from forest.errors import ForestError, LimitError
 
+log = logging.getLogger(__name__)
+RETRY_AFTER_S = 5
 _PART = re.compile(r"\[(\d+)\]|\.?([^.\[\]]+)")
 
 
@@ -29,3 +38,38 @@ def field_error(
 def forest_error(exc: ForestError, prefix: list[str | int] | None = None) -> RequestValidationError:
     kind = "limit_error" if isinstance(exc, LimitError) else "value_error"
     return field_error([*(prefix or []), *path_loc(exc.path)], exc.message, kind)
+
+
+def _finite_json(value: Any) -> Any:
+    """``value`` with NaN and infinities as strings (strict JSON has no such numbers)."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {str(k): _finite_json(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_json(v) for v in value]
+    return value
+
+
+async def validation_error(request: Request, exc: Exception) -> JSONResponse:
+    """FastAPI's 422 body, made serialisable whatever the input held (NaN, 1e400, bytes)."""
+    assert isinstance(exc, RequestValidationError)
+    body = {"detail": _finite_json(jsonable_encoder(_finite_json(exc.errors())))}
+    return JSONResponse(body, status_code=422)
+
+
+async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection."""
+    log.warning("database unavailable on %s %s: %s", request.method, request.url.path,
+                type(exc).__name__)
+    return JSONResponse(
+        {"detail": "the job store is unavailable; retry later"},
+        status_code=503,
+        headers={"Retry-After": str(RETRY_AFTER_S)},
+    )
+
+
+def install_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(RequestValidationError, validation_error)
+    # OperationalError, InterfaceError and the rest of the DBAPI's errors: the server is away
+    app.add_exception_handler(DBAPIError, database_unavailable)

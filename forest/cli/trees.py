@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 from typing import Any
 
@@ -10,6 +11,18 @@ import click
 from forest.cli.app import PROGRESS_TREES, bench, input_errors, main, stage_progress
 from forest.errors import ForestError
 
+
+class FiniteRange(click.FloatRange):
+    """A float range that refuses NaN and infinities too (``FloatRange`` lets NaN through: no
+    comparison with NaN is true); the bounds are the service's request limits."""
+
+    name = "finite float range"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        out = super().convert(value, param, ctx)
+        if not math.isfinite(out):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return out
 
 @main.command()
 @input_errors
@@ -40,7 +53,7 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 @click.option("--trees", type=int, default=1, show_default=True)
 @click.option(
     "--area",
-    type=(float, float),
+    type=(FiniteRange(0, 1e6, min_open=True), FiniteRange(0, 1e6, min_open=True)),
     default=(20.0, 20.0),
     show_default=True,
     metavar="W D",
@@ -56,11 +69,11 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     show_default=True,
     help="Wind frames to sample (0: a still, posed forest).",
 )
-@click.option("--fps", type=float, default=24.0, show_default=True)
+@click.option("--fps", type=FiniteRange(0, 1000, min_open=True), default=24.0, show_default=True)
 @click.option(
     "--wind",
     "wind_deg",
-    type=float,
+    type=FiniteRange(0, 90),
     default=4.0,
     show_default=True,
     help="Wind sway at the tips, degrees.",
