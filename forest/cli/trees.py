@@ -98,7 +98,8 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "--output",
     type=click.Path(path_type=Path),
     required=True,
-    help="OUT.usda, OUT.usdc or OUT.usdz",
+    help="OUT.usda, OUT.usdc, OUT.usdz, or OUT.glb (glTF 2.0 binary: skinned trees, wind "
+    "animation, textures inside, for game engines and web viewers)",
 )
 @input_errors
 def generate(
@@ -116,15 +117,18 @@ def generate(
     tiles_dir: str | None,
     output: Path,
 ) -> None:
-    """Generate a forest from a grammar and a seed and write it as USD."""
+    """Generate a forest from a grammar and a seed and write it as USD or glTF (by the
+    output's suffix)."""
     from forest.bark.tiles import manifest_for
+    from forest.gltf import GLB_SUFFIX
     from forest.growth.generate import ForestOptions, generate_forest
     from forest.growth.skeleton import Wind
-    from forest.usd.files import check_output_path
+    from forest.usd.files import FORMATS, check_output_path
     from forest.usd.scene import write_scene
     from schemas.tileset import DEFAULT_MANIFEST
 
-    check_output_path(output)
+    check_output_path(output, (*FORMATS, GLB_SUFFIX))
+    glb = output.suffix.lower() == GLB_SUFFIX
     g = _load_grammar(preset, grammar)
     manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
     options = ForestOptions(
@@ -138,10 +142,17 @@ def generate(
     )
     with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
         forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
-        write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+        if glb:
+            from forest.gltf.document import write_glb
+
+            tiles = output.parent / tiles_dir if tiles_dir else None
+            write_glb(forest, output, tiles=tiles, progress=bar)
+        else:
+            write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
-        f"{len(forest.bones)} bones, {frames} frame(s)" + (", skinned" if skinned else "")
+        f"{len(forest.bones)} bones, {frames} frame(s)"
+        + (", skinned" if skinned or glb else "")
     )
 
 

@@ -18,12 +18,13 @@ FORMATS = (".usda", ".usdc", ".usdz")
 _DOS_TIME, _DOS_DATE = 0, (0 << 9) | (1 << 5) | 1
 
 
-def check_output_path(path: str | Path) -> Path:
-    """The output's suffix must be a USD format and its folder writable; fail before work."""
+def check_output_path(path: str | Path, formats: tuple[str, ...] = FORMATS) -> Path:
+    """The output's suffix must be one of ``formats`` (USD's by default; the CLI adds .glb)
+    and its folder writable; fail before work."""
     p = Path(path)
-    if p.suffix.lower() not in FORMATS:
+    if p.suffix.lower() not in formats:
         raise OutputError(
-            f"unknown format {p.suffix or '(none)'!r}; use one of {', '.join(FORMATS)}", path=str(p)
+            f"unknown format {p.suffix or '(none)'!r}; use one of {', '.join(formats)}", path=str(p)
         )
     folder = p.parent if str(p.parent) else Path(".")
     if not folder.is_dir():
