@@ -18,6 +18,8 @@ from schemas.grammar import Grammar
 JobState = Literal["queued", "active", "completed", "failed", "canceled"]
 JobKind = Literal["forest", "render"]
 UsdFormat = Literal["usda", "usdc", "usdz"]
+SceneFormat = Literal["usda", "usdc", "usdz", "glb"]
+"""USD, or glTF 2.0 binary (skinned trees, wind animation, textures inside) for game engines."""
 
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
 
@@ -54,19 +56,21 @@ class FiniteModel(StrictModel):
 
 
 class TreeRequest(FiniteModel):
-    """One tree from a preset name or a grammar object, answered synchronously as USD."""
+    """One tree from a preset name or a grammar object, answered synchronously as USD or
+    glTF (``format``)."""
 
     preset: Annotated[str, Field(min_length=1, max_length=64)] | None = None
     """Name of a shipped grammar (``GET /v1/presets``); give this or ``grammar``."""
     grammar: Grammar | None = None
     seed: Seed = 0
-    format: UsdFormat = "usdc"
+    format: SceneFormat = "usdc"
     frames: Annotated[int, Field(ge=0, le=10_000)] = 0
     """Wind frames to sample (0: a still, posed tree)."""
     fps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 24.0
     wind_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 4.0
     segments: Annotated[int, Field(ge=1, le=8)] = 1
     skinned: bool = False
+    """USD only: also bake each tree as a skinned mesh (a glb is always skinned)."""
 
 
 class ForestRequest(TreeRequest):

@@ -67,7 +67,7 @@ class TaskKind(Protocol):
 
 
 def run_forest(ctx: JobContext) -> Outcome:
-    """A forest job: generate, write the scene (``scene.<format>``)."""
+    """A forest job: generate, write the scene (``scene.<format>``: USD, or ``scene.glb``)."""
     from forest.growth.generate import generate_forest, options_from_request
     from forest.growth.presets import load_preset
     from forest.usd.scene import write_scene
@@ -83,7 +83,12 @@ def run_forest(ctx: JobContext) -> Outcome:
     forest = generate_forest(grammar, req.seed, options, progress=note)
     ctx.report("write", 0.7)
     name = f"scene.{req.format}"
-    out = write_scene(forest, ctx.scratch / name, skinned=req.skinned)
+    if req.format == "glb":
+        from forest.gltf.document import write_glb
+
+        out = write_glb(forest, ctx.scratch / name)
+    else:
+        out = write_scene(forest, ctx.scratch / name, skinned=req.skinned)
     result = {
         "trees": req.trees,
         "pieces": forest.n_instances,

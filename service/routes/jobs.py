@@ -18,6 +18,7 @@ ARTIFACT_TYPES = {
     ".usda": "model/vnd.usda",
     ".usdc": "model/vnd.usd",
     ".usdz": "model/vnd.usdz+zip",
+    ".glb": "model/gltf-binary",
 }
 
 

@@ -40,6 +40,10 @@ def create_render(
     scene = (row.result or {}).get("scene")
     if not scene or services.artifacts.path(row.id, scene) is None:
         raise field_error(["forest_job"], "the forest job has no scene artifact")
+    if scene.endswith(".glb"):
+        raise field_error(
+            ["forest_job"], "the forest job wrote glTF (.glb); the renderer reads USD formats"
+        )
     params = req.model_dump(mode="json") | {"scene": scene}
     return submit(services, "render", params, idempotency_key)
 

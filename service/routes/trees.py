@@ -1,4 +1,4 @@
-"""``POST /v1/trees``: one tree, answered synchronously as a USD file."""
+"""``POST /v1/trees``: one tree, answered synchronously as a USD or glTF (.glb) file."""
 
 from __future__ import annotations
 
@@ -10,9 +10,10 @@ from fastapi import APIRouter
 from fastapi.responses import Response
 
 from forest.errors import ForestError
+from forest.gltf.document import write_glb
 from forest.growth.generate import generate_forest, options_from_request
 from forest.usd.scene import write_scene
-from schemas.jobs import TreeRequest, UsdFormat
+from schemas.jobs import SceneFormat, TreeRequest
 from service.deps import ServicesDep
 from service.errors import forest_error
 from service.inputs import library_settings, resolve_grammar
@@ -20,11 +21,11 @@ from service.routes.jobs import ARTIFACT_TYPES
 
 router = APIRouter(prefix="/v1/trees", tags=["trees"])
 
-MEDIA_TYPES = {fmt: ARTIFACT_TYPES[f".{fmt}"] for fmt in get_args(UsdFormat)}
+MEDIA_TYPES = {fmt: ARTIFACT_TYPES[f".{fmt}"] for fmt in get_args(SceneFormat)}
 _BINARY = {"schema": {"type": "string", "format": "binary"}}
 RESPONSES: dict[int | str, dict[str, Any]] = {
     200: {
-        "description": "The tree as USD (the `format` asked for)",
+        "description": "The tree as USD or glTF binary (the `format` asked for)",
         "content": {mt: _BINARY for mt in MEDIA_TYPES.values()},
     },
     400: {"description": "Body that is not JSON (bytes that do not decode)"},
@@ -44,7 +45,11 @@ def create_tree(req: TreeRequest, services: ServicesDep) -> Response:
                 grammar, req.seed, options, settings=library_settings(s, s.max_tree_pieces),
                 compiled=cg,
             )
-            path = write_scene(forest, Path(tmp) / f"tree.{req.format}", skinned=req.skinned)
+            out = Path(tmp) / f"tree.{req.format}"
+            if req.format == "glb":
+                path = write_glb(forest, out)
+            else:
+                path = write_scene(forest, out, skinned=req.skinned)
         except ForestError as exc:
             raise forest_error(exc) from None
         data = path.read_bytes()
