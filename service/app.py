@@ -17,6 +17,7 @@ from service.limits import BodyLimitMiddleware
 from service.metrics import Metrics, MetricsMiddleware
 from service.reaper import Reaper
 from service.routes import forests, health, jobs, presets, renders, trees
+from service.security import Keys, RateLimit, SameSiteWrites
 from service.settings import ServiceSettings, get_settings
 from service.store import JobStore
 
@@ -26,7 +27,8 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     store = JobStore(settings.db_url)
     metrics = Metrics(store)
     services = Services(
-        settings, store, ArtifactStore(settings.artifacts), Dispatcher(settings), metrics
+        settings, store, ArtifactStore(settings.artifacts), Dispatcher(settings), metrics,
+        Keys(settings), RateLimit(settings),
     )
 
     @asynccontextmanager
@@ -58,6 +60,8 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     for module in (presets, trees, forests, renders, jobs, health):
         app.include_router(module.router)
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    allowed = frozenset(o.strip() for o in settings.allowed_origins.split(",") if o.strip())
+    app.add_middleware(SameSiteWrites, allowed=allowed)
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app
 

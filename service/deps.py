@@ -10,6 +10,7 @@ from fastapi import Depends, Header, Request
 from service.artifacts import ArtifactStore
 from service.dispatch import Dispatcher
 from service.metrics import Metrics
+from service.security import Keys, RateLimit
 from service.settings import ServiceSettings
 from service.store import JobStore
 
@@ -21,6 +22,8 @@ class Services:
     artifacts: ArtifactStore
     dispatcher: Dispatcher
     metrics: Metrics
+    keys: Keys
+    rate_limit: RateLimit
 
 
 def get_services(request: Request) -> Services:

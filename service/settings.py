@@ -61,6 +61,17 @@ class ServiceSettings(BaseSettings):
     max_image_size: int = Field(4096, gt=0)
     max_render_frames: int = Field(240, gt=0)
 
+    api_keys: str = ""
+    """``key=tenant`` pairs, comma separated; a request names its key in ``X-API-Key``. Empty:
+    the API is open (every caller is tenant ``local``): for one machine only."""
+    rate_limit: str = "20/second;600/minute"
+    """Per-key limit of state-changing requests (``limits`` notation; empty: none)."""
+    rate_limit_storage: str = "memory://"
+    """Where the rate-limit counters live (``redis://...`` to share them between replicas)."""
+    allowed_origins: str = ""
+    """Browser origins (comma separated) allowed to send state-changing requests; none by
+    default, so no web page can submit jobs or uploads cross-site."""
+
     test_hook: str = ""
     """Test hook of a job's process: ``abort-on-read`` (the reader crashes),
     ``hold-gil:SECONDS`` (a C call holding the GIL before drawing). Empty in production."""

@@ -30,6 +30,11 @@ class IdempotencyConflict(Exception):
         self.key = key
 
 
+def scoped_key(tenant: str, key: str) -> str:
+    """An idempotency key as stored: per tenant (two tenants may use the same key)."""
+    return hashlib.sha256(f"{tenant}\0{key}".encode()).hexdigest()
+
+
 def request_hash(kind: str, params: dict[str, Any]) -> str:
     text = json.dumps({"kind": kind, "params": params}, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
@@ -62,13 +67,19 @@ class JobStore:
     # -- API side ---------------------------------------------------------------------------
 
     def create(
-        self, kind: str, params: dict[str, Any], max_attempts: int, key: str | None = None
+        self,
+        kind: str,
+        params: dict[str, Any],
+        max_attempts: int,
+        key: str | None = None,
+        tenant: str = "local",
     ) -> tuple[JobRow, bool]:
-        """Insert a queued job; with an idempotency key already used for the same request,
-        answer that job instead (``created`` False)."""
+        """Insert a queued job of ``tenant``; with an idempotency key the tenant already used
+        for the same request, answer that job instead (``created`` False)."""
         digest = request_hash(kind, params)
-        if key is not None:
-            old = self.by_key(key)
+        stored = scoped_key(tenant, key) if key is not None else None
+        if key is not None and stored is not None:
+            old = self.by_key(stored)
             if old is not None:
                 if old.request_hash != digest:
                     raise IdempotencyConflict(key)
@@ -77,6 +88,7 @@ class JobStore:
         row = JobRow(
             id=uuid.uuid4().hex,
             kind=kind,
+            tenant=tenant,
             state="queued",
             params=params,
             attempts=0,
@@ -84,7 +96,7 @@ class JobStore:
             progress=0.0,
             stage="queued",
             cancel_requested=False,
-            idempotency_key=key,
+            idempotency_key=stored,
             request_hash=digest,
             artifacts=[],
             created_at=now,
@@ -94,9 +106,9 @@ class JobStore:
             with self.session() as s, s.begin():
                 s.add(row)
         except IntegrityError:  # a concurrent request with the same key won the insert
-            if key is None:
+            if key is None or stored is None:
                 raise
-            old = self.by_key(key)
+            old = self.by_key(stored)
             if old is None or old.request_hash != digest:
                 raise IdempotencyConflict(key) from None
             return old, False
@@ -106,14 +118,25 @@ class JobStore:
         with self.session() as s:
             return s.scalars(select(JobRow).where(JobRow.idempotency_key == key)).first()
 
-    def get(self, job_id: str) -> JobRow | None:
+    def get(self, job_id: str, tenant: str | None = None) -> JobRow | None:
+        """The job; with ``tenant``, only if it is that tenant's (another's is None)."""
         with self.session() as s:
-            return s.get(JobRow, job_id)
+            row = s.get(JobRow, job_id)
+        if row is not None and tenant is not None and row.tenant != tenant:
+            return None
+        return row
 
     def list_jobs(
-        self, state: str | None, kind: str | None, limit: int, offset: int
+        self,
+        state: str | None,
+        kind: str | None,
+        limit: int,
+        offset: int,
+        tenant: str | None = None,
     ) -> tuple[Sequence[JobRow], int]:
         q = select(JobRow)
+        if tenant is not None:
+            q = q.where(JobRow.tenant == tenant)
         if state is not None:
             q = q.where(JobRow.state == state)
         if kind is not None:
@@ -125,8 +148,11 @@ class JobStore:
             ).all()
         return rows, total
 
-    def cancel(self, job_id: str) -> JobRow | None:
-        """Queued jobs are canceled at once; active ones get the flag their task checks."""
+    def cancel(self, job_id: str, tenant: str | None = None) -> JobRow | None:
+        """Queued jobs are canceled at once; active ones get the flag their worker reads (and
+        kill the job's process). With ``tenant``, another tenant's job is None, untouched."""
+        if tenant is not None and self.get(job_id, tenant) is None:
+            return None
         now = utcnow()
         with self.session() as s, s.begin():
             s.execute(

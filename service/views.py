@@ -64,13 +64,14 @@ def submit(
     kind: str,
     params: dict[str, Any],
     key: str | None,
+    tenant: str,
     inputs: dict[str, bytes] | None = None,
 ) -> JSONResponse:
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it, answer
     202 + the job."""
     try:
         row, created = services.store.create(
-            kind, params, services.settings.max_attempts, key
+            kind, params, services.settings.max_attempts, key, tenant
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None

@@ -35,6 +35,11 @@ def serve(data_dir: Path, host: str, port: int, workers: int) -> None:
     s = get_settings()
     click.echo(f"forest serve: http://{host}:{port} (docs at /docs), {workers} worker(s)")
     click.echo(f"  jobs {s.db_url.split('@')[-1]}, broker {s.broker.split('@')[-1]}")
+    if not s.api_keys:
+        click.echo(
+            "  no API keys (FOREST_API_KEYS unset): the API is open to whoever reaches "
+            f"{host}:{port}; keep it on loopback"
+        )
     run_serve(s, host, port, workers)
 
 

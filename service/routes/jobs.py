@@ -9,6 +9,7 @@ from fastapi.responses import FileResponse
 
 from schemas.jobs import Job, JobKind, JobPage, JobState
 from service.deps import ServicesDep
+from service.security import Tenant
 from service.views import ERRORS, job_model
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -25,29 +26,31 @@ ARTIFACT_TYPES = {
 @router.get("", response_model=JobPage)
 def list_jobs(
     services: ServicesDep,
+    tenant: Tenant,
     state: JobState | None = None,
     kind: JobKind | None = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> JobPage:
-    rows, total = services.store.list_jobs(state, kind, limit, offset)
+    rows, total = services.store.list_jobs(state, kind, limit, offset, tenant)
     return JobPage(
         items=[job_model(r, services) for r in rows], total=total, limit=limit, offset=offset
     )
 
 
 @router.get("/{job_id}", response_model=Job, responses=ERRORS)
-def get_job(job_id: str, services: ServicesDep) -> Job:
-    row = services.store.get(job_id)
+def get_job(job_id: str, services: ServicesDep, tenant: Tenant) -> Job:
+    row = services.store.get(job_id, tenant)
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)
 
 
 @router.delete("/{job_id}", response_model=Job, responses=ERRORS)
-def cancel_job(job_id: str, services: ServicesDep) -> Job:
-    """Cancel: a queued job is canceled at once; a running one stops at its next check."""
-    row = services.store.cancel(job_id)
+def cancel_job(job_id: str, services: ServicesDep, tenant: Tenant) -> Job:
+    """Cancel: a queued job is canceled at once; a running one's process is killed at the
+    worker's next heartbeat (within seconds)."""
+    row = services.store.cancel(job_id, tenant)
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)
@@ -65,8 +68,8 @@ def cancel_job(job_id: str, services: ServicesDep) -> Job:
         **ERRORS,
     },
 )
-def get_artifact(job_id: str, name: str, services: ServicesDep) -> FileResponse:
-    row = services.store.get(job_id)
+def get_artifact(job_id: str, name: str, services: ServicesDep, tenant: Tenant) -> FileResponse:
+    row = services.store.get(job_id, tenant)
     if row is None or name not in (row.artifacts or []):
         raise HTTPException(404, "no such artifact")
     path = services.artifacts.path(job_id, name)

@@ -6,12 +6,13 @@ from fastapi import APIRouter
 
 from forest.growth.presets import load_preset, preset_names
 from schemas.jobs import Preset, PresetList
+from service.security import Tenant
 
 router = APIRouter(prefix="/v1/presets", tags=["presets"])
 
 
 @router.get("", response_model=PresetList)
-def list_presets() -> PresetList:
+def list_presets(tenant: Tenant) -> PresetList:
     items = []
     for name in preset_names():
         g = load_preset(name)

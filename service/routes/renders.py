@@ -12,6 +12,7 @@ from fastapi.responses import JSONResponse
 from schemas.jobs import Job, RenderRequest
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
+from service.security import Tenant
 from service.settings import ServiceSettings
 from service.views import ERRORS, submit
 
@@ -29,10 +30,13 @@ def _check_caps(s: ServiceSettings, width: int, height: int, frames: int) -> Non
 
 @router.post("", status_code=202, response_model=Job, responses=ERRORS)
 def create_render(
-    req: RenderRequest, services: ServicesDep, idempotency_key: IdempotencyKey = None
+    req: RenderRequest,
+    services: ServicesDep,
+    tenant: Tenant,
+    idempotency_key: IdempotencyKey = None,
 ) -> JSONResponse:
     _check_caps(services.settings, req.width, req.height, req.frames)
-    row = services.store.get(req.forest_job)
+    row = services.store.get(req.forest_job, tenant)  # another tenant's: no such job
     if row is None or row.kind != "forest":
         raise field_error(["forest_job"], "no such forest job")
     if row.state != "completed":
@@ -45,7 +49,7 @@ def create_render(
             ["forest_job"], "the forest job wrote glTF (.glb); the renderer reads USD formats"
         )
     params = req.model_dump(mode="json") | {"scene": scene}
-    return submit(services, "render", params, idempotency_key)
+    return submit(services, "render", params, idempotency_key, tenant)
 
 
 USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
@@ -54,6 +58,7 @@ USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
 @router.post("/upload", status_code=202, response_model=Job, responses=ERRORS)
 def upload_render(
     services: ServicesDep,
+    tenant: Tenant,
     scene: Annotated[UploadFile, File(description="A USD scene: .usda, .usdc or .usdz")],
     width: Annotated[int, Form(ge=1, le=8192)] = 640,
     height: Annotated[int, Form(ge=1, le=8192)] = 480,
@@ -75,4 +80,4 @@ def upload_render(
         "width": width, "height": height, "tess_max": tess_max, "frame": frame, "frames": frames,
     }
     # the scene is in place before the job is sent, so no worker can see the job without it
-    return submit(services, "render", params, idempotency_key, inputs={name: data})
+    return submit(services, "render", params, idempotency_key, tenant, inputs={name: data})

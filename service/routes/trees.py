@@ -18,6 +18,7 @@ from service.deps import ServicesDep
 from service.errors import forest_error
 from service.inputs import library_settings, resolve_grammar
 from service.routes.jobs import ARTIFACT_TYPES
+from service.security import Tenant
 
 router = APIRouter(prefix="/v1/trees", tags=["trees"])
 
@@ -34,7 +35,7 @@ RESPONSES: dict[int | str, dict[str, Any]] = {
 
 
 @router.post("", response_class=Response, responses=RESPONSES)
-def create_tree(req: TreeRequest, services: ServicesDep) -> Response:
+def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Response:
     s = services.settings
     grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
     options = options_from_request(req)
