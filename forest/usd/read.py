@@ -17,7 +17,16 @@ from forest.errors import SceneError
 from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
 from forest.growth.foliage import FAMILIES, LEAF_GREEN, LeafCloud, anchor_positions
-from forest.usd.scene import BARK_TILE_SET_ATTR, BARK_TILES, FOLIAGE, FOREST, LOOKS, PIECES
+from forest.usd.scene import (
+    BARK_TILE_SET_ATTR,
+    BARK_TILES,
+    ENGINE,
+    FOLIAGE,
+    FOREST,
+    LOOKS,
+    PIECES,
+    REPRESENTATION,
+)
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
@@ -165,8 +174,23 @@ def open_stage(path: str | Path) -> Usd.Stage:
     return stage
 
 
+def select_engine(stage: Usd.Stage) -> None:
+    """Compose the ``engine`` representation (pieces at their topological transforms, with
+    the bone palette), whatever the file's default, in the stage's session layer: the file
+    is not touched. Scenes without the variant set (older versions) are left as they are."""
+    prim = stage.GetPrimAtPath(FOREST)
+    if not prim or not prim.GetVariantSets().HasVariantSet(REPRESENTATION):
+        return
+    vset = prim.GetVariantSets().GetVariantSet(REPRESENTATION)
+    if ENGINE not in vset.GetVariantNames():
+        raise SceneError(f"no {ENGINE!r} variant", path=f"{FOREST}.{REPRESENTATION}")
+    with Usd.EditContext(stage, stage.GetSessionLayer()):
+        vset.SetVariantSelection(ENGINE)
+
+
 def read_scene(path: str | Path) -> SceneArrays:
     stage = open_stage(path)
+    select_engine(stage)
     forest = stage.GetPrimAtPath(FOREST)
     if not forest:
         raise SceneError("missing prim (not a forest scene)", path=FOREST)

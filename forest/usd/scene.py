@@ -21,7 +21,7 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 from forest.bark.tilesets import DEFAULT_SET, mean_colour
 from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
-from forest.geometry.transforms import F64, decompose_similarity
+from forest.geometry.transforms import F64, compose_similarity, decompose_similarity
 from forest.growth.foliage import (
     LEAF_GREEN,
     FoliageAnchors,
@@ -31,6 +31,7 @@ from forest.growth.foliage import (
 )
 from forest.growth.generate import Forest
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
+from forest.usd.posed import fit_posed, piece_moments
 from schemas.tileset import UDIM_PATTERN
 
 FOREST = "/World/Forest"
@@ -41,6 +42,12 @@ FOLIAGE_CLOUD = f"{FOLIAGE_PROTOTYPES}/LeafCloud"  # + the model index: LeafClou
 LOOKS = "/World/Looks"
 BARK_TILES = f"{LOOKS}/Bark/Tiles"  # the UsdUVTexture reading the UDIM tiles
 BARK_TILE_SET_ATTR = "forest:barkTileSet"  # on the bark material: the shipped set's name
+# The variant set on /World/Forest choosing what a consumer that knows nothing of forest:*
+# composes: ENGINE the pieces at their topological transforms (rest; the renderer skins them
+# with forest:bonePalette), POSED the pieces at best-fit posed transforms, time-sampled,
+# SKINNED one UsdSkel mesh per tree (written with --skinned, then the default).
+REPRESENTATION = "representation"
+ENGINE, POSED, SKINNED = "engine", "posed", "skinned"
 Progress = Callable[[str, int, int], None]
 
 
@@ -213,11 +220,16 @@ def write_instancer(
     stage: Usd.Stage,
     forest: Forest,
     material: UsdShade.Material,
+    targets: dict[str, Usd.EditTarget],
     progress: Progress | None = None,
     on_palette: Callable[[float | None, F64], None] | None = None,
 ) -> UsdGeom.PointInstancer:
     """The pieces' PointInstancer; ``on_palette(time, row_vector_palette)`` sees every
-    palette sample as it is written (the foliage writer takes its cloud centres from it)."""
+    palette sample as it is written (the foliage writer takes its cloud centres from it).
+    Everything but the instance transforms is authored outside the ``representation``
+    variants; ``targets[ENGINE]`` gets the exact topological transforms (rest), and
+    ``targets[POSED]`` the best-fit posed similarities per palette sample
+    (:mod:`forest.usd.posed`)."""
     g = forest.graph
     inst = UsdGeom.PointInstancer.Define(stage, PIECES)
     prim = inst.GetPrim()
@@ -227,14 +239,20 @@ def write_instancer(
         for p in forest.pieces
     ]
     inst.CreatePrototypesRel().SetTargets(paths)
-    t, q, s = decompose_similarity(forest.transforms)
     inst.CreateProtoIndicesAttr(Vt.IntArray.FromNumpy(g.piece))
-    inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)))
-    inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))
-    inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
-    inst.CreateScalesAttr(
-        Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
-    )
+    boxes = np.stack(
+        [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in forest.pieces]
+    )[g.piece]
+    t, q, s = decompose_similarity(forest.transforms)
+    with Usd.EditContext(stage, targets[ENGINE]):  # exact topological transforms
+        inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)))
+        inst.CreateOrientationsAttr(Vt.QuathArray.FromNumpy(q.astype(np.float16)))
+        inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
+        inst.CreateScalesAttr(
+            Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
+        )
+        inst.CreateExtentAttr(_instances_extent(boxes, forest.transforms))
+    moments = piece_moments(forest.pieces)
     inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(len(g), dtype=np.int64)))
     q_max = forest.tile_indices.shape[1]
     vertex = UsdGeom.Tokens.vertex
@@ -254,20 +272,50 @@ def write_instancer(
     times = forest.frame_times()
     for i, time in enumerate(times):
         palette = forest.palette(time, row_vectors=True)
+        code = _time_code(time, forest.options.fps)
         _attr(
             prim,
             "forest:bonePalette",
             Sdf.ValueTypeNames.Matrix4dArray,
             Vt.Matrix4dArray.FromNumpy(palette),
-            _time_code(time, forest.options.fps),
+            code,
         )
+        t, q, s = fit_posed(moments, g.piece, forest.bones.offset, np.swapaxes(palette, -1, -2))
+        with Usd.EditContext(stage, targets[POSED]):
+            # the first sample is also the default, so tools that read no time see the pose
+            for c in (Usd.TimeCode.Default(), code) if i == 0 else (code,):
+                inst.CreatePositionsAttr().Set(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)), c)
+                inst.CreateOrientationsAttr().Set(
+                    Vt.QuathArray.FromNumpy(q.astype(np.float16)), c
+                )
+                inst.CreateScalesAttr().Set(
+                    Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32)),
+                    c,
+                )
+                inst.CreateExtentAttr().Set(
+                    _instances_extent(boxes, compose_similarity(t, q, s)), c
+                )
         if on_palette is not None:
             on_palette(time, palette)
-        del palette
+        del palette, t, q, s
         if progress:
             progress("palette", i + 1, len(times))
-    inst.CreateExtentAttr(inst.ComputeExtentAtTime(Usd.TimeCode.Default(), Usd.TimeCode.Default()))
     return inst
+
+
+def _instances_extent(boxes: F64, m: F64) -> Vt.Vec3fArray:
+    """The extent of boxes ``(n, 2, 3)`` (min, max) under ``(n, 4, 4)`` transforms, as
+    PointInstancer.ComputeExtent takes it: the bound of every transformed box corner,
+    found without corners (a box's half size along axis i is ``sum_j |A_ij| h_j``)."""
+    if not len(boxes):
+        return Vt.Vec3fArray.FromNumpy(np.zeros((2, 3), np.float32))
+    centre = (boxes[:, 0] + boxes[:, 1]) / 2
+    half = (boxes[:, 1] - boxes[:, 0]) / 2
+    lin = m[:, :3, :3]
+    c = np.einsum("nij,nj->ni", lin, centre) + m[:, :3, 3]
+    h = np.einsum("nij,nj->ni", np.abs(lin), half)
+    out = np.stack([(c - h).min(axis=0), (c + h).max(axis=0)])
+    return Vt.Vec3fArray.FromNumpy(out.astype(np.float32))
 
 
 def leaf_material(stage: Usd.Stage) -> UsdShade.Material:
@@ -404,6 +452,14 @@ def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
     group = UsdGeom.Xform.Define(stage, FOREST)
     Usd.ModelAPI(group).SetKind(Kind.Tokens.group)
     prim = group.GetPrim()
+    stage.GetRootLayer().documentation = (
+        f"interlocking-forest {forest.version}: {forest.options.trees} trees from grammar "
+        f"{forest.grammar.name or '(unnamed)'} (axiom {forest.grammar.axiom}), seed "
+        f"{int(forest.seed)}; /World/Forest.forest:grammar holds the grammar, "
+        "forest:options the options. Variant set 'representation' on /World/Forest: "
+        "engine (pieces at rest + forest:bonePalette), posed (pieces at posed transforms), "
+        "skinned (UsdSkel trees, when written)."
+    )
     # everything needed to make the scene again
     grammar_json = json.dumps(forest.grammar.model_dump(mode="json"), sort_keys=True)
     _attr(prim, "forest:grammar", Sdf.ValueTypeNames.String, grammar_json)
@@ -450,11 +506,15 @@ def write_scene(
     tiles: str | None = None,
     progress: Progress | None = None,
 ) -> Path:
-    """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path."""
+    """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path. A .usdz
+    always carries the skinned trees and composes them by default (ARKit allows no
+    PointInstancer), so ``skinned`` is implied there."""
     out = check_output_path(path)
+    skinned = skinned or out.suffix.lower() == ".usdz"
     stage, tmp = new_stage_layer(out)
     try:
         setup_stage(stage, forest)
+        vset, targets = representation_variants(stage, skinned)
         material = bark_material(stage, tiles, forest.grammar.bark)
         anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
         samples: list[tuple[float | None, F64]] = []
@@ -463,18 +523,38 @@ def write_scene(
             if anchors is not None:
                 samples.append((time, anchors.positions(palette, row_vectors=True)))
 
-        write_instancer(stage, forest, material, progress, foliage_sample)
+        write_instancer(stage, forest, material, targets, progress, foliage_sample)
         if anchors is not None:
             write_foliage(stage, forest, anchors, samples)
         if skinned:
             from forest.usd.skinned import write_skinned_trees
 
-            write_skinned_trees(stage, forest, material, progress)
+            vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
+            with Usd.EditContext(stage, targets[SKINNED]):
+                write_skinned_trees(stage, forest, material, anchors, progress)
+                # the skinned trees carry the leaves: each tree is shown once
+                for where in (PIECES, FOLIAGE):
+                    if stage.GetPrimAtPath(where):
+                        stage.GetPrimAtPath(where).SetActive(False)
+        vset.SetVariantSelection(SKINNED if skinned else POSED)
         finish(stage, tmp, out)
     finally:
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
+
+
+def representation_variants(
+    stage: Usd.Stage, skinned: bool
+) -> tuple[Usd.VariantSet, dict[str, Usd.EditTarget]]:
+    """The ``representation`` variant set on /World/Forest and an edit target per variant."""
+    vset = stage.GetPrimAtPath(FOREST).GetVariantSets().AddVariantSet(REPRESENTATION)
+    targets = {}
+    for name in (ENGINE, POSED, SKINNED) if skinned else (ENGINE, POSED):
+        vset.AddVariant(name)
+        vset.SetVariantSelection(name)
+        targets[name] = vset.GetVariantEditTarget()
+    return vset, targets
 
 
 def tile_udim_st(tile_indices: NDArray[np.int32]) -> F64:

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import fast_simplification
 import numpy as np
 from numpy.typing import NDArray
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 from scipy.spatial import cKDTree
 
 from forest.geometry.pieces import MAX_INFLUENCES
@@ -23,12 +23,14 @@ from forest.geometry.transforms import (
     compose_similarity,
     decompose_similarity,
     invert_similarity,
+    rotation_y,
     transform_points,
     transform_vectors,
 )
+from forest.growth.foliage import FoliageAnchors, anchor_positions, cloud_models
 from forest.growth.generate import Forest
 from forest.growth.skeleton import rest_pose
-from forest.usd.scene import FOREST, _primvar, _time_code, row_major, tile_udim_st
+from forest.usd.scene import FOREST, _time_code, leaf_material, row_major, tile_udim_st
 
 TREES = f"{FOREST}/Trees"
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
@@ -67,11 +69,16 @@ def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
     return out
 
 
+WELD_GRID = 1e-6  # metres: rims coincide at rest to rounding, far below any vertex spacing
+
+
 def tree_mesh(
-    forest: Forest, inst: slice, bones: slice, to_tree: F64
+    forest: Forest, inst: slice, bones: slice, to_tree: F64, weld: bool = False
 ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
     """One tree's pieces in tree space at rest: points, normals, quads, joint indices (into
-    the tree's bones), joint weights and faceVarying UDIM st."""
+    the tree's bones), joint weights and ``(q, 4, 2)`` faceVarying UDIM st. With ``weld``,
+    rims of joined pieces (which coincide at rest and are skinned alike) share vertices (the
+    first piece's skin) with averaged normals: no crease at a seam."""
     pts, nrm, quads, jidx, jw, st = [], [], [], [], [], []
     base = 0
     for i in range(inst.start, inst.stop):
@@ -84,24 +91,107 @@ def tree_mesh(
         jw.append(p.joint_weights)
         st.append(tile_udim_st(forest.tile_indices[i, : len(p.quads)]))
         base += len(p.positions)
+    if not weld:
+        return (
+            np.concatenate(pts),
+            np.concatenate(nrm),
+            np.concatenate(quads).astype(np.int32),
+            np.concatenate(jidx).astype(np.int32),
+            np.concatenate(jw),
+            np.concatenate(st),
+        )
+    all_pts = np.concatenate(pts)
+    key = np.round(all_pts / WELD_GRID).astype(np.int64)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    inverse = inverse.ravel()
+    order = np.argsort(first)  # welded vertices in first-seen order: stable, deterministic
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    keep = first[order]
+    remap = rank[inverse]
+    normals = np.zeros((len(keep), 3))
+    np.add.at(normals, remap, np.concatenate(nrm))
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
     return (
-        np.concatenate(pts),
-        np.concatenate(nrm),
-        np.concatenate(quads).astype(np.int32),
-        np.concatenate(jidx).astype(np.int32),
-        np.concatenate(jw),
+        all_pts[keep],
+        normals,
+        remap[np.concatenate(quads)].astype(np.int32),
+        np.concatenate(jidx)[keep].astype(np.int32),
+        np.concatenate(jw)[keep],
         np.concatenate(st),
     )
 
 
-def _bind(prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64) -> None:
+def leaves_mesh(
+    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64
+) -> tuple[F64, F64, NDArray[np.int32], F64, NDArray[np.int32], NDArray[np.float32]] | None:
+    """One tree's leaf clouds as one mesh in tree space at rest (each cloud model turned by
+    its yaw, scaled by its size, at its rest centre): points, normals, quads, vertex st, the
+    tree-local joint of each vertex (its cloud's hub bone; rigid, weight 1) and per-face
+    colour. None when the tree bears no clouds."""
+    sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
+    if not len(sel):
+        return None
+    models = cloud_models(anchors.family)
+    rest_pal = forest.rest_palette()
+    centre = anchor_positions(rest_pal, anchors.bone[sel], anchors.rest[sel])
+    pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
+    base = 0
+    for k, a in enumerate(sel):  # per cloud: a few hundred per tree, skinned form only
+        c = models[anchors.model[a]]
+        rot = rotation_y(anchors.yaw[a])[:3, :3]
+        world = centre[k] + anchors.size[a] * c.positions @ rot.T
+        pts.append(transform_points(to_tree, world))
+        nrm.append(transform_vectors(to_tree, c.normals @ rot.T))
+        quads.append(c.quads + base)
+        st.append(c.st)
+        joint.append(np.full(len(c.positions), anchors.bone[a] - bones.start, np.int32))
+        colour.append(np.repeat(anchors.color[a][None], len(c.quads), axis=0))
+        base += len(c.positions)
+    n = np.concatenate(nrm)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+    return (
+        np.concatenate(pts),
+        n,
+        np.concatenate(quads).astype(np.int32),
+        np.concatenate(st),
+        np.concatenate(joint),
+        np.concatenate(colour).astype(np.float32),
+    )
+
+
+def _bind(
+    prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64, size: int
+) -> None:
     api = UsdSkel.BindingAPI.Apply(prim)
     api.CreateSkeletonRel().SetTargets([skel.GetPath()])
-    api.CreateJointIndicesPrimvar(False, MAX_INFLUENCES).Set(Vt.IntArray.FromNumpy(jidx.ravel()))
-    api.CreateJointWeightsPrimvar(False, MAX_INFLUENCES).Set(
+    api.CreateJointIndicesPrimvar(False, size).Set(Vt.IntArray.FromNumpy(jidx.ravel()))
+    api.CreateJointWeightsPrimvar(False, size).Set(
         Vt.FloatArray.FromNumpy(jw.astype(np.float32).ravel())
     )
     api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
+
+
+def _mesh(
+    stage: Usd.Stage,
+    path: str,
+    pts: F64,
+    normals: F64,
+    faces: NDArray[np.int32],
+    purpose: str,
+) -> UsdGeom.Mesh:
+    mesh = UsdGeom.Mesh.Define(stage, path)
+    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(pts, np.float32)))
+    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, np.float32)))
+    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
+    mesh.CreateFaceVertexCountsAttr(
+        Vt.IntArray.FromNumpy(np.full(len(faces), faces.shape[1], np.int32))
+    )
+    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces).ravel()))
+    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
+    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
+    mesh.CreatePurposeAttr(purpose)
+    return mesh
 
 
 def _proxy(
@@ -113,35 +203,63 @@ def _proxy(
     jidx: NDArray[np.int32],
     jw: F64,
 ) -> UsdGeom.Mesh:
-    """Decimated triangle mesh; each vertex takes the skin of the nearest full-mesh vertex."""
+    """Decimated triangle mesh with vertex normals; each vertex takes the skin of the
+    nearest full-mesh vertex."""
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     p2, f2 = fast_simplification.simplify(pts.astype(np.float32), tris, 1.0 - PROXY_KEEP)
+    p2 = np.asarray(p2, np.float64)
+    f2 = np.asarray(f2, np.int32)
     near = cKDTree(pts).query(p2)[1]
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.asarray(p2, np.float32)))
-    mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(f2), 3, np.int32)))
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.asarray(f2, np.int32).ravel()))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
-    mesh.CreatePurposeAttr(UsdGeom.Tokens.proxy)
-    _bind(mesh.GetPrim(), skel, jidx[near], jw[near])
+    face_n = np.cross(p2[f2[:, 1]] - p2[f2[:, 0]], p2[f2[:, 2]] - p2[f2[:, 0]])
+    normals = np.zeros_like(p2)
+    for c in range(3):
+        np.add.at(normals, f2[:, c], face_n)
+    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    mesh = _mesh(stage, path, p2, normals, f2, UsdGeom.Tokens.proxy)
+    _bind(mesh.GetPrim(), skel, jidx[near], jw[near], MAX_INFLUENCES)
     return mesh
 
 
+def _indexed_st(prim: Usd.Prim, st: F64, interp: str) -> None:
+    """``st`` as an indexed primvar: the few distinct UVs and an index per element."""
+    values, index = np.unique(st.reshape(-1, 2), axis=0, return_inverse=True)
+    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, interp)
+    pv.Set(Vt.Vec2fArray.FromNumpy(values.astype(np.float32)))
+    pv.SetIndices(Vt.IntArray.FromNumpy(index.ravel().astype(np.int32)))
+
+
 def write_skinned_trees(
-    stage: Usd.Stage, forest: Forest, material: UsdShade.Material, progress: Progress | None = None
+    stage: Usd.Stage,
+    forest: Forest,
+    material: UsdShade.Material,
+    anchors: FoliageAnchors | None = None,
+    progress: Progress | None = None,
 ) -> None:
-    UsdGeom.Scope.Define(stage, TREES)
+    """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
+    its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
+    (Leaves, each cloud bound rigidly to its hub bone). Extents are authored per frame on
+    every prim whose points or joints move."""
+    trees = UsdGeom.Xform.Define(stage, TREES)
+    Usd.ModelAPI(trees).SetKind(Kind.Tokens.group)
     times = forest.frame_times()
     frames_of = joint_frames(forest)
     binds = frames_of.binds
     # a still forest's pose is one sample at time 0: DCC importers read only samples
     frames = [(t, frames_of.unscaled(forest.local_bones(t))) for t in times]
+    codes = [
+        Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times
+    ]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/Tree_{k:05d}"
         root = UsdSkel.Root.Define(stage, path)
+        model = Usd.ModelAPI(root)
+        model.SetKind(Kind.Tokens.component)
+        model.SetAssetName(f"Tree_{k:05d}")
+        model.SetAssetVersion(forest.version)
+        root.GetPrim().SetAssetInfoByKey("forest:seed", int(forest.seed))
+        root.GetPrim().SetAssetInfoByKey("forest:tree", k)
         m_tree = forest.tree_transforms[k]
         root.AddTransformOp().Set(Gf.Matrix4d(m_tree.T.tolist()))
         to_tree = invert_similarity(m_tree)
@@ -158,39 +276,37 @@ def write_skinned_trees(
         )
         anim = UsdSkel.Animation.Define(stage, f"{path}/Skeleton/Wind")
         anim.CreateJointsAttr(joints)
-        for time, (t, q, s) in frames:
-            tc = Usd.TimeCode(0.0) if time is None else _time_code(time, forest.options.fps)
+        for tc, (_, (t, q, s)) in zip(codes, frames, strict=True):
             anim.CreateTranslationsAttr().Set(Vt.Vec3fArray.FromNumpy(t[bones]), tc)
             anim.CreateRotationsAttr().Set(Vt.QuatfArray.FromNumpy(q[bones]), tc)
             anim.CreateScalesAttr().Set(Vt.Vec3hArray.FromNumpy(s[bones]), tc)
         UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()]
         )
-        pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree)
-        mesh = UsdGeom.Mesh.Define(stage, f"{path}/Bark")
-        mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(pts.astype(np.float32)))
-        mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(nrm.astype(np.float32)))
-        mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-        mesh.CreateFaceVertexCountsAttr(Vt.IntArray.FromNumpy(np.full(len(quads), 4, np.int32)))
-        mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(quads.ravel()))
-        mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-        mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
-        mesh.CreatePurposeAttr(UsdGeom.Tokens.render)
-        _primvar(
-            mesh.GetPrim(),
-            "st",
-            Sdf.ValueTypeNames.TexCoord2fArray,
-            UsdGeom.Tokens.faceVarying,
-            Vt.Vec2fArray.FromNumpy(st.reshape(-1, 2).astype(np.float32)),
-        )
-        _bind(mesh.GetPrim(), skel, jidx, jw)
+        pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, weld=True)
+        mesh = _mesh(stage, f"{path}/Bark", pts, nrm, quads, UsdGeom.Tokens.render)
+        _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
+        _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
-        for boundable in (skel, root):  # the skeleton's joints first, then the whole tree
-            boundable.CreateExtentAttr(
-                UsdGeom.Boundable.ComputeExtentFromPlugins(boundable, Usd.TimeCode.Default())
-            )
+        leaves = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree)
+        if leaves is not None:
+            lp, ln, lq, lst, lj, lc = leaves
+            lm = _mesh(stage, f"{path}/Leaves", lp, ln, lq, UsdGeom.Tokens.default_)
+            lm.CreateDoubleSidedAttr(True)
+            _indexed_st(lm.GetPrim(), lst, UsdGeom.Tokens.vertex)
+            lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
+            _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
+            UsdShade.MaterialBindingAPI.Apply(lm.GetPrim()).Bind(leaf_material(stage))
+        # the skeleton's joints, then the whole tree: one extent per frame, as they move
+        for boundable in (skel, root):
+            attr = boundable.CreateExtentAttr()
+            for i, tc in enumerate(codes):
+                extent = UsdGeom.Boundable.ComputeExtentFromPlugins(boundable, tc)
+                attr.Set(extent, tc)
+                if i == 0:  # and as the default, for tools that read no time
+                    attr.Set(extent)
         if progress:
             progress("skinned trees", k + 1, len(slices))
 

@@ -1,0 +1,82 @@
+"""Posed piece instances: per piece instance, the similarity (rotation, uniform scale,
+translation) that best fits its skinned vertices in least squares (Umeyama), for the
+``posed`` representation that DCCs show without knowing ``forest:bonePalette``.
+
+A piece's skinned vertex is ``q_v = sum_j w_vj M_j P_v`` (``M_j`` the palette matrix of its
+joint ``j``, ``P_v`` the homogeneous prototype-space point), so the moments the fit needs are
+linear in the palette: ``sum_v q_v P_v^T = sum_j M_j W_j`` with ``W_j = sum_v w_vj P_v P_v^T``
+precomputed per prototype. The fit therefore costs a few 4x4 products and one 3x3 SVD per
+instance, never a pass over the vertices.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.geometry.pieces import MAX_JOINTS, PieceArrays
+from forest.geometry.transforms import F64, matrix_to_quat
+
+CHUNK = 65536  # instances per batch: bounds the (chunk, joints, 4, 4) gather
+
+
+@dataclass(frozen=True)
+class PieceMoments:
+    """Per prototype: ``w`` (p, MAX_JOINTS, 4, 4) float64 ``sum_v w_vj P_v P_v^T / n_v``,
+    ``mean`` (p, 3) the vertex centroid, ``var`` (p,) the mean squared distance to it."""
+
+    w: F64
+    mean: F64
+    var: F64
+
+
+def piece_moments(pieces: tuple[PieceArrays, ...]) -> PieceMoments:
+    w = np.zeros((len(pieces), MAX_JOINTS, 4, 4))
+    mean = np.zeros((len(pieces), 3))
+    var = np.zeros(len(pieces))
+    for k, p in enumerate(pieces):  # a handful of prototypes
+        hom = np.c_[p.positions, np.ones(len(p.positions))]
+        outer = hom[:, :, None] * hom[:, None, :]
+        dense = np.zeros((len(hom), MAX_JOINTS))
+        np.add.at(dense, (np.arange(len(hom))[:, None], p.joint_indices), p.joint_weights)
+        w[k] = np.einsum("vj,vab->jab", dense, outer) / len(hom)
+        mean[k] = p.positions.mean(axis=0)
+        var[k] = ((p.positions - mean[k]) ** 2).sum(axis=1).mean()
+    return PieceMoments(w, mean, var)
+
+
+def fit_posed(
+    moments: PieceMoments,
+    proto: NDArray[np.int32],
+    bone_offset: NDArray[np.int32],
+    palette: F64,
+) -> tuple[F64, F64, F64]:
+    """Best-fit similarities of every instance to its skinned vertices.
+
+    proto, bone_offset : (n,) int; palette : (b, 4, 4) column-vector skinning matrices.
+    Returns translations (n, 3), quaternions (n, 4) xyzw, uniform scales (n,), all float64.
+    """
+    n = len(proto)
+    t_out, q_out, s_out = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n)
+    joints = np.arange(MAX_JOINTS)
+    last = len(palette) - 1
+    for a in range(0, n, CHUNK):
+        z = min(n, a + CHUNK)
+        pr = proto[a:z]
+        bones = np.minimum(bone_offset[a:z, None] + joints, last)  # unused joints weigh 0
+        s = np.einsum("njab,njbc->nac", palette[bones], moments.w[pr])
+        p_mean = moments.mean[pr]
+        q_mean = s[:, :3, 3]
+        h = s[:, :3, :3] - q_mean[:, :, None] * p_mean[:, None, :]
+        u, sig, vt = np.linalg.svd(h)
+        d = np.sign(np.linalg.det(u @ vt))
+        u[:, :, 2] *= d[:, None]
+        sig[:, 2] *= d
+        r = u @ vt
+        scale = sig.sum(axis=1) / moments.var[pr]
+        t_out[a:z] = q_mean - scale[:, None] * np.einsum("nab,nb->na", r, p_mean)
+        q_out[a:z] = matrix_to_quat(r)
+        s_out[a:z] = scale
+    return t_out, q_out, s_out
