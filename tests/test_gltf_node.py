@@ -1,0 +1,99 @@
+"""Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
+GLTFLoader under Node: one skinned mesh per tree with its texture, the Wind clip, the leaf
+cards; its skinned vertices at two frames equal the library's skinning within 1e-4 of the
+tree's height.
+
+The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
+script runs it) installs them. A missing install fails these tests, it does not skip them.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from helpers_gltf import (
+    CHECK_FRAMES,
+    FPS,
+    TREES,
+    expected_bark,
+    node_tools,
+    run_node,
+    small_forest,
+    tree_heights,
+)
+
+from forest.gltf.document import write_glb
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+
+
+@pytest.fixture(scope="module")
+def forest() -> Forest:
+    return small_forest()
+
+
+@pytest.fixture(scope="module")
+def glb(forest: Forest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    why = node_tools()
+    if why:
+        pytest.fail(why, pytrace=False)
+    return write_glb(forest, tmp_path_factory.mktemp("glb") / "forest.glb")
+
+
+def validate(path: Path) -> dict[str, Any]:
+    report = run_node("validate.mjs", str(path))
+    issues = report["issues"]
+    errors = [m for m in issues["messages"] if m["severity"] == 0]
+    assert issues["numErrors"] == 0, errors[:10]
+    return report
+
+
+def test_validator_finds_no_error_or_warning(glb: Path) -> None:
+    report = validate(glb)
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:10]
+    info = report["info"]
+    assert info["hasSkins"] and info["hasTextures"] and info["animationCount"] == 1
+    assert info["maxInfluences"] == 4
+
+
+@pytest.mark.parametrize(
+    ("preset", "trees", "frames"),
+    [("pine", 1, 0), ("willow", 1, 2), ("birch", 3, 2)],
+)
+def test_validator_on_other_species_and_still_forests(
+    tmp_path: Path, preset: str, trees: int, frames: int
+) -> None:
+    if why := node_tools():
+        pytest.fail(why, pytrace=False)
+    f = generate_forest(load_preset(preset), 5, ForestOptions(trees=trees, frames=frames))
+    report = validate(write_glb(f, tmp_path / f"{preset}.glb"))
+    assert report["info"]["animationCount"] == (1 if frames else 0)
+
+
+def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path: Path) -> None:
+    times = [f / FPS for f in CHECK_FRAMES]
+    out = tmp_path / "positions.bin"
+    report = run_node(
+        "three_load.mjs", str(glb), "--times", ",".join(map(repr, times)), "--out", str(out)
+    )
+    meshes = report["skinned_meshes"]
+    assert len(meshes) == TREES
+    assert all(m["has_texture"] for m in meshes)
+    (clip,) = report["animations"]
+    assert clip["name"] == "Wind" and clip["tracks"] > 0
+    assert report["textures"] == 2  # the bark atlas and the leaf texture
+    assert report["leaf_card_meshes"] == len(forest.foliage_instance)
+    got = np.fromfile(out, np.float32).astype(np.float64)
+    at = 0
+    for f in CHECK_FRAMES:
+        expected = expected_bark(forest, f / FPS)
+        for k, (want, height) in enumerate(zip(expected, tree_heights(expected), strict=True)):
+            assert meshes[k]["vertices"] == len(want)
+            points = got[at : at + want.size].reshape(-1, 3)
+            at += want.size
+            err = np.abs(points - want).max()
+            assert err <= 1e-4 * height, (f, k, err, height)
+    assert at == got.size
