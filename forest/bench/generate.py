@@ -16,11 +16,12 @@ from forest.bark.tiles import class_tables
 from forest.geometry import rim
 from forest.geometry.pieces import PieceArrays, piece_library, skinning_rest_inverse
 from forest.geometry.transforms import axis_angle_matrix
+from forest.growth.expand import crown_shape, rim_tables
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.grammar import CompiledGrammar, compile_grammar
 from forest.growth.presets import load_preset
 from forest.growth.scatter import tree_transforms
-from forest.growth.skeleton import _piece_tables, _rest_tip_scale
+from forest.growth.skeleton import _piece_tables
 from forest.usd.scene import write_scene
 from schemas.tileset import DEFAULT_MANIFEST
 
@@ -30,7 +31,9 @@ Echo = Callable[[str], None]
 def baseline_generate(
     cg: CompiledGrammar, pieces: tuple[PieceArrays, ...], n_trees: int, seed: int
 ) -> int:
-    """Grow, assemble, pose and tile piece by piece in Python; returns the piece count."""
+    """Grow, assemble, pose and tile piece by piece in Python, with the grammar's botanical
+    rules (pipe model, taper, crown, twig ends and caps, rolls, branch angles, tropisms from
+    each piece's world axis); returns the piece count."""
     rng = random.Random(seed)
     twists = rim.twists()
     inv_rest = skinning_rest_inverse(pieces)
@@ -38,47 +41,112 @@ def baseline_generate(
     hub_t = tab.hub_t.T
     tip_t = tab.tip_t.T.reshape(len(pieces), -1, 3)
     tip_r = tab.tip_r.T.reshape(len(pieces), -1, 3, 3)
-    sigma = _rest_tip_scale(pieces)
+    sigma, rim_y, hub_y, _, tilt, tilt_az = rim_tables()
     first, count, n_quads = class_tables(pieces, DEFAULT_MANIFEST)
     g = cg.grammar
+    crown = g.crown
+    close = g.close_tips and cg.cap_alt >= 0
     trees = tree_transforms(
         n_trees, (20.0, 20.0), g.trunk_radius, g.tree_scale, np.random.default_rng(seed), "grid"
     )
     total = 0
+
+    def tilt_toward(m: np.ndarray, d: np.ndarray, k: float) -> tuple[float, float]:
+        local = m[:3, :3].T @ d
+        local /= np.linalg.norm(local)
+        return math.atan2(-local[0], local[2]), k * math.acos(max(-1.0, min(1.0, local[1])))
+
+    def add(az0: float, a0: float, az1: float, a1: float) -> tuple[float, float]:
+        x = a0 * math.cos(az0) + a1 * math.cos(az1)
+        z = a0 * math.sin(az0) + a1 * math.sin(az1)
+        return math.atan2(z, x), math.hypot(x, z)
+
     for t in range(n_trees):
-        stack: list[tuple[int, np.ndarray | None, int, int, int]] = [(cg.axiom, None, 0, 0, 0)]
+        r0 = float(np.cbrt(np.linalg.det(trees[t][:3, :3])))
+        top_h = rng.uniform(*crown.height) if crown else math.inf
+        centre = trees[t][:3, 3]
+        # symbol, parent terminal, depth, order, radius (m), height (m), roll, cap
+        stack: list[tuple] = [(cg.axiom, None, 0, 0, r0, 0.0, 0.0, False)]
         while stack:
-            sym, g_tip, _p_rim, depth, _parent_piece = stack.pop()
+            sym, g_tip, depth, order, scale, h, roll, cap = stack.pop()
             alts = [
                 a
                 for a in range(len(cg.alt_symbol))
-                if cg.alt_symbol[a] == sym and cg.alt_depth[a, 0] <= depth <= cg.alt_depth[a, 1]
+                if cg.alt_symbol[a] == sym
+                and cg.alt_depth[a, 0] <= depth <= cg.alt_depth[a, 1]
+                and cg.alt_weight[a] > 0
             ]
-            if not alts:
-                continue
-            a = rng.choices(alts, weights=[float(cg.alt_weight[i]) for i in alts])[0]
+            if cap or not alts:
+                if not close:
+                    continue
+                a = cg.cap_alt
+            else:
+                a = rng.choices(alts, weights=[float(cg.alt_weight[i]) for i in alts])[0]
             piece = int(cg.alt_piece[a])
             twist = int(cg.alt_twist[a]) if cg.alt_twist[a] >= 0 else rng.randrange(6)
+            if not math.isnan(cg.alt_roll[a]):
+                twist = int((round((roll + cg.alt_roll[a]) / 60) - round(roll / 60)) % 6)
+                roll += float(cg.alt_roll[a])
             root = trees[t] if g_tip is None else g_tip @ twists[twist]
             lo, hi = cg.alt_bend[a]
-            bend = axis_angle_matrix(
-                [math.cos(rng.random() * 6.28), 0.0, math.sin(rng.random() * 6.28)],
-                lo + rng.random() * (hi - lo),
-            )
+            az, ang = rng.random() * 6.28, lo + rng.random() * (hi - lo)
+            gravity, light = cg.alt_tropism[a]
+            if gravity:
+                d = np.array([0.0, math.copysign(1.0, gravity), 0.0])
+                az, ang = add(az, ang, *tilt_toward(root, d, abs(gravity)))
+            if light:
+                out = root[:3, 3] - centre
+                out[1] = 0.0
+                out /= max(float(np.linalg.norm(out)), 1e-12)
+                out[1] = 1.0
+                az, ang = add(az, ang, *tilt_toward(root, out / np.linalg.norm(out), light))
+            bend = axis_angle_matrix([math.cos(az), 0.0, math.sin(az)], ang)
             bend[:3, 3] = hub_t[piece]
             hub = root @ bend
             palette = [root @ inv_rest[piece, 0], hub @ inv_rest[piece, 1]]
-            for r in range(pieces[piece].n_leaf_rims):
+            n_rims = pieces[piece].n_leaf_rims
+            w = [rng.uniform(*cg.alt_radius[a, r]) for r in range(n_rims)]
+            lengths = [rng.uniform(*cg.alt_length[a, r]) for r in range(n_rims)]
+            taper = rng.uniform(*cg.alt_taper[a])
+            kids = []
+            for r in range(n_rims):
+                c_h = h + (hub_y[piece] if r else rim_y[piece, r]) * scale
+                bare = False
+                if crown and order == 0 and r:
+                    rel = c_h / top_h
+                    bare = rel < crown.base
+                    w[r] *= 0.15 if bare else float(crown_shape(crown.shape, np.array(rel)))
+                kids.append((c_h, bare))
+            if cg.pipe_exponent:
+                norm = sum(x**cg.pipe_exponent for x in w) ** (1 / cg.pipe_exponent)
+                s = [taper * x / norm for x in w]
+            else:
+                s = [taper * sigma[piece, r] * w[r] for r in range(n_rims)]
+            for r in range(n_rims):
+                c_h, bare = kids[r]
                 lo, hi = cg.alt_spread[a]
-                spread = axis_angle_matrix([1.0, 0.0, 0.0], lo + rng.random() * (hi - lo))
+                s_az, s_ang = rng.random() * 6.28, lo + rng.random() * (hi - lo)
+                if not math.isnan(cg.alt_branch_angle[a, 0]) and tilt[piece, r] > 1e-3:
+                    want = rng.uniform(*cg.alt_branch_angle[a])
+                    s_az, s_ang = add(s_az, s_ang, tilt_az[piece, r], want - tilt[piece, r])
+                spread = axis_angle_matrix([math.cos(s_az), 0.0, math.sin(s_az)], s_ang)
                 local = np.eye(4)
-                local[:3, :3] = spread[:3, :3] @ tip_r[piece, r] * sigma[piece, r]
-                local[:3, 3] = tip_t[piece, r]
+                local[:3, :3] = spread[:3, :3] @ tip_r[piece, r] * s[r]
+                local[:3, 3] = tip_t[piece, r] * lengths[r]
                 tip = hub @ local
                 palette.append(tip @ inv_rest[piece, 2 + r])
                 succ = int(cg.alt_succ[a, r])
-                if succ >= 0 and depth < cg.max_depth:
-                    stack.append((succ, tip, r, depth + 1, piece))
+                c_scale, c_order = scale * s[r], order + (r > 0)
+                ends = (
+                    succ < 0
+                    or depth >= cg.max_depth
+                    or bare
+                    or (g.twig_radius is not None and c_scale < g.twig_radius)
+                    or (c_order == 0 and c_h >= top_h)
+                )
+                if not ends or close:
+                    c_roll = roll if r == 0 else 0.0
+                    stack.append((succ, tip, depth + 1, c_order, c_scale, c_h, c_roll, ends))
             _tiles = [
                 int(first[piece, q]) + rng.randrange(int(count[piece, q]))
                 for q in range(int(n_quads[piece]))
@@ -100,7 +168,8 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
 
     # the baseline is ~50x slower: it runs on a slice of the forest and both report pieces/s.
     # Runs alternate, so both sides see the same machine; each side keeps its best time.
-    base_trees = max(1, min(trees, 200))
+    per_tree = max(cg.expected_pieces, 1.0)
+    base_trees = max(1, min(trees, int(12_400 / per_tree)))  # about 12k pieces
     t0 = time.perf_counter()
     forest = vectorised()  # cold: first-touch page faults and lazy imports included
     t_cold = time.perf_counter() - t0

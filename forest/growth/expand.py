@@ -20,6 +20,7 @@ I32 = NDArray[np.int32]
 # instances per block of whole trees that later stages process together: big enough to
 # amortise numpy's per-call cost, small enough that a level's temporaries stay in cache
 BLOCK_PIECES = 16384
+LEVELS_PER_BLOCK = 8
 
 
 @dataclass(frozen=True, eq=False)
@@ -67,11 +68,14 @@ class PieceGraph:
 
     @cached_property
     def blocks(self) -> tuple[LevelBlock, ...]:
-        """Blocks of whole trees, about ``BLOCK_PIECES`` instances each, in depth order."""
+        """Blocks of whole trees, about ``BLOCK_PIECES`` instances per 8 depth levels each,
+        in depth order (deep trees get bigger blocks, so a level still holds thousands of
+        instances and numpy's per-call cost stays small)."""
         starts = np.flatnonzero(np.diff(self.tree, prepend=-1))
+        size = BLOCK_PIECES * max(1, (int(self.depth.max(initial=0)) + 1) // LEVELS_PER_BLOCK)
         # each block starts at the first tree starting at or after a multiple of the size;
         # a multiple inside the last tree starts none (a tree is never split)
-        at = np.searchsorted(starts, np.arange(0, len(self), BLOCK_PIECES))
+        at = np.searchsorted(starts, np.arange(0, len(self), size))
         cuts = np.unique(starts[at[at < len(starts)]])
         bounds = [*cuts.tolist(), len(self)]
         return tuple(LevelBlock.of(self.depth, a, b) for a, b in itertools.pairwise(bounds))

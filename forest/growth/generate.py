@@ -109,6 +109,8 @@ class Forest:
     tile_indices: NDArray[np.int32]
     manifest: TileSetManifest
     foliage_instance: NDArray[np.int32]
+    still_palette: F64 | None = None
+    """The posed palette without wind when generation already computed it (tropisms)."""
 
     @property
     def n_instances(self) -> int:
@@ -146,6 +148,8 @@ class Forest:
     def palette(self, time: float | None = None, row_vectors: bool = False) -> F64:
         """``(b, 4, 4)`` posed skinning matrices (prototype space -> world); transposed to
         USD's row-vector convention with ``row_vectors``."""
+        if time is None and not row_vectors and self.still_palette is not None:
+            return self.still_palette  # read-only: shared by every caller
         wind = None if time is None else self.options.wind
         return self.poser().palette(wind, time or 0.0, row_vectors)
 
@@ -230,8 +234,12 @@ def generate_forest(
             limit=settings.max_palette_matrices,
         )
     pose = draw_pose(graph, pieces, cg, rng_pose, options.trees)
+    still = None
     if cg.alt_tropism.any():
-        pose = apply_tropisms(graph, bones, pieces, trees, transforms, pose, cg.alt_tropism)
+        pose, still = apply_tropisms(
+            graph, bones, pieces, trees, transforms, pose, cg.alt_tropism
+        )
+        still.setflags(write=False)
     note("tiles", 4, 5)
     tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)
     note("done", 5, 5)
@@ -249,4 +257,5 @@ def generate_forest(
         tile_indices=tiles,
         manifest=manifest,
         foliage_instance=foliage_bearers(cg, graph),
+        still_palette=still,
     )

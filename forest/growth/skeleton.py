@@ -163,10 +163,10 @@ def apply_tropisms(
     transforms: F64,
     pose: PoseParams,
     alt_tropism: F64,
-) -> PoseParams:
+) -> tuple[PoseParams, F64]:
     """The pose with each piece's hub bend turned toward the vertical (gravitropism) and the
     light (outward from its trunk, 45 degrees up) by the fractions ``alt_tropism`` ``(A, 2)``
-    of the angles between the piece's axis and those directions.
+    of the angles between the piece's axis and those directions, and its palette (no wind).
 
     A piece's axis depends on every bend below it, so the bends are found level by level
     inside one forward-kinematics pass of the palette (the same closed forms, so what is
@@ -203,8 +203,8 @@ def apply_tropisms(
             )
         out.bend_azimuth[idx], out.bend_angle[idx] = az, ang
 
-    Poser(graph, bones, pieces, tree_transforms, transforms, out).palette(level_hook=bend_level)
-    return out
+    poser = Poser(graph, bones, pieces, tree_transforms, transforms, out)
+    return out, poser.palette(level_hook=bend_level)
 
 
 def rest_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> PoseParams:
