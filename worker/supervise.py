@@ -74,8 +74,20 @@ def context() -> BaseContext:
 
 def preload(modules: list[str] | None = None) -> None:
     """Import ``modules`` once in the fork server (a worker calls this before its first job)."""
+    from multiprocessing import forkserver
+
     ctx = context()
     ctx.set_forkserver_preload(modules or PRELOAD)
+    # started and warmed now, not inside the first job's claim: its start (seconds of
+    # imports) would come before that job's first heartbeat
+    forkserver.ensure_running()
+    warm = ctx.Process(target=_noop)  # type: ignore[attr-defined]
+    warm.start()
+    warm.join()
+
+
+def _noop() -> None:
+    pass
 
 
 def _die_with_parent() -> None:
@@ -159,7 +171,7 @@ def supervise(
     send.close()
     msg: tuple[Any, ...] | None = None
     end: ChildEnd | None = None
-    next_beat = time.monotonic() + heartbeat_s
+    next_beat = time.monotonic()  # at once: starting the child may have taken a while
     try:
         while True:
             ready = wait([recv, proc.sentinel], timeout=max(0.0, next_beat - time.monotonic()))

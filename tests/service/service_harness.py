@@ -38,6 +38,7 @@ FAST = {
     "FOREST_REAPER_INTERVAL_S": "0.5",
     "FOREST_REQUEUE_AFTER_S": "15",
     "FOREST_RETRY_DELAY_S": "0.2",
+    "FOREST_RATE_LIMIT": "",  # tests that mean to be limited set their own
 }
 
 
@@ -154,6 +155,7 @@ class Server:
         self.env |= {"FOREST_DATA_DIR": str(data)} | FAST | env
         self.proc: subprocess.Popen[bytes] | None = None
         self.port = 0
+        self.headers: dict[str, str] = {}  # e.g. an X-API-Key the helpers send
 
     @property
     def url(self) -> str:
@@ -217,10 +219,11 @@ class Server:
     # -- client helpers ---------------------------------------------------------------------
 
     def post(self, path: str, body: dict[str, Any], **kw: Any) -> httpx.Response:
-        return httpx.post(f"{self.url}{path}", json=body, timeout=60, **kw)
+        headers = self.headers | kw.pop("headers", {})
+        return httpx.post(f"{self.url}{path}", json=body, timeout=60, headers=headers, **kw)
 
-    def get(self, path: str) -> httpx.Response:
-        return httpx.get(f"{self.url}{path}", timeout=30)
+    def get(self, path: str, headers: dict[str, str] | None = None) -> httpx.Response:
+        return httpx.get(f"{self.url}{path}", timeout=30, headers=self.headers | (headers or {}))
 
     def wait(
         self,

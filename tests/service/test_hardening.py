@@ -1,0 +1,246 @@
+"""A farm that hostile input cannot knock over, through a real ``forest serve`` on the three
+backends: uploads that crash the USD reader (a crafted ``.usdc``: four bytes of a valid scene
+changed, found by mutation; pxr segfaults on it), a time-sample bomb, a sublayer to a server
+file and a non-USD file each fail once with a clear error (no lost worker, no retry); a render
+whose C call holds the GIL for more than three lease periods completes with one attempt; a
+canceled running render ends within seconds; tenants see only their own jobs (404 else); the
+per-key rate limit answers 429 with Retry-After; NaN, Infinity and 1e400 answer 422; cross-site
+writes are refused. The database outage (503) runs on PostgreSQL behind a proxy the test
+closes."""
+
+from __future__ import annotations
+
+import contextlib
+import gzip
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import httpx
+import pytest
+from service_harness import PG, Server, require_server, served
+
+DATA = Path(__file__).parent / "data"
+A = {"X-API-Key": "key-a"}
+B = {"X-API-Key": "key-b"}
+C = {"X-API-Key": "key-c"}
+HOLD_S = 3.5
+ENV = {
+    "FOREST_API_KEYS": "key-a=alpha,key-b=beta,key-c=gamma",
+    "FOREST_RATE_LIMIT": "25/second;60/minute",
+    # a lease of 1 s: the render's 3.5 s C call outlasts three of them
+    "FOREST_LEASE_S": "1",
+    "FOREST_HEARTBEAT_S": "0.25",
+    "FOREST_TEST_HOOK": f"hold-gil:{HOLD_S}",
+    "FOREST_JOB_MEMORY_MB": "3072",
+}
+RENDER = {"width": "48", "height": "32", "frames": "1"}
+
+
+@pytest.fixture(scope="module")
+def server(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    for s in served(tmp_path_factory.mktemp("serve"), backend | ENV):
+        s.headers = dict(A)
+        yield s
+
+
+def upload(server: Server, name: str, data: bytes, headers: dict[str, str] | None = None) -> Any:
+    return httpx.post(
+        f"{server.url}/v1/renders/upload",
+        files={"scene": (name, data)},
+        data=RENDER,
+        headers=headers or A,
+        timeout=30,
+    )
+
+
+def failed_once(server: Server, name: str, data: bytes) -> str:
+    r = upload(server, name, data)
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=60)
+    assert (job["state"], job["attempts"]) == ("failed", 1), job
+    assert "/" not in job["error"], job["error"]  # no server path
+    return str(job["error"])
+
+
+def test_reader_crash_fails_once(server: Server) -> None:
+    crash = gzip.decompress((DATA / "reader-crash.usdc.gz").read_bytes())
+    error = failed_once(server, "crash.usdc", crash)
+    assert error.startswith("the scene could not be read"), error
+    pids = server.worker_pids()
+    assert all(Path(f"/proc/{p}").exists() for p in pids)  # no worker died
+
+
+def test_time_sample_bomb_fails_once(server: Server) -> None:
+    samples = b"".join(b"%d: 1,\n" % i for i in range(50_000))
+    bomb = b'#usda 1.0\ndef Xform "World" {\n double x.timeSamples = {\n' + samples + b"}\n}\n"
+    error = failed_once(server, "bomb.usda", bomb)
+    assert error == "scene: World.x: more than 10000 time samples in the scene"
+
+
+def test_sublayer_outside_the_upload_fails_once(server: Server) -> None:
+    scene = b"#usda 1.0\n(\n subLayers = [@/etc/hosts.usda@]\n)\n"
+    error = failed_once(server, "sub.usda", scene)
+    assert "self-contained" in error, error
+
+
+def test_non_usd_upload_is_422(server: Server) -> None:
+    r = upload(server, "x.usdc", b"\x7fELF not a scene")
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "scene"]
+
+
+def forest_scene(server: Server) -> str:
+    r = server.post("/v1/forests", {"preset": "almond", "seed": 3, "format": "usdc"})
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=90)
+    assert job["state"] == "completed", job
+    return str(job["id"])
+
+
+def test_long_gil_holding_render_keeps_its_lease_and_cancel_stops_one(server: Server) -> None:
+    forest = forest_scene(server)
+    body = {"forest_job": forest, "width": 48, "height": 32}
+    r = server.post("/v1/renders", body)
+    job = server.wait(r.json()["id"], timeout=90)
+    assert (job["state"], job["attempts"]) == ("completed", 1), job
+
+    r = server.post("/v1/renders", body | {"width": 40})
+    job_id = r.json()["id"]
+    server.wait(job_id, states=("active",), timeout=30)
+    time.sleep(0.5)
+    t0 = time.monotonic()
+    assert httpx.delete(f"{server.url}/v1/jobs/{job_id}", headers=A).status_code == 200
+    job = server.wait(job_id, timeout=10)
+    # canceled is recorded only after the job's process was killed and reaped
+    assert job["state"] == "canceled" and time.monotonic() - t0 < 5.0, job
+
+
+def test_tenants_are_apart(server: Server) -> None:
+    assert httpx.get(f"{server.url}/v1/jobs").status_code == 401
+    assert httpx.get(f"{server.url}/v1/jobs", headers={"X-API-Key": "nope"}).status_code == 401
+    r = server.post("/v1/forests", {"preset": "almond", "seed": 5}, headers=B)
+    assert r.status_code == 202
+    job_id = r.json()["id"]
+    server.headers = dict(B)
+    try:
+        job = server.wait(job_id, timeout=90)
+    finally:
+        server.headers = dict(A)
+    for path in (f"/v1/jobs/{job_id}", f"/v1/jobs/{job_id}/artifacts/scene.usdc"):
+        assert server.get(path).status_code == 404  # as tenant alpha
+        assert server.get(path, headers=B).status_code == 200
+    assert httpx.delete(f"{server.url}/v1/jobs/{job_id}", headers=A).status_code == 404
+    listed = {j["id"] for j in server.get("/v1/jobs?limit=200").json()["items"]}
+    assert job_id not in listed
+    assert job_id in {j["id"] for j in server.get("/v1/jobs", headers=B).json()["items"]}
+    r = server.post("/v1/renders", {"forest_job": job["id"]})  # alpha cannot render beta's
+    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "forest_job"]
+
+
+def test_rate_limit_429(server: Server) -> None:
+    codes = [
+        httpx.delete(f"{server.url}/v1/jobs/{'0' * 32}", headers=C, timeout=10)
+        for _ in range(70)
+    ]
+    assert {r.status_code for r in codes} == {404, 429}
+    limited = next(r for r in codes if r.status_code == 429)
+    assert int(limited.headers["retry-after"]) >= 1
+    assert server.get("/v1/jobs").status_code == 200  # another key is not limited
+
+
+@pytest.mark.parametrize("text", ["NaN", "Infinity", "-Infinity", "1e400"])
+def test_non_finite_is_422(server: Server, text: str) -> None:
+    for body in (
+        f'{{"preset": "oak", "fps": {text}}}',
+        f'{{"preset": "oak", "trees": 2, "area": [{text}, 3]}}',
+        '{"grammar": {"name": "g", "axiom": "A", "rules": {"A": [{"piece": "I", '
+        f'"weight": {text}}}]}}}}',
+    ):
+        r = httpx.post(
+            f"{server.url}/v1/forests", content=body,
+            headers=A | {"content-type": "application/json"}, timeout=10,
+        )
+        assert r.status_code == 422, (body, r.text)
+        r.json()  # the body serialises
+
+
+def test_out_of_range_ints_and_denormal_weights_are_422(server: Server) -> None:
+    rule = {"piece": "I", "min_depth": 2**31}
+    for alt in (rule, {"piece": "I", "max_depth": 2**40}, {"piece": "I", "weight": 5e-324}):
+        grammar = {"name": "g", "axiom": "A", "rules": {"A": [alt]}}
+        r = server.post("/v1/forests", {"grammar": grammar})
+        assert r.status_code == 422, r.text
+
+
+def test_cross_site_upload_refused(server: Server) -> None:
+    r = upload(server, "x.usda", b"#usda 1.0\n", headers=A | {"Origin": "https://evil.example"})
+    assert r.status_code == 403
+
+
+class Proxy:
+    """A TCP proxy to PostgreSQL that the test can cut (the database goes away)."""
+
+    def __init__(self, target: tuple[str, int]) -> None:
+        self.target = target
+        self.sock = socket.create_server(("127.0.0.1", 0))
+        self.port = self.sock.getsockname()[1]
+        self.conns: list[socket.socket] = []
+        self.open = True
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while self.open:
+            try:
+                client, _ = self.sock.accept()
+            except OSError:
+                return
+            if not self.open:
+                client.close()
+                return
+            upstream = socket.create_connection(self.target)
+            self.conns += [client, upstream]
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pipe, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pipe(a: socket.socket, b: socket.socket) -> None:
+        try:
+            while data := a.recv(65536):
+                b.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (a, b):
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+
+    def cut(self) -> None:
+        self.open = False
+        self.sock.close()
+        for c in self.conns:
+            try:
+                c.shutdown(socket.SHUT_RDWR)
+                c.close()
+            except OSError:
+                pass
+
+
+def test_database_outage_is_503(backend: dict[str, str], tmp_path: Path) -> None:
+    url = backend.get("FOREST_DATABASE_URL")
+    if url is None:
+        pytest.skip("the embedded job store is a file: it cannot go away")
+    require_server("PostgreSQL", PG)
+    proxy = Proxy(PG)
+    env = backend | ENV | {"FOREST_DATABASE_URL": url.replace(":5432/", f":{proxy.port}/")}
+    for server in served(tmp_path / "outage", env | {"FOREST_RATE_LIMIT": ""}):
+        assert server.get("/v1/jobs", headers=A).status_code == 200
+        proxy.cut()
+        for _ in range(3):
+            r = server.get("/v1/jobs", headers=A)
+            assert r.status_code == 503, r.text
+            assert r.headers["retry-after"] == "5"
+            assert r.json()["detail"] == "the job store is unavailable; retry later"
+        assert server.get("/readyz").status_code == 503
