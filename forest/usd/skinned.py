@@ -15,6 +15,8 @@ import fast_simplification
 import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 from forest.geometry.pieces import MAX_INFLUENCES
@@ -69,7 +71,7 @@ def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
     return out
 
 
-WELD_GRID = 1e-6  # metres: rims coincide at rest to rounding, far below any vertex spacing
+WELD_TOL = 1e-6  # metres: rims coincide at rest to rounding, far below any vertex spacing
 
 
 def tree_mesh(
@@ -101,14 +103,18 @@ def tree_mesh(
             np.concatenate(st),
         )
     all_pts = np.concatenate(pts)
-    key = np.round(all_pts / WELD_GRID).astype(np.int64)
-    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
-    inverse = inverse.ravel()
-    order = np.argsort(first)  # welded vertices in first-seen order: stable, deterministic
-    rank = np.empty_like(order)
-    rank[order] = np.arange(len(order))
-    keep = first[order]
-    remap = rank[inverse]
+    # coincident vertices (within WELD_TOL, any grid would split some pairs) form groups;
+    # each group keeps its first vertex, so the order is stable and deterministic
+    pairs = cKDTree(all_pts).query_pairs(WELD_TOL, output_type="ndarray")
+    n_pts = len(all_pts)
+    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n_pts, n_pts))
+    _, label = connected_components(graph, directed=False)
+    first = np.full(label.max() + 1, n_pts)
+    np.minimum.at(first, label, np.arange(n_pts))
+    keep = np.unique(first)
+    rank = np.zeros(n_pts, np.int64)
+    rank[keep] = np.arange(len(keep))
+    remap = rank[first[label]]
     normals = np.zeros((len(keep), 3))
     np.add.at(normals, remap, np.concatenate(nrm))
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
@@ -214,7 +220,9 @@ def _proxy(
     normals = np.zeros_like(p2)
     for c in range(3):
         np.add.at(normals, f2[:, c], face_n)
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+    length = np.linalg.norm(normals, axis=1, keepdims=True)
+    # a vertex the decimation left in no face gets up, so every normal has unit length
+    normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), [0.0, 1.0, 0.0])
     mesh = _mesh(stage, path, p2, normals, f2, UsdGeom.Tokens.proxy)
     _bind(mesh.GetPrim(), skel, jidx[near], jw[near], MAX_INFLUENCES)
     return mesh
