@@ -192,3 +192,26 @@ def test_cli_bad_input_is_one_line(tmp_path: Path, args: list[str], field: str) 
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and field in lines[0], r.stderr
     assert not any(p.suffix == ".glb" for p in tmp_path.rglob("*"))
+
+
+def test_pieces_instanced_in_a_second_scene(forest: Forest, doc: gl.GLTF2) -> None:
+    """Scene 1 instances every piece at its rest transform; scene 0 stays the default."""
+    from forest.geometry.transforms import decompose_similarity
+
+    assert doc.scene == 0 and len(doc.scenes) == 2
+    assert doc.extensionsUsed == ["EXT_mesh_gpu_instancing"]
+    assert not doc.extensionsRequired
+    total = 0
+    t_all = decompose_similarity(forest.transforms)[0]
+    blob = doc.binary_blob()
+    for n in doc.scenes[1].nodes:
+        node = doc.nodes[n]
+        attrs = node.extensions["EXT_mesh_gpu_instancing"]["attributes"]
+        acc = doc.accessors[attrs["TRANSLATION"]]
+        view = doc.bufferViews[acc.bufferView]
+        t = np.frombuffer(blob, np.float32, acc.count * 3, view.byteOffset).reshape(-1, 3)
+        name = node.name.removeprefix("Pieces_")
+        pid = [p.name for p in forest.pieces].index(name)
+        assert np.allclose(t, t_all[forest.graph.piece == pid], atol=1e-5)
+        total += acc.count
+    assert total == forest.n_instances

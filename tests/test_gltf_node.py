@@ -1,6 +1,6 @@
 """Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
 GLTFLoader under Node: one skinned mesh per tree with its texture, the Wind clip, the leaf
-cards; its skinned vertices at two frames equal the library's skinning within 1e-4 of the
+cards, the pieces' scene as InstancedMesh (EXT_mesh_gpu_instancing); its skinned vertices at two frames equal the library's skinning within 1e-4 of the
 tree's height.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
@@ -86,6 +86,9 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
     assert clip["name"] == "Wind" and clip["tracks"] > 0
     assert report["textures"] == 2  # the bark atlas and the leaf texture
     assert report["leaf_card_meshes"] == len(forest.foliage_instance)
+    # the pieces' scene: one InstancedMesh per piece type, every piece once
+    assert len(report["scenes"]) == 2
+    assert sum(m["count"] for m in report["instanced"]) == forest.n_instances
     got = np.fromfile(out, np.float32).astype(np.float64)
     at = 0
     for f in CHECK_FRAMES:

@@ -21,6 +21,7 @@ from forest.atomic import replaced_when_written
 from forest.errors import LimitError, OutputError
 from forest.gltf.bark import add_bark_material, atlas_uv, make_atlas, read_slices, tile_folder
 from forest.gltf.buffer import Blob
+from forest.gltf.instancing import add_instanced_scene
 from forest.gltf.leaves import LeafLibrary, add_tree_clouds
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.generate import Forest
@@ -136,6 +137,7 @@ def forest_gltf(
         if progress:
             progress("glTF trees", k + 1, len(slices_))
     add_wind(gltf, blob, pose, skins)
+    add_instanced_scene(gltf, blob, forest, bark, len(slices), slices.shape[1])
     blob.finish()
     return gltf
 
