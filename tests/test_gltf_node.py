@@ -1,7 +1,7 @@
 """Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
 GLTFLoader under Node: one skinned mesh per tree with its texture, the Wind clip, the leaf
-cards, the pieces' scene as InstancedMesh (EXT_mesh_gpu_instancing); its skinned vertices at two frames equal the library's skinning within 1e-4 of the
-tree's height.
+cards, the pieces' scene as InstancedMesh (EXT_mesh_gpu_instancing); its skinned vertices at
+two frames equal the library's skinning within 1e-4 of the tree's height.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
 script runs it) installs them. A missing install fails these tests, it does not skip them.
