@@ -66,17 +66,37 @@ def fit_posed(
         z = min(n, a + CHUNK)
         pr = proto[a:z]
         bones = np.minimum(bone_offset[a:z, None] + joints, last)  # unused joints weigh 0
-        s = np.einsum("njab,njbc->nac", palette[bones], moments.w[pr])
+        s = (palette[bones][:, :, :3, :] @ moments.w[pr]).sum(axis=1)  # (m, 3, 4)
         p_mean = moments.mean[pr]
         q_mean = s[:, :3, 3]
         h = s[:, :3, :3] - q_mean[:, :, None] * p_mean[:, None, :]
-        u, sig, vt = np.linalg.svd(h)
-        d = np.sign(np.linalg.det(u @ vt))
-        u[:, :, 2] *= d[:, None]
-        sig[:, 2] *= d
-        r = u @ vt
-        scale = sig.sum(axis=1) / moments.var[pr]
+        r = polar_rotation(h)
+        scale = np.einsum("nab,nab->n", r, h) / moments.var[pr]
         t_out[a:z] = q_mean - scale[:, None] * np.einsum("nab,nb->na", r, p_mean)
         q_out[a:z] = matrix_to_quat(r)
         s_out[a:z] = scale
     return t_out, q_out, s_out
+
+
+def polar_rotation(h: F64, iterations: int = 8) -> F64:
+    """The rotation ``(n, 3, 3)`` nearest each ``h`` (its orthogonal polar factor, so
+    ``tr(R^T h)`` is largest): scaled Newton ``X <- (g X + X^-T / g) / 2`` with
+    ``g = |det X|^(-1/3)``, elementwise on cofactors (no batched SVD, several times faster).
+    The rare ``h`` with ``det <= 0`` (a reflection, never a skinned piece) take the SVD."""
+    x = h / np.maximum(np.abs(np.linalg.det(h)), 1e-300)[:, None, None] ** (1 / 3)
+    for _ in range(iterations):
+        cof = np.stack(
+            [np.cross(x[:, :, 1], x[:, :, 2]), np.cross(x[:, :, 2], x[:, :, 0]),
+             np.cross(x[:, :, 0], x[:, :, 1])], axis=2,
+        )  # fmt: skip: columns c1 x c2, c2 x c0, c0 x c1: the cofactor matrix
+        det = np.einsum("ni,ni->n", x[:, :, 0], cof[:, :, 0])
+        inv_t = cof / det[:, None, None]  # X^-T
+        g = np.abs(det) ** (-1 / 3)
+        x = 0.5 * (g[:, None, None] * x + inv_t / g[:, None, None])
+    bad = ~(np.linalg.det(h) > 0)
+    if bad.any():
+        u, _, vt = np.linalg.svd(h[bad])
+        d = np.sign(np.linalg.det(u @ vt))
+        u[:, :, 2] *= d[:, None]
+        x[bad] = u @ vt
+    return x
