@@ -274,7 +274,7 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
     }
     report["instances"] = n_inst
     report["prototypes_drawn_standalone"] = standalone
-    if not instancers:
+    if not instancers and args.instances != 0:
         failures.append("no PointInstancer (Geometry Nodes instance-on-points object) imported")
     if args.instances is not None and n_inst != args.instances:
         failures.append(f"Blender draws {n_inst} instances, expected {args.instances}")
@@ -295,8 +295,12 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
         and any(m.type == "ARMATURE" and m.object is not None for m in ob.modifiers)
     ]
     report["skinned_meshes"] = len(skinned)
-    if args.trees is not None and len(skinned) != args.trees:
-        failures.append(f"{len(skinned)} skinned meshes, expected one per tree ({args.trees})")
+    want_skinned = None if args.trees is None else args.trees * args.meshes_per_tree
+    if want_skinned is not None and len(skinned) != want_skinned:
+        failures.append(
+            f"{len(skinned)} skinned meshes, expected {args.meshes_per_tree} per tree "
+            f"({args.trees} trees)"
+        )
     frames = args.frames
     animated = frames is not None and frames > 1
     last = (frames - 1) if animated else 0
@@ -331,6 +335,11 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
         t = tree_name(ob) or ob.name
         arm = next(m.object for m in ob.modifiers if m.type == "ARMATURE" and m.object)
         info = trees.setdefault(t, {})
+        if base_name(ob.name) != "Bark":  # the leaves: their weights only
+            info[f"{base_name(ob.name)}_weights"] = weight_report(ob, arm)
+            if info[f"{base_name(ob.name)}_weights"]["underweighted_vertices"]:
+                failures.append(f"{t}: {ob.name} lost skin weight in Blender")
+            continue
         info.update(mesh=ob.name, mesh_armature=arm.name, vertices=len(ob.data.vertices))
         info.update(weight_report(ob, arm))
         if info["groups_without_bone"]:
@@ -379,7 +388,7 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
                 f"instance transforms differ from USD's by {err:.3g} (tolerance "
                 f"{args.tol:g}; inf: the prototypes drawn do not match)"
             )
-        by_tree = {tree_name(o) or o.name: o for o in skinned}
+        by_tree = {tree_name(o) or o.name: o for o in skinned if base_name(o.name) == "Bark"}
         for k, t in enumerate(exp["tree_names"]):
             t = str(t)
             want = exp[f"skinned_points_{k}"]  # (frames, v, 3) USD world space
@@ -426,6 +435,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--instances", type=int, help="PointInstancer instances expected")
     ap.add_argument("--trees", type=int, help="trees expected (armatures, skinned meshes)")
     ap.add_argument("--frames", type=int, help="frames of wind (0 or 1: a still scene)")
+    ap.add_argument(
+        "--meshes-per-tree", type=int, default=2, help="skinned meshes per tree (bark, leaves)"
+    )
     ap.add_argument("--fps", type=float, help="the stage's timeCodesPerSecond (reported only)")
     ap.add_argument("--expect", type=Path, help="npz of USD-computed transforms and points")
     ap.add_argument(
