@@ -168,3 +168,14 @@ def test_grammar_limits_by_thickness_are_estimated() -> None:
     cg = compile_grammar(load_preset("oak"))
     pieces = np.bincount(forest("oak", 1, trees=4).graph.tree)
     assert 0.5 * pieces.mean() <= cg.expected_pieces <= 2.0 * pieces.mean()
+
+
+def test_autumn_turns_the_leaves() -> None:
+    def color(season: str) -> np.ndarray:
+        options = ForestOptions(trees=2, season=season)  # type: ignore[arg-type]
+        f = generate_forest(load_preset("oak"), 2, options)
+        return f.foliage_anchors().color.mean(axis=0)
+
+    summer, autumn = color("summer"), color("autumn")
+    assert summer[1] > summer[0]  # green
+    assert autumn[0] > autumn[2] and autumn[0] > summer[0]  # toward red and yellow

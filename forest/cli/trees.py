@@ -87,6 +87,13 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 )
 @click.option("--skinned", is_flag=True, help="Also bake each tree as SkelRoot + skinned Mesh.")
 @click.option(
+    "--season",
+    type=click.Choice(["summer", "autumn"]),
+    default="summer",
+    show_default=True,
+    help="Leaf colours: the species' summer palette or its autumn one.",
+)
+@click.option(
     "--tiles",
     "tiles_dir",
     metavar="DIR",
@@ -114,6 +121,7 @@ def generate(
     wind_deg: float,
     segments: int,
     skinned: bool,
+    season: str,
     tiles_dir: str | None,
     output: Path,
 ) -> None:
@@ -139,6 +147,7 @@ def generate(
         placement=placement,  # type: ignore[arg-type]
         segments=segments,
         wind=Wind(strength_deg=wind_deg),
+        season=season,  # type: ignore[arg-type]
     )
     with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
         forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
