@@ -209,6 +209,7 @@ class JobStore:
                     attempts=JobRow.attempts + 1,
                     started_at=func.coalesce(JobRow.started_at, now),
                     stage="started",
+                    progress=0.0,  # a new attempt starts over
                 )
                 .execution_options(synchronize_session=False)
             )
