@@ -101,6 +101,15 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "and tile indices follow its manifest.json.",
 )
 @click.option(
+    "--tile-size",
+    type=FiniteRange(0, 1e6, min_open=True),
+    default=None,
+    metavar="M",
+    help="Cut the area into M x M metre tiles: writes OUT (.usda/.usdc root layer, each tile "
+    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile; placement is "
+    "seamless across tiles and allows more trees than one scene.",
+)
+@click.option(
     "-o",
     "--output",
     type=click.Path(path_type=Path),
@@ -123,6 +132,7 @@ def generate(
     skinned: bool,
     season: str,
     tiles_dir: str | None,
+    tile_size: float | None,
     output: Path,
 ) -> None:
     """Generate a forest from a grammar and a seed and write it as USD or glTF (by the
@@ -149,6 +159,14 @@ def generate(
         wind=Wind(strength_deg=wind_deg),
         season=season,  # type: ignore[arg-type]
     )
+    if tile_size is not None:
+        if glb or tiles_dir:
+            raise ForestError(
+                "--tile-size writes a USD root layer (.usda or .usdc) and no --tiles",
+                path="tile_size",
+            )
+        _generate_tiled(g, seed, options, tile_size, skinned, output)
+        return
     with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
         forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
         if glb:
@@ -162,6 +180,34 @@ def generate(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
         f"{len(forest.bones)} bones, {frames} frame(s)"
         + (", skinned" if skinned or glb else "")
+    )
+
+
+def _generate_tiled(
+    g: Any, seed: int, options: Any, tile_size: float, skinned: bool, output: Path
+) -> None:
+    """``forest generate --tile-size``: every tile in turn (each its own forest), then the
+    root layer."""
+    from forest.growth.tiling import TilePlan, generate_tile
+    from forest.usd.files import check_output_path
+    from forest.usd.tiled import tiles_folder, write_root, write_tile
+
+    out = check_output_path(output, (".usda", ".usdc"))
+    plan = TilePlan(options.trees, options.area, tile_size, seed)
+    threshold = plan.threshold()
+    entries = []
+    pieces = 0
+    n = plan.nx * plan.nz
+    with stage_progress(n > 1, "tiles") as bar:
+        for k, (i, j) in enumerate(plan.tiles()):
+            forest = generate_tile(g, plan, i, j, options, threshold=threshold)
+            pieces += 0 if forest is None else forest.n_instances
+            entries.append(write_tile(forest, out, i, j, skinned=skinned))
+            bar("tiles", k + 1, n)
+    write_root(out, entries, frames=options.frames, fps=options.fps, meta=plan.meta())
+    click.echo(
+        f"wrote {out} and {n} tile(s) in {tiles_folder(out)}: {options.trees} tree(s), "
+        f"{pieces} pieces, {options.frames} frame(s)" + (", skinned" if skinned else "")
     )
 
 

@@ -3,6 +3,9 @@ tree's random model transform (rotation about +Y, uniform scale)."""
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from contextvars import ContextVar
 from typing import Literal
 
 import numpy as np
@@ -13,6 +16,19 @@ Placement = Literal["poisson", "grid"]
 # Poisson-disk sampling is O(n) with a large constant in Python; past this many trees the
 # jittered grid looks the same from any viewpoint and is instant.
 POISSON_MAX_TREES = 5_000
+# Transforms a caller decided (a tile of a tiled forest: forest.growth.tiling); when set,
+# tree_transforms answers them, so generate_forest runs unchanged on given placements.
+_PLACED: ContextVar[F64 | None] = ContextVar("placed_trees", default=None)
+
+
+@contextmanager
+def placed(transforms: F64) -> Iterator[None]:
+    """Within the block, :func:`tree_transforms` answers ``transforms`` ``(n, 4, 4)``."""
+    token = _PLACED.set(transforms)
+    try:
+        yield
+    finally:
+        _PLACED.reset(token)
 
 
 def jittered_grid(n: int, width: float, depth: float, rng: np.random.Generator) -> F64:
@@ -53,7 +69,13 @@ def tree_transforms(
     rng: np.random.Generator,
     placement: Placement = "poisson",
 ) -> F64:
-    """``(n, 4, 4)`` model transforms of ``n`` trees centred on the origin of the XZ plane."""
+    """``(n, 4, 4)`` model transforms of ``n`` trees centred on the origin of the XZ plane
+    (or the ones :func:`placed` set)."""
+    fixed = _PLACED.get()
+    if fixed is not None:
+        if len(fixed) != n:
+            raise ValueError(f"{len(fixed)} placed trees, {n} asked for")
+        return fixed
     width, depth = area
     if n == 1:
         xy = np.array([[width / 2, depth / 2]])
