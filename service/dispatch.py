@@ -15,7 +15,7 @@ from kombu import Exchange, Queue
 from service.settings import ServiceSettings
 
 TASK_NAME = "forest.run_job"
-KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu"}
+KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu", "forest_tile": "default"}
 QUEUES = ("default", "gpu")
 SQLA_POLL_S = 0.1
 
@@ -73,6 +73,15 @@ class Dispatcher:
     def send(self, job_id: str, kind: str, countdown: float | None = None) -> None:
         queue = self.settings.queue(KIND_QUEUES[kind])
         self.app.send_task(TASK_NAME, args=[job_id], queue=queue, countdown=countdown)
+
+    def send_group(self, job_ids: list[str], kind: str) -> None:
+        """Send ``forest.run_job`` for each job as one Celery group (a tiled forest's
+        tiles): any free worker takes the next tile."""
+        from celery import group
+
+        queue = self.settings.queue(KIND_QUEUES[kind])
+        sigs = [self.app.signature(TASK_NAME, args=[j], queue=queue) for j in job_ids]
+        group(sigs).apply_async()
 
     def ping(self) -> None:
         """Raise unless the broker answers."""

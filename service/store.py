@@ -35,6 +35,31 @@ def scoped_key(tenant: str, key: str) -> str:
     return hashlib.sha256(f"{tenant}\0{key}".encode()).hexdigest()
 
 
+def tile_job_id(parent: str, i: int, j: int) -> str:
+    """The job id of tile ``(i, j)`` of a tiled forest job: derived, so the parent finds its
+    tiles (and a second delivery of the parent creates none twice)."""
+    return hashlib.md5(f"{parent}:tile:{i}_{j}".encode(), usedforsecurity=False).hexdigest()
+
+
+def tile_job_ids(parent: str, params: dict[str, Any]) -> list[tuple[int, int, str]]:
+    """``(i, j, job id)`` of every tile of a forest job's ``params`` (none if not tiled)."""
+    from schemas.jobs import tile_grid
+
+    size = params.get("tile_size")
+    if not size:
+        return []
+    nx, nz = tile_grid(tuple(params["area"]), float(size))
+    return [(i, j, tile_job_id(parent, i, j)) for j in range(nz) for i in range(nx)]
+
+
+class TileState(NamedTuple):
+    id: str
+    state: str
+    progress: float
+    error: str | None
+    result: dict[str, Any] | None
+
+
 def request_hash(kind: str, params: dict[str, Any]) -> str:
     text = json.dumps({"kind": kind, "params": params}, sort_keys=True, separators=(",", ":"))
     return hashlib.sha256(text.encode()).hexdigest()
@@ -151,18 +176,21 @@ class JobStore:
     def cancel(self, job_id: str, tenant: str | None = None) -> JobRow | None:
         """Queued jobs are canceled at once; active ones get the flag their worker reads (and
         kill the job's process). With ``tenant``, another tenant's job is None, untouched."""
-        if tenant is not None and self.get(job_id, tenant) is None:
+        row = self.get(job_id, tenant)
+        if row is None:
             return None
+        # a tiled forest's tiles are canceled with it
+        ids = [job_id] + [t for _, _, t in tile_job_ids(job_id, dict(row.params or {}))]
         now = utcnow()
         with self.session() as s, s.begin():
             s.execute(
                 update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == "queued")
+                .where(JobRow.id.in_(ids), JobRow.state == "queued")
                 .values(state="canceled", cancel_requested=True, finished_at=now, stage="canceled")
             )
             s.execute(
                 update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == "active")
+                .where(JobRow.id.in_(ids), JobRow.state == "active")
                 .values(cancel_requested=True)
             )
         return self.get(job_id)
@@ -185,6 +213,56 @@ class JobStore:
                 .limit(limit)
             ).all()
         return [FinishedJob(*r) for r in rows]
+
+    # -- tiled forests ---------------------------------------------------------------------
+
+    def create_tiles(self, parent: Claim, tiles: list[tuple[str, dict[str, Any]]]) -> list[str]:
+        """Insert the tile jobs ``(id, params)`` of ``parent`` not yet there; their ids."""
+        ids = [t for t, _ in tiles]
+        with self.session() as s:
+            have = set(s.scalars(select(JobRow.id).where(JobRow.id.in_(ids))).all())
+            tenant = s.scalar(select(JobRow.tenant).where(JobRow.id == parent.job_id))
+        now = utcnow()
+        rows = [
+            JobRow(
+                id=t, kind="forest_tile", tenant=tenant or "local", state="queued", params=p,
+                attempts=0, max_attempts=parent.max_attempts, progress=0.0, stage="queued",
+                cancel_requested=False, request_hash=request_hash("forest_tile", p),
+                artifacts=[], created_at=now, enqueued_at=now,
+            )
+            for t, p in tiles
+            if t not in have
+        ]  # fmt: skip
+        if rows:
+            with self.session() as s, s.begin():
+                s.add_all(rows)
+        return [r.id for r in rows]
+
+    def tile_states(self, ids: list[str]) -> list[TileState]:
+        """The tiles' states in the order of ``ids`` (one query)."""
+        with self.session() as s:
+            got = s.execute(
+                select(JobRow.id, JobRow.state, JobRow.progress, JobRow.error, JobRow.result)
+                .where(JobRow.id.in_(ids))
+            ).all()
+        by_id = {r[0]: TileState(*r) for r in got}
+        return [by_id.get(t) or TileState(t, "missing", 0.0, None, None) for t in ids]
+
+    def park(self, claim: Claim, progress: float, stage: str) -> bool:
+        """Back to the queue while its tiles run (a poll, not an attempt: the attempt
+        count is given back); False if the lease was lost."""
+        return self._finish(
+            claim,
+            {
+                "state": "queued",
+                "stage": stage[:64],
+                "progress": max(0.0, min(1.0, progress)),
+                "lease_owner": None,
+                "lease_expires": None,
+                "attempts": claim.attempt - 1,
+                "enqueued_at": utcnow(),
+            },
+        )
 
     # -- worker side ------------------------------------------------------------------------
 

@@ -27,7 +27,7 @@ from forest.errors import ForestError
 from service.artifacts import ArtifactStore
 from service.dispatch import TASK_NAME, Dispatcher, make_celery
 from service.settings import ServiceSettings, get_settings
-from service.store import JobStore
+from service.store import Claim, JobStore, tile_job_ids
 from worker.supervise import job_limits, scrub_paths, supervise, under
 
 log = logging.getLogger(__name__)
@@ -99,6 +99,40 @@ def run_forest(ctx: JobContext) -> Outcome:
     return Outcome({name: out}, result)
 
 
+def tile_artifact(i: int, j: int) -> str:
+    """A tile's file in its forest job's artifacts (beside the root layer ``scene.*``)."""
+    return f"scene_tile_{i}_{j}.usdc"
+
+
+def run_tile(ctx: JobContext) -> Outcome:
+    """One tile of a tiled forest job (``params``: the forest request + ``parent``, ``tile``):
+    generate its trees and write ``scene_tile_<i>_<j>.usdc``, published into the parent
+    job's artifacts; the result carries the tile's entry of the root layer."""
+    from forest.growth.generate import options_from_request
+    from forest.growth.presets import load_preset
+    from forest.growth.tiling import TilePlan, generate_tile
+    from forest.usd.tiled import write_tile_file
+    from schemas.jobs import ForestRequest
+
+    p = dict(ctx.params)
+    i, j = p.pop("tile")
+    p.pop("parent")
+    req = ForestRequest.model_validate(p)
+    assert req.tile_size is not None
+    grammar = req.grammar if req.grammar is not None else load_preset(req.preset or "")
+    plan = TilePlan(req.trees, req.area, req.tile_size, req.seed)
+
+    def note(stage: str, done: int, total: int) -> None:
+        ctx.report(stage, 0.7 * done / max(total, 1))
+
+    forest = generate_tile(grammar, plan, i, j, options_from_request(req), progress=note)
+    ctx.report("write", 0.7)
+    name = tile_artifact(i, j)
+    entry = write_tile_file(forest, ctx.scratch / name, f"./{name}", i, j, skinned=req.skinned)
+    pieces = 0 if forest is None else forest.n_instances
+    return Outcome({name: ctx.scratch / name}, {"tile": entry.to_json(), "pieces": pieces})
+
+
 def run_render(ctx: JobContext) -> Outcome:
     """A render job: the scene -> ``preview.png`` + ``metrics.json`` (EGL; GPU or llvmpipe).
     An uploaded scene is untrusted: :func:`worker.scene_guard.check_scene_file` bounds it
@@ -156,7 +190,8 @@ def _hold_gil(seconds: float) -> None:
     ctypes.PyDLL(None).usleep(int(seconds * 1e6))
 
 
-KINDS: dict[str, TaskKind] = {"forest": run_forest, "render": run_render}
+KINDS: dict[str, TaskKind] = {"forest": run_forest, "render": run_render, "forest_tile": run_tile}
+TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles
 
 
 class Runtime:
@@ -211,6 +246,8 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
     claim = rt.store.claim(job_id, OWNER, s.lease_s)
     if claim is None:
         return "skipped"  # finished, canceled, or leased by a live worker
+    if claim.kind == "forest" and claim.params.get("tile_size"):
+        return join_tiles(rt, claim)
     kind = (kinds or KINDS).get(claim.kind)
     if kind is None:
         error = f"kind: no worker code for job kind {claim.kind!r}"
@@ -241,8 +278,10 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
             files = {n: Path(p) for n, p in (end.files or {}).items()}
             if not all(under(scratch, p) for p in files.values()):
                 raise RuntimeError("a job's file lies outside its scratch folder")
+            # a tile's file goes beside its forest's root layer
+            owner = claim.params.get("parent", job_id) if claim.kind == "forest_tile" else job_id
             for name, path in files.items():
-                rt.artifacts.publish(job_id, path, name)
+                rt.artifacts.publish(owner, path, name)
             done = rt.store.finish(
                 claim, "completed", artifacts=sorted(files), result=end.result
             )
@@ -269,6 +308,72 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
         return "retry"
     rt.store.finish(claim, "failed", error=error)
     return "failed"
+
+
+def join_tiles(rt: Runtime, claim: Claim) -> str:
+    """A tiled forest job's delivery: create its tile jobs and send them as one Celery group
+    (first delivery), then look at them: all completed, write the root layer and complete; a
+    tile failed (after its own retries) or canceled, end so; else record their mean progress
+    and come back in :data:`TILE_POLL_S` (as Celery's chord_unlock polls a group)."""
+    from forest.usd.tiled import TileEntry, write_root
+    from schemas.jobs import ForestRequest
+
+    job_id, params = claim.job_id, claim.params
+    tiles = tile_job_ids(job_id, params)
+    ids = [t for _, _, t in tiles]
+    try:
+        specs = [(t, {**params, "parent": job_id, "tile": [i, j]}) for i, j, t in tiles]
+        new = rt.store.create_tiles(claim, specs)
+        if new:
+            rt.dispatcher.send_group(new, "forest_tile")
+        states = rt.store.tile_states(ids)
+        failed = [(k, st) for k, st in enumerate(states) if st.state == "failed"]
+        if failed:
+            k, st = failed[0]
+            rt.store.cancel(job_id)  # the other tiles stop
+            i, j, _ = tiles[k]
+            rt.store.finish(claim, "failed", error=f"tile {i}_{j}: {st.error}")
+            return "failed"
+        if any(st.state == "canceled" for st in states):
+            rt.store.finish(claim, "canceled", error="canceled on request")
+            return "canceled"
+        done = sum(st.state == "completed" for st in states)
+        if done < len(states):
+            progress = sum(1.0 if st.state == "completed" else st.progress for st in states)
+            rt.store.park(claim, 0.95 * progress / len(states), f"tiles {done}/{len(states)}")
+            rt.dispatcher.send(job_id, "forest", countdown=TILE_POLL_S)
+            return "waiting"
+        req = ForestRequest.model_validate(params)
+        entries = [TileEntry.from_json((st.result or {})["tile"]) for st in states]
+        name = f"scene.{req.format}"
+        scratch = rt.artifacts.scratch(job_id)
+        try:
+            root = write_root(
+                scratch / name, entries, frames=req.frames, fps=req.fps,
+                meta={"trees": req.trees, "area": list(req.area), "tile_size": req.tile_size,
+                      "seed": req.seed, "tiles": len(entries)},
+            )  # fmt: skip
+            rt.artifacts.publish(job_id, root, name)
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
+        result = {
+            "trees": req.trees,
+            "pieces": sum(int((st.result or {}).get("pieces", 0)) for st in states),
+            "frames": req.frames,
+            "scene": name,
+            "tiles": len(states),
+        }
+        artifacts = sorted([name] + [tile_artifact(i, j) for i, j, _ in tiles])
+        ok = rt.store.finish(claim, "completed", artifacts=artifacts, result=result)
+        return "completed" if ok else "lost"
+    except Exception as exc:  # the store or broker is away: back to the queue, retried
+        log.exception("tiled forest job %s", job_id)
+        error = scrub_paths(f"{type(exc).__name__}: {exc}")
+        if claim.attempt < claim.max_attempts and rt.store.retry(claim, error):
+            rt.dispatcher.send(job_id, claim.kind, countdown=rt.settings.retry_delay_s)
+            return "retry"
+        rt.store.finish(claim, "failed", error=error)
+        return "failed"
 
 
 app = make_celery(get_settings())

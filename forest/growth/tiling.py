@@ -29,11 +29,10 @@ from forest.growth.generate import MAX_AREA, Forest, ForestOptions, Progress, ge
 from forest.growth.scatter import placed
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
+from schemas.jobs import MAX_TILED_TREES, MAX_TILES, tile_grid
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
 
 JITTER_MARGIN = 0.15
-MAX_TILED_TREES = 10_000_000  # cell hashes of the whole plan: 80 MB at this cap
-MAX_TILES = 100_000
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 
 
@@ -88,11 +87,11 @@ class TilePlan:
 
     @property
     def nx(self) -> int:
-        return max(1, math.ceil(self.area[0] / self.tile_size))
+        return tile_grid(self.area, self.tile_size)[0]
 
     @property
     def nz(self) -> int:
-        return max(1, math.ceil(self.area[1] / self.tile_size))
+        return tile_grid(self.area, self.tile_size)[1]
 
     def tiles(self) -> Iterator[tuple[int, int]]:
         """Every tile index ``(i, j)`` (``i`` along x, ``j`` along z), row by row."""

@@ -101,22 +101,25 @@ def write_tile(
 ) -> TileEntry:
     """Write tile ``(i, j)`` (a forest, or None for an empty tile) beside the root layer
     ``root``, in ``<root stem>_tiles/<i>_<j>.usdc``."""
-    from forest.usd.scene import write_scene
-
     folder = tiles_folder(root)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{i}_{j}{TILE_SUFFIX}"
+    return write_tile_file(forest, path, f"./{folder.name}/{path.name}", i, j, skinned=skinned)
+
+
+def write_tile_file(
+    forest: Forest | None, path: Path, asset: str, i: int, j: int, *, skinned: bool = False
+) -> TileEntry:
+    """Write tile ``(i, j)`` to ``path``; its entry names it ``asset`` (relative to the root
+    layer's folder)."""
+    from forest.usd.scene import write_scene
+
     if forest is None:
         write_empty_tile(path)
     else:
         write_scene(forest, path, skinned=skinned)
-    return TileEntry(
-        i,
-        j,
-        f"./{folder.name}/{path.name}",
-        tile_extent(path),
-        0 if forest is None else forest.options.trees,
-    )
+    trees = 0 if forest is None else forest.options.trees
+    return TileEntry(i, j, asset, tile_extent(path), trees)
 
 
 def write_root(

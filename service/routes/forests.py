@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from schemas.jobs import ForestRequest, Job
+from schemas.jobs import ForestRequest, Job, tile_grid
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.inputs import resolve_grammar
@@ -23,7 +25,11 @@ def create_forest(
     idempotency_key: IdempotencyKey = None,
 ) -> JSONResponse:
     s = services.settings
-    if req.trees > s.max_forest_trees:
-        raise field_error(["trees"], f"at most {s.max_forest_trees} trees", "limit_error")
-    resolve_grammar(req, s, req.trees, s.max_forest_pieces)
+    # a tiled forest: the caps hold per tile (each tile is a job of its own), on average
+    n_tiles = math.prod(tile_grid(req.area, req.tile_size)) if req.tile_size else 1
+    per_tile = math.ceil(req.trees / n_tiles)
+    if per_tile > s.max_forest_trees:
+        where = " per tile" if req.tile_size else ""
+        raise field_error(["trees"], f"at most {s.max_forest_trees} trees{where}", "limit_error")
+    resolve_grammar(req, s, per_tile, s.max_forest_pieces)
     return submit(services, "forest", req.model_dump(mode="json"), idempotency_key, tenant)
