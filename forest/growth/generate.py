@@ -49,6 +49,12 @@ class ForestOptions:
     wind: Wind = field(default_factory=Wind)
     season: Season = "summer"
 
+    def __post_init__(self) -> None:
+        # a clip loops: the wind's frequencies snap to multiples of 1 / (frames / fps)
+        loop = self.frames / self.fps if self.frames > 0 and 0 < self.fps < np.inf else 0.0
+        if self.wind.loop_s != loop:
+            object.__setattr__(self, "wind", replace(self.wind, loop_s=loop))
+
     def check(self, settings: ForestSettings) -> None:
         if not 1 <= self.trees <= settings.max_trees:
             raise LimitError(

@@ -31,13 +31,51 @@ LevelHook = Callable[[NDArray[np.intp], F64], None]
 
 @dataclass(frozen=True)
 class Wind:
-    """Sway about the horizontal axis across ``direction``; amplitude grows linearly with
-    depth from ``strength * base`` at the trunk to ``strength`` at the deepest pieces."""
+    """Wind as a few layered sines per piece, all bending about axes in the horizontal plane.
+
+    Each piece's rotation vector (radians, in its root frame) is ``amp * (lean + sway + gust)``
+    about the axis across ``direction`` plus ``amp * side`` about the axis along it, with
+
+    * ``sway``: a slow sine at ``frequency_hz`` with the tree's own phase (neighbours differ);
+    * ``gust``: an envelope at ``gust_hz`` that travels downwind at ``gust_speed`` m/s (its
+      arrival time grows with distance along the wind) times a faster wobble at about
+      ``2.3 * gust_hz`` with a per-piece phase (branch-level motion);
+    * ``flutter``: a small fast term at ``flutter_hz`` on the deepest pieces (leaf clouds ride
+      their hub bones, so they flutter with them).
+
+    ``amp`` grows linearly with depth from ``strength * base`` at the trunk to ``strength`` at
+    the deepest pieces, and with thinness: times ``(trunk radius / radius) ** radius_power``,
+    at most ``4``. With ``loop_s > 0`` (a clip of that many seconds; ForestOptions sets it to
+    ``frames / fps``) every frequency is rounded to a distinct non-zero multiple of ``1 /
+    loop_s``, so the pose at ``loop_s`` equals the pose at 0 and the clip loops.
+    """
 
     strength_deg: float = 4.0
     frequency_hz: float = 0.4
     direction_deg: float = 0.0
     base: float = 0.15
+    sway: float = 0.5
+    gust_hz: float = 0.7
+    gust: float = 0.8
+    gust_speed: float = 6.0
+    flutter_hz: float = 2.6
+    flutter: float = 0.15
+    radius_power: float = 0.25
+    loop_s: float = 0.0
+
+    def frequencies(self) -> tuple[float, float, float, float]:
+        """``(sway, gust envelope, gust wobble, flutter)`` in Hz, snapped to the loop."""
+        want = (self.frequency_hz, self.gust_hz, 2.3 * self.gust_hz, self.flutter_hz)
+        if not self.loop_s > 0:
+            return want
+        out: list[float] = []
+        k_prev = 0
+        for f in want:
+            # distinct multiples: two terms on one frequency would beat in lockstep
+            k = max(k_prev + 1, round(f * self.loop_s))
+            out.append(k / self.loop_s)
+            k_prev = k
+        return out[0], out[1], out[2], out[3]
 
 
 @dataclass(frozen=True, eq=False)
@@ -313,35 +351,77 @@ class Poser:
         return deepest
 
     @cached_property
-    def _wind_fields(self) -> dict[Wind, tuple[F64, F64]]:
+    def _wind_fields(self) -> dict[Wind, _WindField]:
         return {}
 
-    def _wind_field(self, wind: Wind) -> tuple[F64, F64]:
-        """Per instance: sway amplitude ``(n,)`` and the wind axis in the instance's root frame
-        ``(3, n)`` (one world axis across the wind, turned by the rest rotation). Neither
-        depends on time, so each wind computes them once for all of its frames."""
+    def _wind_field(self, wind: Wind) -> _WindField:
+        """The time-independent part of a wind, computed once for all of its frames."""
         if wind not in self._wind_fields:
             g = self.graph
             d = np.deg2rad(wind.direction_deg)
-            world_axis = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
-            deepest = np.take(self._tree_depth, g.tree)
-            amp = np.deg2rad(wind.strength_deg) * (
-                wind.base + (1 - wind.base) * g.depth / np.maximum(deepest, 1)
+            across = np.array([np.sin(d), 0.0, -np.cos(d)])  # up x direction
+            along = np.array([np.cos(d), 0.0, np.sin(d)])
+            rot_t = self.transforms[:, :3, :3]
+            deepest = np.maximum(np.take(self._tree_depth, g.tree), 1)
+            rel = g.depth / deepest
+            trunk_r = np.zeros(len(self._tree_depth))
+            np.maximum.at(trunk_r, g.tree, g.scale)
+            thin = np.clip(
+                (np.take(trunk_r, g.tree) / np.maximum(g.scale, 1e-6)) ** wind.radius_power,
+                1.0,
+                4.0,
             )
-            axis = np.einsum("nji,j->in", self.transforms[:, :3, :3], world_axis)  # R^T a
-            self._wind_fields[wind] = (amp, axis / np.linalg.norm(axis, axis=0))
+            amp = np.deg2rad(wind.strength_deg) * (wind.base + (1 - wind.base) * rel) * thin
+            # only the last quarter of each tree's depth flutters, growing to the tips
+            flutter = wind.flutter * np.clip((rel - 0.75) / 0.25, 0.0, 1.0) ** 2
+            # downwind distance of each tree's base: the gust's delay there
+            dist = self.tree_transforms[:, :3, 3] @ along
+            delay = np.take(dist, g.tree) / max(wind.gust_speed, 1e-6)
+            # a per-piece phase from the instance index (golden-ratio hashing): branch motion
+            # out of step with its neighbours, reproducible without a random stream
+            piece_phase: F64 = np.mod(np.arange(len(g)) * 0.6180339887498949, 1.0) * (2 * np.pi)
+            self._wind_fields[wind] = _WindField(
+                amp=amp,
+                across=np.einsum("nji,j->in", rot_t, across),  # R^T a, unit
+                along=np.einsum("nji,j->in", rot_t, along),
+                flutter=flutter,
+                delay=delay,
+                piece_phase=piece_phase,
+            )
         return self._wind_fields[wind]
 
-    def _wind(
-        self, idx: NDArray[np.intp], wind: Wind | None, time: float
-    ) -> tuple[F64, F64] | None:
-        """Per instance of ``idx``: sway angle ``(m,)`` at ``time`` and the wind axis ``(3, m)``
-        in the instance's root frame."""
+    def gust_envelope(self, idx: NDArray[np.intp], wind: Wind, time: float) -> F64:
+        """``(m,)`` the gust's strength in [0, 1] at the instances ``idx`` at ``time``: a
+        peaked (squared) sine travelling downwind at ``wind.gust_speed``."""
+        f_env = wind.frequencies()[1]
+        delay = self._wind_field(wind).delay[idx]
+        return (0.5 + 0.5 * np.sin(2 * np.pi * f_env * (time - delay))) ** 2
+
+    def _wind(self, idx: NDArray[np.intp], wind: Wind | None, time: float) -> F64 | None:
+        """Per instance of ``idx``: the wind's rotation vector ``(3, m)`` (radians about its
+        direction) in the instance's root frame at ``time``."""
         if wind is None or not wind.strength_deg:
             return None
-        amp, axis = self._wind_field(wind)
-        phase = 2 * np.pi * wind.frequency_hz * time + self.pose.phase[idx]
-        return amp[idx] * np.sin(phase), np.take(axis, idx, axis=1)
+        fld = self._wind_field(wind)
+        f_sway, _, f_wob, f_flut = wind.frequencies()
+        tau = 2 * np.pi * time
+        tree_phase = self.pose.phase[idx]
+        own = fld.piece_phase[idx]
+        env = self.gust_envelope(idx, wind, time)
+        bend = (
+            0.35  # the mean lean downwind
+            + wind.sway * np.sin(tau * f_sway + tree_phase)
+            + wind.gust * env * (1.0 + 0.35 * np.sin(tau * f_wob + own))
+        )
+        flut = fld.flutter[idx]
+        side = 0.25 * env * np.sin(tau * f_wob + 1.3 * own) + flut * np.sin(
+            tau * f_flut + 2.0 * own
+        )
+        bend = bend + flut * np.sin(tau * f_flut + own)
+        amp = fld.amp[idx]
+        return (amp * bend) * np.take(fld.across, idx, axis=1) + (amp * side) * np.take(
+            fld.along, idx, axis=1
+        )
 
     def _rotations(self, idx: NDArray[np.intp], wind: Wind | None, time: float) -> _Rotations:
         """Pose rotations of the instances ``idx`` and of their terminals (see _Rotations)."""
@@ -355,14 +435,13 @@ class Poser:
         tip = affine.horizontal_rotation(
             np.take(pose.spread_azimuth, flat), np.take(pose.spread_angle, flat)
         )
-        swaying = self._wind(idx, wind, time)
-        if swaying is not None:
-            sway, axis = swaying
-            hub = affine.compose_linear(affine.axis_angle(axis, sway), hub)
+        vec = self._wind(idx, wind, time)
+        if vec is not None:
+            hub = affine.compose_linear(_rotation(vec), hub)
             # in the hub's frame; tips sway half as much as hubs, so the motion ripples up
             # the tree instead of swinging each piece rigidly
-            hub_axis = affine.apply_linear(affine.transpose_linear(hub)[:, pos], axis[:, pos])
-            tip = affine.compose_linear(affine.axis_angle(hub_axis, 0.5 * sway[pos]), tip)
+            hub_vec = affine.apply_linear(affine.transpose_linear(hub)[:, pos], vec[:, pos])
+            tip = affine.compose_linear(_rotation(0.5 * hub_vec), tip)
         return _Rotations(hub, tip, rims, tipstart, pos, r, flat)
 
     def locals_for(
@@ -493,6 +572,26 @@ class Poser:
         column[bone] = np.arange(len(bone))
         mats = affine.to_matrices(cols, row_vectors=row_vectors)
         np.take(mats, column, axis=0, out=pal[b0:b1], mode="clip")
+
+
+def _rotation(vec: F64) -> F64:
+    """``(9, m)`` rotations of rotation vectors ``(3, m)`` (axis times angle, radians)."""
+    angle = np.sqrt(np.einsum("im,im->m", vec, vec))
+    return affine.axis_angle(vec / np.maximum(angle, 1e-300), angle)
+
+
+@dataclass(frozen=True, eq=False)
+class _WindField:
+    """A wind's time-independent part per instance: amplitude ``amp`` ``(n,)`` radians, the
+    axes across and along the wind in each instance's root frame ``(3, n)``, the flutter weight
+    ``(n,)``, the gust's delay ``(n,)`` seconds and a per-piece phase ``(n,)`` radians."""
+
+    amp: F64
+    across: F64
+    along: F64
+    flutter: F64
+    delay: F64
+    piece_phase: F64
 
 
 @dataclass(frozen=True, eq=False)
