@@ -16,7 +16,7 @@ from service.errors import install_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import Metrics, MetricsMiddleware
 from service.reaper import Reaper
-from service.routes import forests, health, jobs, presets, renders, trees
+from service.routes import forests, health, jobs, presets, renders, trees, web
 from service.security import Keys, RateLimit, SameSiteWrites
 from service.settings import ServiceSettings, get_settings
 from service.store import JobStore
@@ -54,11 +54,14 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
         description="Procedural forests from interlocking quad-mesh pieces, as USD scenes; "
         "forest and render jobs.",
         lifespan=lifespan,
+        docs_url=None,  # served by service.routes.web from the package's own files
+        redoc_url=None,
     )
     app.state.services = services
     install_handlers(app)
     for module in (presets, trees, forests, renders, jobs, health):
         app.include_router(module.router)
+    web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
     app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
     allowed = frozenset(o.strip() for o in settings.allowed_origins.split(",") if o.strip())
     app.add_middleware(SameSiteWrites, allowed=allowed)

@@ -1,0 +1,148 @@
+// Drives Debian's Chromium (playwright-core from web/node_modules) through the farm's page
+// served by `forest serve` on loopback; prints one JSON object of what it saw (the pytest
+// side, test_page.py, asserts on it) and writes a screenshot.
+// usage: node page.mjs BASE_URL KEY OTHER_TENANT_JOB OUT_DIR
+import { chromium } from "../../web/node_modules/playwright-core/index.mjs";
+
+const [base, key, otherJob, out] = process.argv.slice(2);
+const seen = { requests: [], offsite: [], console: [], steps: {} };
+const step = (name, value) => {
+  seen.steps[name] = value;
+};
+
+const browser = await chromium.launch({
+  executablePath: process.env.CHROMIUM || "/usr/bin/chromium",
+  // no GPU here: WebGL on SwiftShader
+  args: ["--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist", "--no-sandbox"],
+});
+try {
+  const context = await browser.newContext({ viewport: { width: 1400, height: 1100 } });
+  context.on("request", (r) => {
+    const url = r.url();
+    seen.requests.push(url);
+    if (!/^(blob|data):/.test(url) && !url.startsWith("http://127.0.0.1:")) seen.offsite.push(url);
+  });
+  // anything not on loopback is refused (and recorded above): the page must work offline
+  await context.route((url) => !["127.0.0.1"].includes(url.hostname) && url.protocol.startsWith("http"), (r) => r.abort());
+  const page = await context.newPage();
+  page.on("console", (m) => {
+    if (m.type() === "error") seen.console.push(m.text());
+  });
+  page.on("pageerror", (e) => seen.console.push(String(e)));
+
+  // -- without a key the keyed server refuses, and the page says so
+  await page.goto(base + "/");
+  await page.waitForFunction(() => document.querySelector("#key-status").textContent !== "", null, { timeout: 10000 });
+  step("no_key_status", await page.textContent("#key-status"));
+
+  // -- the key, kept in this browser, is sent as X-API-Key
+  await page.fill("#api-key", key);
+  await page.dispatchEvent("#api-key", "change");
+  await page.waitForFunction(() => document.querySelectorAll(".preset").length >= 8, null, { timeout: 15000 });
+  await page.reload();
+  step("key_kept", (await page.inputValue("#api-key")) === key);
+  await page.waitForFunction(() => document.querySelectorAll(".preset").length >= 8, null, { timeout: 15000 });
+  await page.waitForFunction(() => [...document.querySelectorAll(".preset img")].every((i) => i.complete && i.naturalWidth > 0), null, { timeout: 15000 });
+  step("presets", await page.$$eval(".preset", (cards) => cards.map((c) => c.dataset.name)));
+  step("gallery_images", await page.$$eval(".preset img", (imgs) => imgs.filter((i) => i.naturalWidth > 0).length));
+
+  // -- the schema check as you type: a negative max_depth is flagged before any request
+  await page.click('.preset[data-name="birch"]');
+  const birch = JSON.parse(await page.inputValue("#grammar"));
+  await page.fill("#grammar", JSON.stringify({ ...birch, max_depth: -3 }, null, 2));
+  step("schema_error", await page.textContent("#err-grammar"));
+
+  // -- a grammar the schema allows but the server refuses: its 422 message on the grammar field
+  const bad = { axiom: "S", rules: { S: [{ piece: "I", successors: [{ symbol: "Z" }] }] } };
+  await page.fill("#grammar", JSON.stringify(bad, null, 2));
+  step("schema_ok_text", await page.textContent("#err-grammar"));
+  await page.click("#submit-forest");
+  await page.waitForSelector('#err-grammar[data-source="server"]', { timeout: 10000 });
+  step("server_grammar_error", await page.textContent("#err-grammar"));
+  step("grammar_marked", await page.$eval("#grammar", (t) => t.classList.contains("invalid")));
+  // and a bad count on its own field
+  await page.click('.preset[data-name="birch"]');
+  await page.fill("#trees", "0");
+  await page.click("#submit-forest");
+  await page.waitForSelector('#err-trees[data-source="server"]', { timeout: 10000 });
+  step("server_trees_error", await page.textContent("#err-trees"));
+  step("grammar_error_after_trees", await page.textContent("#err-grammar"));
+
+  // -- a forest job from the form; the page renders its preview when it completes
+  await page.fill("#trees", "2");
+  await page.fill("#area-x", "6");
+  await page.fill("#area-y", "6");
+  await page.selectOption("#format", "usdc");
+  await page.check("#auto-render");
+  const t0 = Date.now();
+  await page.click("#submit-forest");
+  await page.waitForSelector('tr[data-kind="forest"][data-state="completed"]', { timeout: 90000 });
+  step("forest_s", (Date.now() - t0) / 1000);
+  step("forest_row", await page.textContent('tr[data-kind="forest"][data-state="completed"]'));
+  await page.waitForSelector('tr[data-kind="render"][data-state="completed"] img.preview', { timeout: 90000 });
+  await page.waitForFunction(() => {
+    const img = document.querySelector('tr[data-kind="render"][data-state="completed"] img.preview');
+    return img && img.complete && img.naturalWidth > 0;
+  }, null, { timeout: 15000 });
+  step("render_s", (Date.now() - t0) / 1000);
+  step("preview_size", await page.$eval('tr[data-kind="render"] img.preview', (i) => [i.naturalWidth, i.naturalHeight]));
+  step("render_links", await page.$$eval('tr[data-kind="render"] a.artifact', (as) => as.map((a) => a.textContent)));
+  step("job_ids", await page.$$eval("tr.job", (rows) => rows.map((r) => r.dataset.jobId)));
+  step("other_tenant_job_shown", (await page.$(`tr[data-job-id="${otherJob}"]`)) !== null);
+  // an artifact downloads (fetched with the key, saved by the browser)
+  const [download] = await Promise.all([
+    page.waitForEvent("download", { timeout: 15000 }),
+    page.click('tr[data-kind="forest"] a.artifact'),
+  ]);
+  step("download_name", download.suggestedFilename());
+
+  // -- the 3D viewer: one tree as glb with its wind playing
+  await page.click('.preset[data-name="birch"]');
+  await page.fill("#frames", "24");
+  await page.click("#view-tree");
+  await page.waitForSelector('#viewer[data-state="ready"]', { timeout: 60000 });
+  await page.waitForTimeout(500);
+  const pixels = () =>
+    page.$eval("#viewer-canvas", (c) => {
+      const copy = document.createElement("canvas");
+      copy.width = c.width;
+      copy.height = c.height;
+      const g = copy.getContext("2d");
+      g.drawImage(c, 0, 0);
+      const d = g.getImageData(0, 0, c.width, c.height).data;
+      const bg = [0xdf, 0xe8, 0xee]; // the viewer's clear colour (viewer.js BACKGROUND)
+      let drawn = 0;
+      const sig = [];
+      for (let i = 0; i < d.length; i += 4) {
+        const off = Math.abs(d[i] - bg[0]) + Math.abs(d[i + 1] - bg[1]) + Math.abs(d[i + 2] - bg[2]);
+        if (off > 24) drawn += 1;
+        sig.push(d[i] + d[i + 1] + d[i + 2]);
+      }
+      return { drawn, total: d.length / 4, sig };
+    });
+  const a = await pixels();
+  await page.waitForTimeout(700);
+  const b = await pixels();
+  let changed = 0;
+  for (let i = 0; i < a.sig.length; i += 1) if (Math.abs(a.sig[i] - b.sig[i]) > 12) changed += 1;
+  step("canvas", { drawn: a.drawn, total: a.total, changed_between_frames: changed });
+  step("clips", await page.getAttribute("#viewer", "data-clips"));
+  step("viewer_msg", await page.textContent("#viewer-msg"));
+  await page.screenshot({ path: `${out}/page.png`, fullPage: true });
+
+  // -- the API docs from the service's own files
+  await page.goto(base + "/docs");
+  await page.waitForSelector(".swagger-ui .info .title", { timeout: 20000 });
+  step("swagger_title", await page.textContent(".swagger-ui .info .title"));
+  step("swagger_ops", await page.$$eval(".opblock", (o) => o.length));
+  await page.goto(base + "/redoc");
+  await page.waitForSelector("h1", { timeout: 20000 });
+  step("redoc_title", await page.textContent("h1"));
+  step("redoc_ops", await page.$$eval("[data-section-id^='operation']", (o) => o.length));
+} catch (err) {
+  seen.error = String(err && err.stack ? err.stack : err);
+} finally {
+  await browser.close();
+  seen.requests = [...new Set(seen.requests.map((u) => u.replace(/^(https?:\/\/[^/]+\/[^?]*).*$/, "$1")))];
+  console.log(JSON.stringify(seen));
+}

@@ -1,0 +1,134 @@
+"""The farm's page in a real browser: Debian's Chromium driven by playwright-core (page.mjs)
+against ``forest serve`` on loopback with two tenants' keys. The page signs in with a key kept
+in the browser, shows the presets with their gallery images, checks a grammar against the
+JSON Schema as it is typed and puts the server's 422 messages on the field they name, submits
+a forest job that reaches ``completed`` and renders its preview, downloads an artifact, shows
+a tree's GLB with its wind playing on a non-empty WebGL canvas, never lists the other
+tenant's job, and serves Swagger UI and ReDoc from its own files; no request leaves loopback.
+``.ci/run`` installs chromium and ``npm ci`` in web/ (playwright-core)."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from service_harness import Server
+
+ROOT = Path(__file__).resolve().parents[2]
+CHROMIUM = Path("/usr/bin/chromium")
+PLAYWRIGHT = ROOT / "web" / "node_modules" / "playwright-core"
+KEYS = {"key-alpha": "alpha", "key-beta": "beta"}
+
+
+def _require_browser() -> None:
+    missing = []
+    if not CHROMIUM.exists():
+        missing.append(f"{CHROMIUM} (apt-get install -y chromium)")
+    if shutil.which("node") is None:
+        missing.append("node (apt-get install -y nodejs npm)")
+    if not PLAYWRIGHT.is_dir():
+        missing.append(f"{PLAYWRIGHT} (cd web && npm ci)")
+    if missing:
+        pytest.fail("the browser tests need " + ", ".join(missing) + "; .ci/run installs them",
+                    pytrace=False)
+
+
+@pytest.fixture(scope="module")
+def seen(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
+    """What page.mjs saw: ``steps`` by name, every ``requests`` URL, ``offsite`` ones,
+    ``console`` errors, and ``error`` when a step failed."""
+    _require_browser()
+    tmp = tmp_path_factory.mktemp("web")
+    keys = ",".join(f"{k}={t}" for k, t in KEYS.items())
+    server = Server(tmp / "data", {"FOREST_API_KEYS": keys}).start()
+    try:
+        server.headers = {"X-API-Key": "key-beta"}
+        other = server.post("/v1/forests", {"preset": "oak", "trees": 1})
+        assert other.status_code == 202, other.text
+        out = ROOT / "tests" / "output" / "web"
+        out.mkdir(parents=True, exist_ok=True)
+        run = subprocess.run(
+            ["node", str(Path(__file__).with_name("page.mjs")), server.url, "key-alpha",
+             other.json()["id"], str(out)],
+            capture_output=True, text=True, timeout=240, check=False,
+        )
+        assert run.returncode == 0, run.stderr[-4000:]
+        result: dict[str, Any] = json.loads(run.stdout.strip().splitlines()[-1])
+        if result.get("error"):
+            pytest.fail(f"page.mjs: {result['error']}\nsteps: {result['steps']}\n"
+                        f"console: {result['console']}\n{server.log()}", pytrace=False)
+        yield result
+    finally:
+        server.stop()
+
+
+def test_no_request_leaves_loopback(seen: dict[str, Any]) -> None:
+    assert seen["offsite"] == []
+    assert seen["requests"], "no requests recorded"
+    for url in seen["requests"]:
+        assert url.startswith(("http://127.0.0.1:", "blob:", "data:")), url
+
+
+def test_api_key_kept_and_required(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert s["no_key_status"] == "this server needs a valid API key"
+    assert s["key_kept"] is True
+
+
+def test_presets_with_gallery_images(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    species = {"almond", "birch", "hazel", "oak", "pine", "poplar", "spruce", "willow"}
+    assert species <= set(s["presets"])
+    assert s["gallery_images"] == len(species)
+
+
+def test_schema_checked_as_you_type(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert "max_depth: must be >= 0" in s["schema_error"]
+    assert s["schema_ok_text"] == ""  # the unknown symbol is valid JSON Schema
+
+
+def test_server_422_on_its_field(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert s["server_grammar_error"] == (
+        "grammar.rules.S[0].successors[0].symbol: unknown symbol 'Z'"
+    )
+    assert s["grammar_marked"] is True
+    assert s["server_trees_error"] == "Input should be greater than or equal to 1"
+    assert s["grammar_error_after_trees"] == ""
+
+
+def test_forest_job_completes_and_preview_shows(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert "completed" in s["forest_row"] and "scene.usdc" in s["forest_row"]
+    assert s["preview_size"] == [640, 480]
+    assert any(link.startswith("preview.png") for link in s["render_links"])
+    assert s["download_name"] == "scene.usdc"
+
+
+def test_other_tenant_jobs_hidden(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert len(s["job_ids"]) == 2  # alpha's forest and its render
+    assert s["other_tenant_job_shown"] is False
+
+
+def test_viewer_draws_the_tree_in_the_wind(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    canvas = s["canvas"]
+    assert canvas["drawn"] > 0.02 * canvas["total"], canvas  # the tree covers the canvas
+    assert s["clips"] == "Wind"
+    assert canvas["changed_between_frames"] > 0, canvas  # the animation plays
+
+
+def test_api_docs_offline(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert s["swagger_title"].startswith("interlocking-forest")
+    assert s["swagger_ops"] >= 10
+    assert s["redoc_title"].startswith("interlocking-forest")
+    assert s["redoc_ops"] >= 10
+    assert not [e for e in seen["console"] if "ERR_FAILED" in e], seen["console"]

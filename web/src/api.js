@@ -1,0 +1,55 @@
+// The service's HTTP API, same origin: every call carries the API key kept in this browser
+// (localStorage) as X-API-Key; the server scopes jobs to the key's tenant.
+const KEY = "forest.apiKey";
+
+export function apiKey() {
+  return localStorage.getItem(KEY) || "";
+}
+
+export function setApiKey(key) {
+  if (key) localStorage.setItem(KEY, key);
+  else localStorage.removeItem(KEY);
+}
+
+export class ApiError extends Error {
+  constructor(status, detail) {
+    super(typeof detail === "string" ? detail : `HTTP ${status}`);
+    this.status = status;
+    this.detail = detail;
+  }
+}
+
+/** fetch(path) with the key; rejects with ApiError (status, the body's `detail`) on non-2xx. */
+export async function api(path, { method = "GET", body, as = "json" } = {}) {
+  const headers = {};
+  const key = apiKey();
+  if (key) headers["X-API-Key"] = key;
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const res = await fetch(path, {
+    method,
+    headers,
+    body: body === undefined ? undefined : JSON.stringify(body),
+  });
+  if (!res.ok) {
+    let detail = `HTTP ${res.status}`;
+    try {
+      detail = (await res.json()).detail ?? detail;
+    } catch {
+      // not JSON: keep the status line
+    }
+    throw new ApiError(res.status, detail);
+  }
+  if (as === "json") return res.json();
+  if (as === "blob") return res.blob();
+  return res.arrayBuffer();
+}
+
+/** A 422 `loc` (["body", "grammar", "rules", "S", 0, "weight"]) -> "grammar.rules.S[0].weight". */
+export function locPath(loc) {
+  let out = "";
+  for (const part of loc.slice(loc[0] === "body" ? 1 : 0)) {
+    if (typeof part === "number") out += `[${part}]`;
+    else out += out ? `.${part}` : part;
+  }
+  return out;
+}

@@ -1,0 +1,347 @@
+// The farm's page: presets, a grammar editor checked against the committed JSON Schema as
+// you type (ajv) with the server's 422 messages on their fields, forest and render jobs with
+// a live list (polling), previews, downloads, and a three.js viewer of GLBs.
+import "./style.css";
+import Ajv2020 from "ajv/dist/2020";
+import grammarSchema from "../../schemas/json/grammar.schema.json";
+import { api, ApiError, apiKey, locPath, setApiKey } from "./api.js";
+import { Viewer } from "./viewer.js";
+
+// the gallery's thumbnails (scripts/thumbs.py), by preset name; emitted as assets by vite
+const GALLERY = Object.fromEntries(
+  Object.entries(import.meta.glob("./gallery/*.png", { eager: true, query: "?url", import: "default" }))
+    .map(([path, url]) => [path.replace(/^.*\/|\.png$/g, ""), url]),
+);
+
+const $ = (sel) => document.querySelector(sel);
+const el = (tag, props = {}, ...children) => {
+  const node = Object.assign(document.createElement(tag), props);
+  for (const c of children) node.append(c);
+  return node;
+};
+
+// ---- API key --------------------------------------------------------------------------------
+const keyInput = $("#api-key");
+keyInput.value = apiKey();
+keyInput.addEventListener("change", () => {
+  setApiKey(keyInput.value.trim());
+  blobs.clear();
+  refreshJobs();
+  loadPresets();
+});
+
+function showKeyProblem(err) {
+  $("#key-status").textContent =
+    err instanceof ApiError && err.status === 401 ? "this server needs a valid API key" : "";
+}
+
+// ---- grammar editor -------------------------------------------------------------------------
+const ajv = new Ajv2020({ allErrors: true, strict: false });
+const validateGrammar = ajv.compile(grammarSchema);
+const grammarBox = $("#grammar");
+let presets = [];
+
+/** ajv's "/rules/S/0/weight" -> "rules.S[0].weight" (the server's spelling of a path). */
+function pointerPath(pointer) {
+  let out = "";
+  for (const raw of pointer.split("/").slice(1)) {
+    const part = raw.replaceAll("~1", "/").replaceAll("~0", "~");
+    if (/^\d+$/.test(part)) out += `[${part}]`;
+    else out += out ? `.${part}` : part;
+  }
+  return out;
+}
+
+function checkGrammar() {
+  const box = $("#err-grammar");
+  box.dataset.source = "schema";
+  let value;
+  try {
+    value = JSON.parse(grammarBox.value);
+  } catch (e) {
+    box.textContent = `not JSON: ${e.message}`;
+    grammarBox.classList.add("invalid");
+    return null;
+  }
+  if (!validateGrammar(value)) {
+    box.textContent = validateGrammar.errors
+      .slice(0, 6)
+      .map((e) => `${pointerPath(e.instancePath) || "grammar"}: ${e.message}`)
+      .join("\n");
+    grammarBox.classList.add("invalid");
+    return value;
+  }
+  box.textContent = "";
+  grammarBox.classList.remove("invalid");
+  return value;
+}
+
+grammarBox.addEventListener("input", () => {
+  document.querySelector("input[name=source][value=grammar]").checked = true;
+  checkGrammar();
+});
+
+function choosePreset(name) {
+  const p = presets.find((x) => x.name === name);
+  if (!p) return;
+  $("#preset").value = name;
+  document.querySelector("input[name=source][value=preset]").checked = true;
+  grammarBox.value = JSON.stringify(p.grammar, null, 2);
+  checkGrammar();
+  for (const card of document.querySelectorAll(".preset")) {
+    card.classList.toggle("selected", card.dataset.name === name);
+  }
+}
+
+async function loadPresets() {
+  try {
+    presets = (await api("/v1/presets")).items;
+    showKeyProblem(null);
+  } catch (err) {
+    showKeyProblem(err);
+    return;
+  }
+  const strip = $("#presets");
+  const select = $("#preset");
+  strip.replaceChildren();
+  select.replaceChildren();
+  for (const p of presets) {
+    const img = GALLERY[p.name]
+      ? el("img", { src: GALLERY[p.name], alt: `${p.name} (gallery)` })
+      : el("div", { className: "noimg", textContent: "no gallery image" });
+    const card = el(
+      "button",
+      { type: "button", className: "preset", title: p.description },
+      img,
+      el("div", { className: "name", textContent: p.name }),
+      el("div", { className: "desc", textContent: p.description }),
+    );
+    card.dataset.name = p.name;
+    card.addEventListener("click", () => choosePreset(p.name));
+    strip.append(card);
+    select.append(el("option", { value: p.name, textContent: p.name }));
+  }
+  choosePreset(presets.some((p) => p.name === "birch") ? "birch" : presets[0]?.name);
+}
+
+$("#preset").addEventListener("change", (e) => choosePreset(e.target.value));
+
+// ---- submitting -----------------------------------------------------------------------------
+const FIELDS = ["preset", "grammar", "seed", "trees", "area", "format", "frames"];
+
+function clearErrors() {
+  for (const f of [...FIELDS, "general"]) {
+    const box = $(`#err-${f}`);
+    box.textContent = "";
+    delete box.dataset.source;
+  }
+  for (const n of document.querySelectorAll(".invalid")) n.classList.remove("invalid");
+}
+
+/** The server's answer to a bad request, each message on the field its `loc` names. */
+function showServerErrors(err) {
+  if (!(err instanceof ApiError) || !Array.isArray(err.detail)) {
+    $("#err-general").textContent = err.message;
+    showKeyProblem(err);
+    return;
+  }
+  const byField = {};
+  for (const d of err.detail) {
+    const loc = d.loc || [];
+    const field = FIELDS.includes(loc[1]) ? loc[1] : "general";
+    const path = locPath(loc);
+    (byField[field] ||= []).push(path && path !== field ? `${path}: ${d.msg}` : d.msg);
+  }
+  for (const [field, msgs] of Object.entries(byField)) {
+    const box = $(`#err-${field}`);
+    box.dataset.source = "server";
+    box.textContent = msgs.join("\n");
+    const input = field === "grammar" ? grammarBox : $(`#${field === "area" ? "area-x" : field}`);
+    input?.classList.add("invalid");
+  }
+}
+
+function requestBody() {
+  const source = document.querySelector("input[name=source]:checked").value;
+  const body = {};
+  if (source === "preset") body.preset = $("#preset").value;
+  else {
+    try {
+      body.grammar = JSON.parse(grammarBox.value);
+    } catch {
+      body.grammar = grammarBox.value; // the server names what is wrong with it
+    }
+  }
+  const num = (id) => (($(id).value === "") ? undefined : Number($(id).value));
+  body.seed = num("#seed");
+  body.frames = num("#frames");
+  return body;
+}
+
+$("#forest-form").addEventListener("submit", async (ev) => {
+  ev.preventDefault();
+  clearErrors();
+  const body = {
+    ...requestBody(),
+    trees: Number($("#trees").value),
+    area: [Number($("#area-x").value), Number($("#area-y").value)],
+    format: $("#format").value,
+  };
+  $("#form-status").textContent = "submitting…";
+  try {
+    const job = await api("/v1/forests", { method: "POST", body });
+    if ($("#auto-render").checked && job.params.format !== "glb") autoRender.add(job.id);
+    $("#form-status").textContent = `forest job ${job.id.slice(0, 8)} queued`;
+    refreshJobs();
+  } catch (err) {
+    $("#form-status").textContent = "";
+    showServerErrors(err);
+  }
+});
+
+const viewer = new Viewer($("#viewer-canvas"), $("#viewer"));
+
+async function showGlb(fetchBuffer, title) {
+  $("#viewer").dataset.state = "loading";
+  $("#viewer-msg").textContent = "loading…";
+  try {
+    const info = await viewer.show(await fetchBuffer());
+    $("#viewer-title").textContent = title;
+    $("#viewer-msg").textContent =
+      `${info.meshes} meshes; animation: ${info.clips.join(", ") || "none"}; drag to orbit`;
+  } catch (err) {
+    $("#viewer").dataset.state = "error";
+    $("#viewer-msg").textContent = "";
+    showServerErrors(err);
+  }
+}
+
+$("#view-tree").addEventListener("click", () => {
+  clearErrors();
+  const body = { ...requestBody(), format: "glb" };
+  if (!body.frames) body.frames = 48; // the wind needs frames to play
+  const name = body.preset ?? "grammar";
+  showGlb(() => api("/v1/trees", { method: "POST", body, as: "arraybuffer" }), `${name}, seed ${body.seed}`);
+});
+
+// ---- jobs -----------------------------------------------------------------------------------
+const autoRender = new Set(); // forest jobs to render once completed (submitted here)
+const blobs = new Map(); // artifact url -> object URL (fetched with the key)
+
+async function artifactUrl(url) {
+  if (!blobs.has(url)) blobs.set(url, api(url, { as: "blob" }).then((b) => URL.createObjectURL(b)));
+  return blobs.get(url);
+}
+
+async function download(artifact) {
+  const a = el("a", { href: await artifactUrl(artifact.url), download: artifact.name });
+  document.body.append(a);
+  a.click();
+  a.remove();
+}
+
+async function render(job) {
+  try {
+    await api("/v1/renders", { method: "POST", body: { forest_job: job.id, width: 640, height: 480 } });
+    refreshJobs();
+  } catch (err) {
+    $("#jobs-status").textContent = `render of ${job.id.slice(0, 8)}: ${err.message}`;
+  }
+}
+
+async function cancel(job) {
+  try {
+    await api(`/v1/jobs/${job.id}`, { method: "DELETE" });
+    refreshJobs();
+  } catch (err) {
+    $("#jobs-status").textContent = `cancel ${job.id.slice(0, 8)}: ${err.message}`;
+  }
+}
+
+function jobRow(job) {
+  const tr = el("tr", { className: `job state-row-${job.state}` });
+  tr.dataset.jobId = job.id;
+  tr.dataset.kind = job.kind;
+  tr.dataset.state = job.state;
+  const results = el("td", { className: "results" });
+  for (const a of job.artifacts) {
+    if (a.name.endsWith(".png")) {
+      const img = el("img", { className: "preview", alt: `${a.name} of ${job.id}` });
+      artifactUrl(a.url).then((u) => (img.src = u)).catch(() => img.remove());
+      results.append(img);
+    } else if (/\.(mp4|webm)$/.test(a.name)) {
+      const video = el("video", { className: "clip", controls: true, loop: true, muted: true });
+      artifactUrl(a.url).then((u) => (video.src = u));
+      results.append(video);
+    }
+  }
+  for (const a of job.artifacts) {
+    const link = el("a", { href: a.url, className: "artifact", textContent: `${a.name} (${(a.size / 1024).toFixed(0)} KiB)` });
+    link.addEventListener("click", (e) => {
+      e.preventDefault();
+      download(a);
+    });
+    results.append(link);
+  }
+  const actions = el("td", { className: "actions" });
+  if (job.state === "queued" || job.state === "active") {
+    const b = el("button", { type: "button", className: "cancel", textContent: "Cancel" });
+    b.addEventListener("click", () => cancel(job));
+    actions.append(b);
+  }
+  const glb = job.artifacts.find((a) => a.name.endsWith(".glb"));
+  if (job.state === "completed" && glb) {
+    const b = el("button", { type: "button", className: "view3d", textContent: "View 3D" });
+    b.addEventListener("click", () => showGlb(() => api(glb.url, { as: "arraybuffer" }), `job ${job.id.slice(0, 8)}`));
+    actions.append(b);
+  } else if (job.state === "completed" && job.kind === "forest") {
+    const b = el("button", { type: "button", className: "render", textContent: "Render" });
+    b.addEventListener("click", () => render(job));
+    actions.append(b);
+  }
+  const progress = el("progress", { max: 1, value: job.progress });
+  tr.append(
+    el("td", { className: "id", textContent: job.id.slice(0, 8), title: job.id }),
+    el("td", { textContent: job.kind }),
+    el("td", { className: `state state-${job.state}`, textContent: job.state + (job.cancel_requested && job.state === "active" ? " (canceling)" : "") }),
+    el("td", {}, progress, ` ${Math.round(job.progress * 100)}%`),
+    el("td", { className: "stage", textContent: job.stage }),
+    el("td", { className: "attempts", textContent: `${job.attempts}/${job.max_attempts}` }),
+    el("td", { className: "error", textContent: job.error ?? "" }),
+    results,
+    actions,
+  );
+  return tr;
+}
+
+const shown = new Map(); // job id -> JSON of what its row shows (rebuild rows that changed)
+
+async function refreshJobs() {
+  let page;
+  try {
+    page = await api("/v1/jobs?limit=50");
+    showKeyProblem(null);
+  } catch (err) {
+    showKeyProblem(err);
+    $("#jobs-status").textContent = err.message;
+    return;
+  }
+  $("#jobs-status").textContent = `${page.total} job(s)`;
+  const body = $("#jobs tbody");
+  const rows = [];
+  for (const job of page.items) {
+    const sig = JSON.stringify([job.state, job.progress, job.stage, job.attempts, job.error, job.artifacts, job.cancel_requested]);
+    let row = body.querySelector(`tr[data-job-id="${job.id}"]`);
+    if (!row || shown.get(job.id) !== sig) {
+      row = jobRow(job);
+      shown.set(job.id, sig);
+    }
+    rows.push(row);
+    if (job.state === "completed" && autoRender.delete(job.id)) render(job);
+  }
+  body.replaceChildren(...rows);
+}
+
+loadPresets();
+refreshJobs();
+setInterval(refreshJobs, 1000);
