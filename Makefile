@@ -7,7 +7,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed-$(shell cat pyproject.toml | cksum | cut -d' ' -f1)
 
-.PHONY: demo test lint bench schemas clean
+.PHONY: demo test lint bench schemas web clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -31,6 +31,12 @@ bench: $(STAMP)
 
 schemas: $(STAMP)
 	$(BIN)/python -m schemas.export
+
+# the web page (web/ -> service/static, committed so pip install needs no node): gallery
+# thumbnails, vite build, Swagger UI and ReDoc vendored, build.json digest of the sources
+web: $(STAMP)
+	$(BIN)/python web/scripts/thumbs.py
+	cd web && npm ci --no-audit --no-fund && npm run build
 
 clean:
 	rm -rf $(VENV) .venv-blender demo .pytest_cache .mypy_cache .ruff_cache .hypothesis
