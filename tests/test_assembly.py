@@ -111,7 +111,11 @@ def check_welded_boundary(f: Forest, palette: np.ndarray, label: str) -> None:
                 for i in inst
             ]
         )
-        label_of = weld(pts, WELD_REL * bbox_diagonal(pts))
+        # relative to the tree, but well inside its smallest quad (a twig's cap is millimetres
+        # across on a 30 m tree, and deep pieces are far smaller still at rest)
+        edges = np.linalg.norm(pts[faces] - pts[np.roll(faces, 1, axis=1)], axis=-1)
+        tol = min(WELD_REL * bbox_diagonal(pts), 0.01 * edges.min())
+        label_of = weld(pts, tol)
         mesh = trimesh.Trimesh(pts, label_of[faces], process=False, validate=False)
         # no triangle collapsed by the weld
         assert (np.diff(np.sort(mesh.faces, axis=1), axis=1) > 0).all(), label

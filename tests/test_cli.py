@@ -127,7 +127,7 @@ def test_bad_grammar_gets_one_line_and_exit_2(tmp_path: Path, grammar: dict, mes
         (["--preset", "almond", "-o", "f.obj"], "unknown format '.obj'"),
         (["--preset", "almond", "--grammar", "bad.json"], "exactly one of --preset"),
         (["--preset", "almond", "--frames", "-3"], "frames must be between 0"),
-        (["--preset", "almond", "--area", "0", "10"], "area.width"),
+        (["--preset", "almond", "--area", "0", "10"], "'--area'"),
     ],
 )
 def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:

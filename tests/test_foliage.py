@@ -100,8 +100,8 @@ def test_anchors_sit_on_hub_bones_of_foliage_pieces(windy_forest: Forest) -> Non
     np.testing.assert_array_equal(a.bone, f.bones.offset[a.instance] + HUB)
     assert (f.bones.joint[a.bone] == HUB).all()
     assert (f.bones.instance[a.bone] == a.instance).all()
-    scale = np.cbrt(np.linalg.det(f.transforms[a.instance, :3, :3]))
-    np.testing.assert_allclose(a.size, f.grammar.leaves.size * scale)
+    # the branch's radius: its rest scale with every rim scale and radius factor above it
+    np.testing.assert_allclose(a.size, f.grammar.leaves.size * f.graph.scale[a.instance])
     # unposed, the hub bone's palette entry is the topological transform: the cloud sits at
     # the piece's hub in the assembled tree
     rest = a.positions(f.rest_palette())
