@@ -25,6 +25,9 @@ ALL_PIECES = {
     "axiom": "A",
     "max_depth": 4,
     "trunk_radius": 0.2,
+    # the four branching pieces with open tips, as the paper draws them (caps and flares are
+    # drawn by tests/worker/test_pieces_gl.py)
+    "close_tips": False,
     "rules": {
         "A": [
             {
