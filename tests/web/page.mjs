@@ -128,6 +128,21 @@ try {
   step("canvas", { drawn: a.drawn, total: a.total, changed_between_frames: changed });
   step("clips", await page.getAttribute("#viewer", "data-clips"));
   step("viewer_msg", await page.textContent("#viewer-msg"));
+
+  // -- a small forest as a glb job, shown in the viewer from its scene.glb
+  await page.fill("#trees", "2");
+  await page.fill("#frames", "12");
+  await page.selectOption("#format", "glb");
+  const forests = await page.$$eval('tr[data-kind="forest"]', (r) => r.length);
+  await page.click("#submit-forest");
+  await page.waitForFunction((n) => document.querySelectorAll('tr[data-kind="forest"]').length > n, forests, { timeout: 15000 });
+  await page.waitForSelector('tr[data-kind="forest"][data-state="completed"] button.view3d', { timeout: 90000 });
+  await page.click('tr[data-kind="forest"][data-state="completed"] button.view3d');
+  await page.waitForFunction(() => document.querySelector("#viewer-title").textContent.startsWith("job "), null, { timeout: 60000 });
+  await page.waitForTimeout(500);
+  const f = await pixels();
+  step("forest_canvas", { drawn: f.drawn, total: f.total });
+  step("forest_viewer_msg", await page.textContent("#viewer-msg"));
   await page.screenshot({ path: `${out}/page.png`, fullPage: true });
 
   // -- the API docs from the service's own files

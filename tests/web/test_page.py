@@ -3,7 +3,8 @@ against ``forest serve`` on loopback with two tenants' keys. The page signs in w
 in the browser, shows the presets with their gallery images, checks a grammar against the
 JSON Schema as it is typed and puts the server's 422 messages on the field they name, submits
 a forest job that reaches ``completed`` and renders its preview, downloads an artifact, shows
-a tree's GLB with its wind playing on a non-empty WebGL canvas, never lists the other
+a tree's GLB with its wind playing on a non-empty WebGL canvas and a small forest's
+``scene.glb`` from a glb forest job, never lists the other
 tenant's job, and serves Swagger UI and ReDoc from its own files; no request leaves loopback.
 ``.ci/run`` installs chromium and ``npm ci`` in web/ (playwright-core)."""
 
@@ -123,6 +124,12 @@ def test_viewer_draws_the_tree_in_the_wind(seen: dict[str, Any]) -> None:
     assert canvas["drawn"] > 0.02 * canvas["total"], canvas  # the tree covers the canvas
     assert s["clips"] == "Wind"
     assert canvas["changed_between_frames"] > 0, canvas  # the animation plays
+
+
+def test_viewer_shows_a_glb_forest_job(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    assert s["forest_canvas"]["drawn"] > 0.02 * s["forest_canvas"]["total"], s["forest_canvas"]
+    assert "animation: Wind" in s["forest_viewer_msg"]
 
 
 def test_api_docs_offline(seen: dict[str, Any]) -> None:

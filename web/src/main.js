@@ -200,6 +200,7 @@ $("#forest-form").addEventListener("submit", async (ev) => {
 });
 
 const viewer = new Viewer($("#viewer-canvas"), $("#viewer"));
+window.forestViewer = viewer; // for a console (and the tests): the scene, camera, mixer
 
 async function showGlb(fetchBuffer, title) {
   $("#viewer").dataset.state = "loading";
