@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
+from scipy.spatial import cKDTree
 
 from forest.geometry.pieces import PIECE_NAMES, piece_library
 from forest.growth.generate import Forest, ForestOptions, generate_forest
@@ -133,4 +134,7 @@ def test_capped_skinned_export_matches_our_skinning(tmp_path: Path) -> None:
         assert skin.ComputeSkinnedPoints(skel.ComputeSkinningTransforms(tc), points, tc)
         usd = np.asarray(points, dtype=np.float64) @ world[:3, :3].T + world[:3, 3]
         ours = _our_skinned_points(f, inst, 2 / f.options.fps)
-        assert np.abs(usd - ours).max() < 1e-5 * np.ptp(ours, axis=0).max()
+        size = np.ptp(ours, axis=0).max()
+        # the exported mesh is welded at seams: every vertex of ours is one of USD's, and back
+        assert cKDTree(usd).query(ours)[0].max() < 1e-5 * size
+        assert cKDTree(ours).query(usd)[0].max() < 1e-5 * size
