@@ -101,21 +101,12 @@ def atlas_uv(st: F64, n: int, size: int) -> NDArray[np.float32]:
 
 def add_bark_material(gltf: gl.GLTF2, blob: Blob, atlas: NDArray[np.uint8], name: str) -> int:
     """The bark material (base colour from the atlas, not metallic, rough); its index."""
-    image = blob.image(png_bytes(atlas), f"bark-{name}")
-    gltf.samplers.append(
-        gl.Sampler(
-            magFilter=gl.LINEAR,
-            minFilter=gl.LINEAR_MIPMAP_LINEAR,
-            wrapS=gl.CLAMP_TO_EDGE,
-            wrapT=gl.CLAMP_TO_EDGE,
-        )
-    )
-    gltf.textures.append(gl.Texture(sampler=len(gltf.samplers) - 1, source=image, name="bark"))
+    texture = blob.texture(png_bytes(atlas), f"bark-{name}")
     gltf.materials.append(
         gl.Material(
             name="Bark",
             pbrMetallicRoughness=gl.PbrMetallicRoughness(
-                baseColorTexture=gl.TextureInfo(index=len(gltf.textures) - 1),
+                baseColorTexture=gl.TextureInfo(index=texture),
                 metallicFactor=0.0,
                 roughnessFactor=ROUGHNESS,
             ),

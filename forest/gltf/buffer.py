@@ -80,6 +80,23 @@ class Blob:
         self.gltf.images.append(gl.Image(bufferView=view, mimeType="image/png", name=name))
         return len(self.gltf.images) - 1
 
+    def texture(self, png: bytes, name: str) -> int:
+        """A mip-mapped, edge-clamped texture of a PNG stored in the buffer; its index in
+        ``textures``."""
+        source = self.image(png, name)
+        self.gltf.samplers.append(
+            gl.Sampler(
+                magFilter=gl.LINEAR,
+                minFilter=gl.LINEAR_MIPMAP_LINEAR,
+                wrapS=gl.CLAMP_TO_EDGE,
+                wrapT=gl.CLAMP_TO_EDGE,
+            )
+        )
+        self.gltf.textures.append(
+            gl.Texture(sampler=len(self.gltf.samplers) - 1, source=source, name=name)
+        )
+        return len(self.gltf.textures) - 1
+
     def finish(self) -> None:
         pad = -self.size % ALIGN
         blob = b"".join(self.parts) + b"\0" * pad

@@ -32,17 +32,9 @@ class LeafLibrary:
     def __init__(self, gltf: gl.GLTF2, blob: Blob, anchors: FoliageAnchors) -> None:
         self.gltf = gltf
         models = cloud_models(anchors.family)
-        image = blob.image(png_bytes(leaf_texture(anchors.family)), f"leaf-{anchors.family}")
-        gltf.samplers.append(
-            gl.Sampler(
-                magFilter=gl.LINEAR,
-                minFilter=gl.LINEAR_MIPMAP_LINEAR,
-                wrapS=gl.CLAMP_TO_EDGE,
-                wrapT=gl.CLAMP_TO_EDGE,
-            )
+        self.texture = blob.texture(
+            png_bytes(leaf_texture(anchors.family)), f"leaf-{anchors.family}"
         )
-        gltf.textures.append(gl.Texture(sampler=len(gltf.samplers) - 1, source=image, name="leaf"))
-        self.texture = len(gltf.textures) - 1
         self.attributes: list[gl.Attributes] = []
         self.indices: list[int] = []
         for cloud in models:
