@@ -215,3 +215,38 @@ def test_pieces_instanced_in_a_second_scene(forest: Forest, doc: gl.GLTF2) -> No
         assert np.allclose(t, t_all[forest.graph.piece == pid], atol=1e-5)
         total += acc.count
     assert total == forest.n_instances
+
+
+def _node_world(doc: gl.GLTF2) -> dict[int, np.ndarray]:
+    """World matrix of every node from the nodes' own TRS (the file's first sample)."""
+    from forest.geometry.transforms import compose_similarity
+
+    parent = {c: i for i, n in enumerate(doc.nodes) for c in (n.children or [])}
+
+    def local(n: gl.Node) -> np.ndarray:
+        s = (n.scale or [1.0, 1.0, 1.0])[0]
+        return compose_similarity(n.translation or [0.0] * 3, n.rotation or [0, 0, 0, 1], s)
+
+    out: dict[int, np.ndarray] = {}
+    for i in range(len(doc.nodes)):
+        m, j = local(doc.nodes[i]), i
+        while j in parent:
+            j = parent[j]
+            m = local(doc.nodes[j]) @ m
+        out[i] = m
+    return out
+
+
+def test_leaf_clouds_sit_where_the_forest_puts_them(forest: Forest, doc: gl.GLTF2) -> None:
+    """Each cloud node, composed through its joint's first-sample frame, has the cloud's posed
+    centre and diameter (a node under a joint inherits the joint's whole transform)."""
+    world = _node_world(doc)
+    clouds = [i for i, n in enumerate(doc.nodes) if (n.name or "").startswith("Leaves_")]
+    a = forest.foliage_anchors()
+    assert len(clouds) == len(a)
+    pick = np.array([int(doc.nodes[i].name.split("_")[1]) for i in clouds])
+    m = np.array([world[i] for i in clouds])
+    centre = a.positions(forest.palette(0.0 if forest.animated else None))[pick]
+    size = np.ptp(centre, axis=0).max()
+    np.testing.assert_allclose(m[:, :3, 3], centre, atol=1e-5 * size)
+    np.testing.assert_allclose(np.cbrt(np.linalg.det(m[:, :3, :3])), a.size[pick], rtol=1e-5)

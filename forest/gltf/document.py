@@ -133,7 +133,7 @@ def forest_gltf(
         gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
         if anchors is not None and library is not None and anchor_tree is not None:
             pick = np.flatnonzero(anchor_tree == k)
-            add_tree_clouds(gltf, library, forest, anchors, pick, k, skin, bones)
+            add_tree_clouds(gltf, library, forest, anchors, pick, k, skin, bones, pose)
         if progress:
             progress("glTF trees", k + 1, len(slices_))
     add_wind(gltf, blob, pose, skins)

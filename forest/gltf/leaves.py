@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 import pygltflib as gl
+from numpy.typing import NDArray
 
 from forest.geometry.transforms import F64, compose_similarity
 from forest.gltf.bark import png_bytes
 from forest.gltf.buffer import Blob
-from forest.gltf.skin import TreeSkin, trs
+from forest.gltf.skin import Pose, TreeSkin, trs
 from forest.growth.foliage import FoliageAnchors, cloud_models, leaf_texture, yaw_quaternions
 from forest.growth.generate import Forest
 
@@ -81,14 +82,24 @@ class LeafLibrary:
         return out
 
 
-def cloud_locals(forest: Forest, anchors: FoliageAnchors, joint_world_rest: F64) -> F64:
-    """``(k, 4, 4)`` each cloud's transform relative to its joint: at rest (joint world frame
-    ``joint_world_rest`` ``(k, 4, 4)``) the cloud sits at its rest centre, turned by its yaw,
-    scaled to its diameter."""
-    centre = anchors.positions(forest.rest_palette())
+def cloud_locals(forest: Forest, anchors: FoliageAnchors, joint_world: F64, time: float) -> F64:
+    """``(k, 4, 4)`` each cloud's transform relative to its joint, whose world frame at the
+    first sample (as the file's node hierarchy states it) is ``joint_world`` ``(k, 4, 4)``:
+    there the cloud sits at its posed centre, turned by its yaw, at its diameter; later it
+    moves rigidly with the joint."""
+    centre = anchors.positions(forest.palette(time if forest.animated else None))
     q = yaw_quaternions(anchors.yaw)
     world = compose_similarity(centre, q, anchors.size)
-    return np.linalg.inv(joint_world_rest) @ world
+    return np.linalg.inv(joint_world) @ world
+
+
+def joint_worlds(tree_transform: F64, parent: NDArray[np.intp], pose: F64) -> F64:
+    """``(j, 4, 4)`` world frames of a tree's joints from their local frames ``pose``
+    ``(j, 4, 4)`` (parent-first; ``parent`` -1 for the root, under the tree's node)."""
+    out = np.empty_like(pose)
+    for j in range(len(pose)):  # parent-first: each parent is done before its children
+        out[j] = (tree_transform if parent[j] < 0 else out[parent[j]]) @ pose[j]
+    return out
 
 
 def add_tree_clouds(
@@ -100,6 +111,7 @@ def add_tree_clouds(
     tree: int,
     skin: TreeSkin,
     bones: slice,
+    pose: Pose,
 ) -> None:
     """The clouds ``pick`` (indices into ``anchors``) of one tree as child nodes of their
     hub joints."""
@@ -108,14 +120,19 @@ def add_tree_clouds(
     colour = anchors.color[pick].astype(np.float64).mean(axis=0)
     meshes = library.tree_meshes(tree, colour, {int(m) for m in anchors.model[pick]})
     joint = anchors.bone[pick] - bones.start
-    # the joint's world frame at rest: the tree transform and the (unscaled) bind frame
-    world_rest = forest.tree_transforms[tree] @ np.linalg.inv(skin.inverse_binds[joint])
+    # the joints' world frames at the first sample: the nodes' own TRS composed down the tree
+    s = pose.s[0, bones]
+    s = s[:, 0] if s.ndim == 2 else s  # a uniform scale stored as glTF's three
+    local = compose_similarity(pose.t[0, bones], pose.q[0, bones], s)
+    parent = (forest.bones.parent[bones] - bones.start).astype(np.intp)
+    world = joint_worlds(forest.tree_transforms[tree], parent, local)[joint]
     sub = FoliageAnchors(
         instance=anchors.instance[pick], bone=anchors.bone[pick], rest=anchors.rest[pick],
         size=anchors.size[pick], model=anchors.model[pick], yaw=anchors.yaw[pick],
         color=anchors.color[pick], family=anchors.family,
     )  # fmt: skip
-    local = cloud_locals(forest, sub, world_rest)
+    time = float(pose.times[0]) if pose.times is not None else 0.0
+    local = cloud_locals(forest, sub, world, time)
     for c in range(len(pick)):
         node = gl.Node(
             name=f"Leaves_{int(pick[c])}", mesh=meshes[int(sub.model[c])], **trs(local[c])
