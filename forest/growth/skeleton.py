@@ -382,8 +382,10 @@ class Poser:
             piece_phase: F64 = np.mod(np.arange(len(g)) * 0.6180339887498949, 1.0) * (2 * np.pi)
             self._wind_fields[wind] = _WindField(
                 amp=amp,
-                across=np.einsum("nji,j->in", rot_t, across),  # R^T a, unit
-                along=np.einsum("nji,j->in", rot_t, along),
+                # contiguous: every frame takes columns of these (einsum returns them
+                # Fortran-ordered, and a take along axis 1 of that copies each time)
+                across=np.ascontiguousarray(np.einsum("nji,j->in", rot_t, across)),  # R^T a
+                along=np.ascontiguousarray(np.einsum("nji,j->in", rot_t, along)),
                 flutter=flutter,
                 delay=delay,
                 piece_phase=piece_phase,
