@@ -10,7 +10,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from species_ranges import SPECIES, within
 
+from forest.geometry.pieces import HUB as HUB_JOINT
 from forest.geometry.pieces import PIECE_NAMES
+from forest.growth.foliage import YAW_STEPS
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.grammar import compile_grammar, parse_grammar
 from forest.growth.measure import fork_pipe_ratios, tip_directions, tree_figures
@@ -179,3 +181,13 @@ def test_autumn_turns_the_leaves() -> None:
     summer, autumn = color("summer"), color("autumn")
     assert summer[1] > summer[0]  # green
     assert autumn[0] > autumn[2] and autumn[0] > summer[0]  # toward red and yellow
+
+
+def test_clouds_turn_with_their_branch() -> None:
+    f = forest("oak", 6, trees=1)
+    a = f.foliage_anchors()
+    axis = f.palette()[f.bones.offset[a.instance] + HUB_JOINT, :3, 1]
+    heading = np.arctan2(axis[:, 0], axis[:, 2])
+    off = np.angle(np.exp(1j * (a.yaw - heading)))
+    assert np.abs(off).max() <= np.pi / YAW_STEPS + 1e-9  # the nearest of the headings
+    assert len(np.unique(a.yaw)) >= 4  # not all alike

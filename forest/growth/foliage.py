@@ -371,6 +371,7 @@ def foliage_anchors(
     leaves: Leaves,
     rng: np.random.Generator,
     season: Season = "summer",
+    heading: F64 | None = None,
 ) -> FoliageAnchors:
     """Anchors at the hubs of the foliage-bearing ``instance``\\ s (k of them).
 
@@ -378,7 +379,8 @@ def foliage_anchors(
     ``leaves.size`` of it. tree : (k,) int32 the tree of each anchor (one base colour per
     tree). Model, heading and colour are drawn from ``rng``, so a seed gives the same clouds;
     ``season="autumn"`` takes the colours from ``leaves.autumn_colors`` (the summer palette
-    when that is empty)."""
+    when that is empty). heading : (k,) float64 radians, the azimuth of each anchor's branch:
+    clouds turn with their branch (snapped to the YAW_STEPS headings) instead of at random."""
     if season not in SEASONS:
         raise ValueError(f"season must be one of {SEASONS}, got {season!r}")
     idx = np.asarray(instance, np.int32)
@@ -392,7 +394,10 @@ def foliage_anchors(
         raise ValueError("radius must be finite and positive")
     palette = leaves.autumn_colors if season == "autumn" and leaves.autumn_colors else leaves.colors
     model = rng.integers(MODELS, size=k).astype(np.int32)
-    yaw = (rng.integers(YAW_STEPS, size=k) * (2 * np.pi / YAW_STEPS)).astype(np.float64)
+    step = rng.integers(YAW_STEPS, size=k)
+    if heading is not None:  # turned with its branch: the heading nearest the branch's
+        step = np.round(np.asarray(heading, np.float64) / (2 * np.pi / YAW_STEPS)).astype(int)
+    yaw = (np.mod(step, YAW_STEPS) * (2 * np.pi / YAW_STEPS)).astype(np.float64)
     return FoliageAnchors(
         instance=idx,
         bone=(bone_offset[idx] + HUB).astype(np.int32),

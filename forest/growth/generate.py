@@ -167,11 +167,18 @@ class Forest:
         (see :mod:`forest.growth.foliage`)."""
         hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
         idx = self.foliage_instance
+        # the branch's axis: posed where generation kept the still palette, else at rest
+        frames = (
+            self.still_palette[self.bones.offset[idx] + HUB]
+            if self.still_palette is not None
+            else self.transforms[idx]
+        )
+        axis = frames[:, :3, 1]
         return foliage_anchors(
             idx, self.graph.piece, self.bones.offset, hubs, self.graph.scale[idx],
             self.graph.tree[idx],
             self.grammar.leaves, np.random.default_rng([self.seed, 0xF011A6E]),
-            self.options.season,
+            self.options.season, heading=np.arctan2(axis[:, 0], axis[:, 2]),
         )  # fmt: skip
 
 
