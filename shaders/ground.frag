@@ -3,7 +3,8 @@
 // at 7 m, 0.6 m and 15 cm), lit by the bark's sun and hemisphere sky with the same distance
 // fog, so the ground fades into the horizon's sky colour. Octaves finer than a pixel fade to
 // their mean (fwidth) instead of shimmering.
-// Defines accepted: none.
+// Defines accepted: STAGED (sun shadows from the depth map, colour unclamped for the tone map;
+// see piece.frag).
 
 in vec3 v_position;
 
@@ -14,7 +15,31 @@ uniform vec3 u_sun;   // unit, towards the sun
 uniform vec3 u_sky;   // linear
 uniform float u_fog;  // density per metre
 
+#ifdef STAGED
+uniform sampler2DShadow u_shadow;
+uniform mat4 u_light_vp;
+uniform float u_shadow_texel;
+vec3 to_srgb(vec3 c) { return pow(max(c, 0.0), vec3(1.0 / 2.2)); }
+
+float sunlight(vec3 p) {
+    // the ground is flat and faces up: a texel up the normal is enough against acne
+    vec4 clip = u_light_vp * vec4(p + vec3(0.0, u_shadow_texel, 0.0), 1.0);
+    vec3 q = clip.xyz / clip.w * 0.5 + 0.5;
+    if (any(lessThan(q, vec3(0.0))) || any(greaterThan(q, vec3(1.0)))) {
+        return 1.0;
+    }
+    vec2 texel = 1.0 / vec2(textureSize(u_shadow, 0));
+    float sum = 0.0;
+    for (int y = -1; y <= 1; ++y) {
+        for (int x = -1; x <= 1; ++x) {
+            sum += texture(u_shadow, vec3(q.xy + vec2(x, y) * texel, q.z));
+        }
+    }
+    return sum / 9.0;
+}
+#else
 vec3 to_srgb(vec3 c) { return pow(clamp(c, 0.0, 1.0), vec3(1.0 / 2.2)); }
+#endif
 
 float hash(vec2 cell) {
     // integer hash of the lattice cell: the same pattern on every driver
@@ -56,7 +81,12 @@ void main() {
     albedo *= 0.75 + 0.5 * fbm(xz / 0.15 + 41.0);
     // the normal is +Y: the hemisphere ambient is the sky's colour
     float diffuse = max(u_sun.y, 0.0);
+#ifdef STAGED
+    diffuse *= sunlight(v_position);
+    vec3 lit = albedo * (vec3(1.35, 1.27, 1.13) * diffuse + 0.7 * u_sky);
+#else
     vec3 lit = albedo * (vec3(1.25, 1.18, 1.05) * diffuse + 0.55 * u_sky);
+#endif
     float fog = 1.0 - exp(-u_fog * distance(u_camera, v_position));
     o_color = vec4(to_srgb(mix(lit, u_sky, fog)), 1.0);
 }

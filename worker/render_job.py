@@ -25,7 +25,7 @@ from worker.gl_context import create_context, raise_gl_error
 from worker.metrics import render_metrics, write_metrics
 from worker.renderer import Renderer, TessSettings, auto_lod
 from worker.scene_buffers import check_scene, scene_points
-from worker.staging import Staging
+from worker.staging import STAGED, Staging
 from worker.textures import tile_images
 
 MAX_SIZE = 8192
@@ -53,6 +53,7 @@ class RenderRequest:
     impostor_size: int = IMPOSTOR_SIZE
     camera: CameraSpec = field(default_factory=CameraSpec)
     ground: bool = False  # a ground under the trees and a sky gradient (worker.staging)
+    staged: bool = False  # ground, sky, sun shadows, MSAA, tone map (worker.staging.STAGED)
 
     def check(self) -> None:
         self.camera.check()
@@ -156,7 +157,7 @@ def render_file(
             images,
             foliage=req.foliage,
             impostor_size=req.impostor_size,
-            staging=Staging() if req.ground else None,
+            staging=STAGED if req.staged else Staging() if req.ground else None,
         )
         camera, tess = preview_view(
             scene,
@@ -167,7 +168,7 @@ def render_file(
             req.lod_half,
             foliage=req.foliage is not None,
             spec=req.camera,
-            ground=req.ground,
+            ground=req.ground or req.staged,
         )
         for _ in range(req.warmup):
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)

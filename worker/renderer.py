@@ -15,11 +15,11 @@ from numpy.typing import NDArray
 from forest.usd.read import SceneArrays
 from schemas.metrics import TessellationSettings
 from worker import shaders
-from worker.camera import Camera
+from worker.camera import GROUND_SPAN, Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import gl_info
-from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers
-from worker.staging import StageRenderer, Staging
+from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
+from worker.staging import StageRenderer, Staging, SunCamera, sun_camera
 from worker.textures import TileImages, tile_images, upload
 
 if TYPE_CHECKING:
@@ -117,6 +117,9 @@ class Renderer:
 
     ``staging`` draws a sky gradient and a ground under the trees first (see
     :mod:`worker.staging`); the id attachment is undefined where only they cover a pixel.
+    A staged ``staging`` (shadows, MSAA, tone map) draws into a half-float (multisampled)
+    buffer, resolves it and tone-maps it into ``color``; with ``ids`` it skips the MSAA (an
+    integer attachment has no meaningful resolve).
     """
 
     def __init__(
@@ -153,6 +156,34 @@ class Renderer:
                 ctx, scene, foliage, impostor_size, timer_query=self.info.timer_query
             )
         self.stage = StageRenderer(ctx, staging) if staging is not None else None
+        # the staged mode's targets: draw -> (resolve) -> tone map -> self.color
+        self.draw_fbo = self.fbo
+        self.resolve_fbo: moderngl.Framebuffer | None = None
+        self.hdr: moderngl.Texture | None = None
+        self.post_fbo: moderngl.Framebuffer | None = None
+        self._staged_objects: list[Any] = []
+        self.samples = 0
+        if staging is not None and staging.hdr:
+            self.hdr = ctx.texture(size, 4, dtype="f2")
+            self.post_fbo = ctx.framebuffer([self.color])
+            max_samples = int(ctx.info.get("GL_MAX_SAMPLES", 4))
+            self.samples = 0 if ids else min(staging.msaa, max_samples)
+            if self.samples > 1:
+                ms_color = ctx.renderbuffer(size, 4, samples=self.samples, dtype="f2")
+                ms_depth = ctx.depth_renderbuffer(size, samples=self.samples)
+                self.draw_fbo = ctx.framebuffer([ms_color], ms_depth)
+                self.resolve_fbo = ctx.framebuffer([self.hdr], self.depth)
+                self._staged_objects += [self.draw_fbo, self.resolve_fbo, ms_color, ms_depth]
+            else:
+                self.samples = 0
+                extra = [self.id_texture] if self.id_texture else []
+                self.draw_fbo = ctx.framebuffer([self.hdr, *extra], self.depth)
+                self._staged_objects.append(self.draw_fbo)
+            self._staged_objects += [self.post_fbo, self.hdr]
+            if self.foliage is not None and self.foliage.impostor is not None:
+                # filtered and mip-mapped (a few levels: the atlas's tiles must not bleed)
+                self.foliage.impostor.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
+        self._bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
     # -- programs -----------------------------------------------------------------------------
 
@@ -175,6 +206,8 @@ class Renderer:
         tess: TessSettings,
         skinning: bool,
         cull: bool,
+        light: SunCamera | None = None,
+        fog: float | None = None,
     ) -> None:
         values: dict[str, Any] = {
             "u_skinning": skinning,
@@ -186,9 +219,12 @@ class Renderer:
             "u_alpha": tess.alpha,
             "u_sun": tuple(SUN),
             "u_sky": tuple(SKY),
-            "u_fog": fog_density(camera),
+            "u_fog": fog_density(camera) if fog is None else fog,
             "u_tiles": 0,
         }
+        if light is not None and self.stage is not None:
+            values.update(self.stage.shadow_uniforms(light, 2))
+            self.stage.write_light(prog, light)
         for name, value in values.items():
             if name in prog:
                 _uniform(prog, name).value = value
@@ -237,38 +273,51 @@ class Renderer:
         (when the view direction changed, or ``force_impostor``), the branches, then pass 2.
         ``branches=False`` draws the foliage alone."""
         mgl, ctx = self._moderngl, self.ctx
-        prog, vaos = self._variant(*(["ID_OUTPUT"] if self.id_texture else []))
+        staged = self.stage is not None and self.stage.staging.shadows
+        defines = ["ID_OUTPUT"] if self.id_texture else []
+        prog, vaos = self._variant(*defines, *(["STAGED"] if staged else []))
         fog = fog_density(camera)
+        ground_half = None
+        if staged:
+            camera, ground_half, fog = self.staged_view(camera)
         t0 = time.perf_counter()
         self.buffers.use(frame)
+        calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
+        light = None
+        if staged:
+            light = self.sun_view(camera, frame)
+            calls, primitives, gpu_ms = self._shadow_pass(light, tess, skinning, branches)
+            force_impostor = True  # the shadow pass left the sun's picture in the atlas
         pass1 = None
         if self.foliage is not None:
             pass1 = self.foliage.prepare(camera, SUN, SKY, force=force_impostor)
-        self.fbo.use()
-        self.fbo.viewport = (0, 0, *self.size)
+            self._mipmap_impostor(pass1.draw_calls > 0)
+        fbo = self.draw_fbo
+        fbo.use()
+        fbo.viewport = (0, 0, *self.size)
         ctx.enable_only(mgl.DEPTH_TEST)
         ctx.patch_vertices = 4
         r, g, b = (float(c) for c in np.power(SKY, 1 / 2.2))
-        self.fbo.clear(color=(r, g, b, 1.0), depth=1.0)
+        fbo.clear(color=(r, g, b, 1.0), depth=1.0)
         if self.id_texture is not None:
             self.id_texture.write(np.zeros((*self.size[::-1], 4), np.int32).tobytes())
         if self.stage is not None:
-            self.stage.draw(camera, SUN, SKY, fog)
+            self.stage.draw(camera, SUN, SKY, fog, light, ground_half)
         self.texture.use(0)
-        self._uniforms(prog, camera, tess, skinning, cull)
-        calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
+        self._uniforms(prog, camera, tess, skinning, cull, light, fog)
         if branches:
             with self.query:
-                calls = self._draw_all(prog, vaos, per_instance)
-            primitives = int(self.query.primitives)
+                calls += self._draw_all(prog, vaos, per_instance)
+            primitives += int(self.query.primitives)
             if gpu_ms is not None:
-                gpu_ms = self.query.elapsed / 1e6
+                gpu_ms += self.query.elapsed / 1e6
         leaves = None
         if self.foliage is not None and pass1 is not None:
-            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, self.fbo)
+            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo)
             calls += leaves.draw_calls
             primitives += leaves.primitives
             gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
+        self._finish_frame()
         ctx.finish()
         cpu_ms = (time.perf_counter() - t0) * 1e3
         return FrameStats(
@@ -280,6 +329,86 @@ class Renderer:
             instances=self.scene.n_instances,
             foliage=leaves,
         )
+
+    # -- the staged mode ------------------------------------------------------------------------
+
+    def scene_box(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``(lo, hi)`` the forest's box at frame 0 with its leaf clouds and the ground at
+        y = 0, grown by 5 % of its diagonal for the wind (the sun's view is fitted to it)."""
+        if self._bounds is None:
+            pts = scene_points(self.scene, 0)
+            if self.scene.n_foliage:
+                r = self.scene.foliage_sizes.reshape(len(self.scene.foliage_sizes), -1).max(1)
+                c = self.scene.foliage_at(0)
+                pts = np.concatenate([pts, c - r[:, None], c + r[:, None]])
+            lo, hi = pts.min(axis=0), pts.max(axis=0)
+            lo[1] = min(lo[1], 0.0)
+            pad = 0.05 * float(np.linalg.norm(hi - lo))
+            self._bounds = (lo - pad, hi + pad)
+        return self._bounds
+
+    def staged_view(self, camera: Camera) -> tuple[Camera, float, float]:
+        """``(camera, ground half-size, fog density)`` of the staged mode: the ground reaches
+        :data:`GROUND_SPAN` times the larger of the camera-target distance and the scene's
+        half-diagonal, fogged to 97 % at its edge (so fog scales with the scene: light in a
+        close-up, the horizon hazed in an overview); the far plane moves past the ground."""
+        lo, hi = self.scene_box()
+        dist = float(np.linalg.norm(camera.target - camera.eye))
+        reach = max(dist, 0.5 * float(np.linalg.norm(hi - lo)))
+        half = GROUND_SPAN * reach
+        far = max(camera.far, 1.5 * half)
+        cam = Camera(camera.eye, camera.target, camera.fov_y, camera.aspect, camera.near, far)
+        return cam, half, 3.5 / half
+
+    def sun_view(self, camera: Camera, frame: int = 0) -> SunCamera:
+        """The sun's camera fitted to ``camera``'s view of the scene (see worker.staging)."""
+        lo, hi = self.scene_box()
+        return sun_camera(camera, lo, hi, SUN)
+
+    def _shadow_pass(
+        self, light: SunCamera, tess: TessSettings, skinning: bool, branches: bool
+    ) -> tuple[int, int, float | None]:
+        """Branches and leaf-cloud billboards into the sun's depth map; returns draw calls,
+        primitives and GPU ms of the pass."""
+        assert self.stage is not None
+        prog, vaos = self._variant()
+        pass1 = None
+        if self.foliage is not None:  # the clouds' picture as the sun sees them, first
+            pass1 = self.foliage.prepare(light, SUN, SKY, force=True)
+            self._mipmap_impostor(pass1.draw_calls > 0)
+        fbo = self.stage.begin_shadows()
+        self.ctx.patch_vertices = 4
+        # the sun's view needs no fine tessellation: a coarse silhouette casts the same shadow
+        coarse = TessSettings(max_level=min(tess.max_level, 4.0), alpha=tess.alpha)
+        self._uniforms(prog, light, coarse, skinning, cull=True)
+        calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
+        if branches:
+            with self.query:
+                calls = self._draw_all(prog, vaos, per_instance=False)
+            primitives = int(self.query.primitives)
+            if gpu_ms is not None:
+                gpu_ms = self.query.elapsed / 1e6
+        if self.foliage is not None and pass1 is not None:
+            leaves = self.foliage.frame(light, SUN, SKY, 0.0, pass1, fbo)
+            calls += leaves.draw_calls
+            primitives += leaves.primitives
+            gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
+        self.stage.end_shadows()
+        return calls, primitives, gpu_ms
+
+    def _mipmap_impostor(self, rendered: bool) -> None:
+        fol = self.foliage
+        if rendered and self.hdr is not None and fol is not None and fol.impostor is not None:
+            fol.impostor.build_mipmaps(0, 4)
+
+    def _finish_frame(self) -> None:
+        """Resolve the multisampled frame and tone-map it into ``color`` (staged mode)."""
+        if self.hdr is None or self.stage is None or self.post_fbo is None:
+            return
+        if self.resolve_fbo is not None:
+            self.ctx.copy_framebuffer(self.resolve_fbo, self.draw_fbo)
+        self.stage.tone_map(self.hdr, self.post_fbo)
+        self.ctx.enable_only(self._moderngl.DEPTH_TEST)
 
     def read_depth(self) -> NDArray[np.float32]:
         """``(h, w)`` float32 window depth in [0, 1] (1: nothing drawn), top row first."""
@@ -349,6 +478,8 @@ class Renderer:
             self.foliage.release()
         if self.stage is not None:
             self.stage.release()
+        for obj in self._staged_objects:
+            obj.release()
         for obj in (self.fbo, self.color, self.depth, self.texture):
             obj.release()
         if self.id_texture is not None:
