@@ -41,7 +41,8 @@ def baseline_generate(
     hub_t = tab.hub_t.T
     tip_t = tab.tip_t.T.reshape(len(pieces), -1, 3)
     tip_r = tab.tip_r.T.reshape(len(pieces), -1, 3, 3)
-    sigma, rim_y, hub_y, _, tilt, tilt_az = rim_tables()
+    rims = rim_tables()
+    sigma, rim_y, hub_y, tilt, tilt_az = rims.sigma, rims.rim_y, rims.hub_y, rims.tilt, rims.tilt_az
     first, count, n_quads = class_tables(pieces, DEFAULT_MANIFEST)
     g = cg.grammar
     crown = g.crown

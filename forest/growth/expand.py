@@ -117,18 +117,28 @@ def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np
     return lo_hi[..., 0] + u * (lo_hi[..., 1] - lo_hi[..., 0])
 
 
-@cache
-def rim_tables() -> tuple[NDArray[np.float64], ...]:
+@dataclass(frozen=True, eq=False)
+class RimTables:
     """Per piece type ``p`` and leaf rim ``r`` (building transforms do not depend on the
-    resolution): ``sigma (p, R)`` rest rim scale, 1 where no rim; ``rim_y (p, R)`` leaf-rim
-    height; ``hub_y (p,)`` hub height; ``rims (p,)`` leaf rims; ``tilt (p, R)`` rest angle of
-    the rim's axis from the piece's axis (radians) and ``tilt_az (p, R)`` the azimuth of the
-    horizontal axis a rotation about which (positive) tilts that rim further out."""
+    resolution). sigma : (p, R) rest rim scale, 1 where no rim; rim_y : (p, R) leaf-rim
+    height; hub_y : (p,) hub height; rims : (p,) leaf rims (float, for arithmetic);
+    tilt : (p, R) rest angle of the rim's axis from the piece's axis (radians); tilt_az :
+    (p, R) azimuth of the horizontal axis a positive rotation about which tilts that rim
+    further out."""
+
+    sigma: NDArray[np.float64]
+    rim_y: NDArray[np.float64]
+    hub_y: NDArray[np.float64]
+    rims: NDArray[np.float64]
+    tilt: NDArray[np.float64]
+    tilt_az: NDArray[np.float64]
+
+
+@cache
+def rim_tables() -> RimTables:
     pieces = piece_library()
-    sigma = np.ones((len(pieces), MAX_LEAF_RIMS))
-    rim_y = np.zeros((len(pieces), MAX_LEAF_RIMS))
-    tilt = np.zeros((len(pieces), MAX_LEAF_RIMS))
-    tilt_az = np.zeros((len(pieces), MAX_LEAF_RIMS))
+    shape = (len(pieces), MAX_LEAF_RIMS)
+    sigma, rim_y, tilt, tilt_az = np.ones(shape), np.zeros(shape), np.zeros(shape), np.zeros(shape)
     for i, p in enumerate(pieces):
         k = p.n_leaf_rims
         if k:
@@ -138,9 +148,14 @@ def rim_tables() -> tuple[NDArray[np.float64], ...]:
             axis = lin[:, :, 1] / np.linalg.norm(lin[:, :, 1], axis=1, keepdims=True)
             tilt[i, :k] = np.arccos(np.clip(axis[:, 1], -1.0, 1.0))
             tilt_az[i, :k] = np.arctan2(-axis[:, 0], axis[:, 2])  # of +Y x axis
-    hub_y = np.array([p.joint_rest[HUB, 1, 3] for p in pieces])
-    rims = np.array([p.n_leaf_rims for p in pieces], np.float64)
-    return sigma, rim_y, hub_y, rims, tilt, tilt_az
+    return RimTables(
+        sigma=sigma,
+        rim_y=rim_y,
+        hub_y=np.array([p.joint_rest[HUB, 1, 3] for p in pieces]),
+        rims=np.array([p.n_leaf_rims for p in pieces], np.float64),
+        tilt=tilt,
+        tilt_az=tilt_az,
+    )
 
 
 def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -166,8 +181,6 @@ KNOT = 0.15  # a shed branch's stub, relative to the branch that would have grow
 
 class _Open:
     """The open rims of one level, each about to grow one piece (arrays of equal length)."""
-
-    FIELDS = ("tree", "parent", "rim", "sym", "len", "rad", "scale", "order", "h", "roll", "cap")
 
     def __init__(self, **cols: NDArray) -> None:
         self.cols = cols
@@ -198,7 +211,8 @@ def expand(
     every rim left open gets a cap piece (``close_tips``).
     """
     g = cg.grammar
-    sigma_t, rim_y_t, hub_y_t, rims_t, _, _ = rim_tables()
+    tab = rim_tables()
+    sigma_t, rim_y_t, hub_y_t, rims_t = tab.sigma, tab.rim_y, tab.hub_y, tab.rims
     radius0 = np.ones(n_trees) if tree_radius is None else np.asarray(tree_radius, np.float64)
     crown = g.crown
     tree_h = rng.uniform(*crown.height, n_trees) if crown else np.full(n_trees, np.inf)

@@ -165,14 +165,14 @@ def draw_pose(
     )
     angle = np.take(cg.alt_branch_angle, graph.alt, axis=0)
     if not np.isnan(angle[:, 0]).all():
-        _, _, _, _, tilt_t, tilt_az_t = rim_tables()
-        tilt = np.take(tilt_t, graph.piece, axis=0)
+        tab = rim_tables()
+        tilt = np.take(tab.tilt, graph.piece, axis=0)
         want = angle[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
             angle[:, None, 1] - angle[:, None, 0]
         )
         turn = np.where(np.isnan(want) | (tilt < 1e-3), 0.0, want - tilt)
         spread_azimuth, spread_angle = _add_tilts(
-            spread_azimuth, spread_angle, np.take(tilt_az_t, graph.piece, axis=0), turn
+            spread_azimuth, spread_angle, np.take(tab.tilt_az, graph.piece, axis=0), turn
         )
     return PoseParams(
         bend_azimuth=rng.random(n) * (2 * np.pi),
