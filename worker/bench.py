@@ -1,6 +1,8 @@
 """``forest bench render``: frame time against tree count (the paper's Figure 16), instanced
 (one draw call per piece type) side by side with the naive way (one draw call per piece
-instance), at fixed tessellation levels (1 and 10 by default, as the paper measured).
+instance), at fixed tessellation levels (1 and 10 by default, as the paper measured), in the
+bare mode (no ground, shadows or MSAA: the paper's set-up); the staged mode (mode ``staged``:
+ground, the sun's shadow pass, 4x MSAA, the tone map) instanced beside it.
 
 Each forest is generated, written as ``.usdc`` and read back, so the renderer sees exactly
 what a worker gets. The level is the same on every edge (no distance falloff), so triangles
@@ -33,6 +35,7 @@ from worker.foliage import FOLIAGE_MODES
 from worker.gl_context import create_context, gl_info, raise_gl_error
 from worker.render_job import preview_view
 from worker.renderer import Renderer, TessSettings
+from worker.staging import STAGED
 from worker.textures import TileImages, procedural_tiles
 
 if TYPE_CHECKING:
@@ -54,7 +57,7 @@ class BenchRow:
     trees: int
     pieces: int
     level: float
-    mode: str  # "instanced" or "per_instance"
+    mode: str  # "instanced", "per_instance" (bare: the paper's set-up) or "staged"
     draw_calls: int
     triangles: int
     cpu_ms: float
@@ -81,10 +84,13 @@ def run_render_bench(
     echo: Echo = print,
     foliage_trees: Sequence[int] = (),
     foliage_rows: list[FoliageBenchRow] | None = None,
+    staged: bool = True,
 ) -> list[BenchRow]:
-    """Branches: instanced against a draw call per piece (no foliage). Then, for each of
-    ``foliage_trees``, impostor foliage against the real leaf-cloud geometry (rows appended
-    to ``foliage_rows`` when given)."""
+    """Branches: instanced against a draw call per piece (no foliage), in the bare mode (no
+    ground, shadows or MSAA: the paper's Figure 16 set-up); with ``staged`` also instanced in
+    the staged mode (worker.staging.STAGED: ground, sun shadow pass, 4x MSAA, tone map)
+    beside it. Then, for each of ``foliage_trees``, impostor foliage against the real
+    leaf-cloud geometry (rows appended to ``foliage_rows`` when given)."""
     ctx = create_context()
     info = gl_info(ctx)
     echo(f"renderer: {info.renderer} ({info.version})")
@@ -102,14 +108,23 @@ def run_render_bench(
             for n in trees:
                 scene, images = _bench_scene(grammar, n, Path(tmp) / f"bench_{n}.usdc")
                 renderer = Renderer(ctx, scene, size, images, foliage=None)
+                staged_renderer = (
+                    Renderer(ctx, scene, size, images, foliage=None, staging=STAGED)
+                    if staged
+                    else None
+                )
                 try:
                     camera, _ = preview_view(scene, size, 1.0, foliage=False)
                     for level in levels:
                         tess = TessSettings(max_level=level, lod_half=0.0)
-                        for per_instance in (False, True) if naive else (False,):
-                            renderer.draw(camera, tess, per_instance=per_instance)  # warm-up
+                        modes = ["instanced", "per_instance"] if naive else ["instanced"]
+                        for mode in modes + (["staged"] if staged else []):
+                            r = staged_renderer if mode == "staged" else renderer
+                            assert r is not None
+                            per_instance = mode == "per_instance"
+                            r.draw(camera, tess, per_instance=per_instance)  # warm-up
                             stats = [
-                                renderer.draw(camera, tess, per_instance=per_instance)
+                                r.draw(camera, tess, per_instance=per_instance)
                                 for _ in range(frames)
                             ]
                             gpu = [s.gpu_ms for s in stats if s.gpu_ms is not None]
@@ -117,7 +132,7 @@ def run_render_bench(
                                 trees=n,
                                 pieces=scene.n_instances,
                                 level=level,
-                                mode="per_instance" if per_instance else "instanced",
+                                mode=mode,
                                 draw_calls=stats[0].draw_calls,
                                 triangles=stats[0].primitives,
                                 cpu_ms=statistics.median(s.cpu_ms for s in stats),
@@ -132,6 +147,8 @@ def run_render_bench(
                     raise_gl_error(ctx, f"the {n}-tree forest")
                 finally:
                     renderer.release()
+                    if staged_renderer is not None:
+                        staged_renderer.release()
             if foliage_trees:
                 found = _foliage_bench(ctx, foliage_trees, preset, size, frames, Path(tmp), echo)
                 if foliage_rows is not None:
@@ -248,8 +265,9 @@ def plot_rows(rows: list[BenchRow], path: Path, renderer: str) -> Path:
     series = sorted({(r.mode, r.level) for r in rows})
     for mode, level in series:
         pts = sorted((r.trees, r.cpu_ms) for r in rows if (r.mode, r.level) == (mode, level))
-        label = f"{'instanced' if mode == 'instanced' else 'draw per piece'}, level {level:g}"
-        style = "-o" if mode == "instanced" else "--s"
+        name = {"instanced": "instanced", "per_instance": "draw per piece"}.get(mode, mode)
+        label = f"{name}, level {level:g}"
+        style = {"instanced": "-o", "per_instance": "--s"}.get(mode, ":^")
         ax.plot(*zip(*pts, strict=True), style, label=label)
     for (gpu, values), style in zip(PAPER.items(), (":", "-."), strict=True):
         pts = sorted(values.items())

@@ -231,6 +231,9 @@ def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> N
 @click.option("--frames", type=click.IntRange(1, 1000), default=3, show_default=True)
 @click.option("--no-naive", is_flag=True, help="Skip the one-draw-call-per-piece baseline.")
 @click.option(
+    "--no-staged", is_flag=True, help="Skip the staged mode (shadows, MSAA, tone map) rows."
+)
+@click.option(
     "--foliage-trees",
     "foliage_text",
     default="100,1000",
@@ -254,10 +257,12 @@ def bench_render(
     frames: int,
     no_naive: bool,
     plot: Path,
+    no_staged: bool = False,
     foliage_text: str = "none",
 ) -> None:
     """Frame time against tree count, instanced against one draw call per piece, at fixed
-    tessellation levels (the paper's Figure 16 and its levels 1 and 10)."""
+    tessellation levels (the paper's Figure 16 and its levels 1 and 10), in the bare mode;
+    the staged mode (ground, sun shadows, 4x MSAA, tone map) instanced beside it."""
     from worker.bench import run_render_bench
 
     try:
@@ -273,6 +278,7 @@ def bench_render(
         size=(width, height),
         frames=frames,
         naive=not no_naive,
+        staged=not no_staged,
         plot=plot,
         echo=click.echo,
         foliage_trees=(

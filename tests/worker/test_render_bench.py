@@ -20,10 +20,16 @@ def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_pat
         [1, 2], levels=[1.0, 3.0], size=(32, 32), frames=1, plot=tmp_path / "b.png",
         echo=lines.append,
     )  # fmt: skip
-    assert len(rows) == 8  # 2 counts x 2 levels x 2 modes
+    assert len(rows) == 12  # 2 counts x 2 levels x 3 modes (instanced, per piece, staged)
     for r in rows:
-        assert r.draw_calls == (r.pieces if r.mode == "per_instance" else 2)  # I and Y pieces
+        # I and Y pieces; staged: the sun's shadow pass draws them again
+        want = {"per_instance": r.pieces, "instanced": 2, "staged": 4}[r.mode]
+        assert r.draw_calls == want, r
     by = {(r.trees, r.level, r.mode): r for r in rows}
+    # the staged rows: the bare frame's triangles plus the shadow pass's (at most level 4)
+    for n in (1, 2):
+        bare, staged = by[(n, 3.0, "instanced")], by[(n, 3.0, "staged")]
+        assert staged.triangles > bare.triangles
     assert by[(2, 3.0, "instanced")].triangles == by[(2, 3.0, "per_instance")].triangles
     assert by[(2, 3.0, "instanced")].triangles == 9 * by[(2, 1.0, "instanced")].triangles
     assert lines[0].startswith("renderer: ")
