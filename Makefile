@@ -24,6 +24,7 @@ lint: $(STAMP)
 
 test: $(STAMP) lint
 	bash tests/setup_blender_venv.sh
+	bash tests/setup_validator_venv.sh
 	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 bench: $(STAMP)
@@ -39,4 +40,4 @@ web: $(STAMP)
 	cd web && npm ci --no-audit --no-fund && npm run build
 
 clean:
-	rm -rf $(VENV) .venv-blender demo .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) .venv-blender .venv-validator demo .pytest_cache .mypy_cache .ruff_cache .hypothesis

@@ -28,11 +28,12 @@ def _selected(path: Path, variant: str | None = None) -> Usd.Stage:
 def _visible_gprims(stage: Usd.Stage) -> list[str]:
     out = []
     for prim in stage.Traverse():
-        if prim.IsA(UsdGeom.PointInstancer):
+        if prim.IsA(UsdGeom.PointInstancer) or (
+            prim.IsA(UsdGeom.Mesh)
+            and "Prototypes" not in str(prim.GetPath())
+            and UsdGeom.Imageable(prim).ComputePurpose() != UsdGeom.Tokens.proxy
+        ):
             out.append(str(prim.GetPath()))
-        elif prim.IsA(UsdGeom.Mesh) and "Prototypes" not in str(prim.GetPath()):
-            if UsdGeom.Imageable(prim).ComputePurpose() != UsdGeom.Tokens.proxy:
-                out.append(str(prim.GetPath()))
     return out
 
 
@@ -149,3 +150,25 @@ def test_usd_validation_on_every_form(
     errors = [f"{e.GetIdentifier()}: {e.GetMessage()}" for e in ctx.Validate(stage)]
     errors = [e for e in errors if "MissingReference" not in e or suffix == ".usdz"]
     assert errors == [], errors
+
+
+def test_small_forests_are_skinned_by_default(
+    windy_forest: Forest, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """No ``skinned`` argument: skinned (exact in any DCC) up to SKINNED_MAX_TREES trees and
+    SKINNED_MAX_PIECES pieces, posed above; a .usdz is skinned whatever the size."""
+    import forest.usd.scene as scene
+
+    def selection(path: Path) -> str:
+        stage = Usd.Stage.Open(str(path))
+        return str(stage.GetPrimAtPath(FOREST).GetVariantSet(REPRESENTATION).GetVariantSelection())
+
+    assert windy_forest.options.trees <= scene.SKINNED_MAX_TREES
+    assert selection(write_scene(windy_forest, tmp_path / "small.usdc")) == SKINNED
+    monkeypatch.setattr(scene, "SKINNED_MAX_TREES", windy_forest.options.trees - 1)
+    assert selection(write_scene(windy_forest, tmp_path / "many.usdc")) == POSED
+    assert selection(write_scene(windy_forest, tmp_path / "many.usdz")) == SKINNED
+    monkeypatch.undo()
+    monkeypatch.setattr(scene, "SKINNED_MAX_PIECES", windy_forest.n_instances - 1)
+    assert selection(write_scene(windy_forest, tmp_path / "big.usdc")) == POSED
+    assert selection(write_scene(windy_forest, tmp_path / "forced.usdc", skinned=True)) == SKINNED

@@ -85,7 +85,14 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     show_default=True,
     help="Piece resolution: quad rings per tube section.",
 )
-@click.option("--skinned", is_flag=True, help="Also bake each tree as SkelRoot + skinned Mesh.")
+@click.option(
+    "--skinned/--no-skinned",
+    default=None,
+    help="Bake each tree as SkelRoot + skinned Mesh, the composed default (exact skinning "
+    "in any USD tool), or write only the posed instanced pieces. Default: skinned for up "
+    "to 64 trees and 20,000 pieces (forest.usd.scene.SKINNED_MAX_TREES and "
+    "SKINNED_MAX_PIECES), posed above; a .usdz is always skinned.",
+)
 @click.option(
     "--season",
     type=click.Choice(["summer", "autumn"]),
@@ -129,7 +136,7 @@ def generate(
     fps: float,
     wind_deg: float,
     segments: int,
-    skinned: bool,
+    skinned: bool | None,
     season: str,
     tiles_dir: str | None,
     tile_size: float | None,
@@ -142,7 +149,7 @@ def generate(
     from forest.growth.generate import ForestOptions, generate_forest
     from forest.growth.skeleton import Wind
     from forest.usd.files import FORMATS, check_output_path
-    from forest.usd.scene import write_scene
+    from forest.usd.scene import wants_skinned, write_scene
     from schemas.tileset import DEFAULT_MANIFEST
 
     check_output_path(output, (*FORMATS, GLB_SUFFIX))
@@ -165,9 +172,16 @@ def generate(
                 "--tile-size writes a USD root layer (.usda or .usdc) and no --tiles",
                 path="tile_size",
             )
-        _generate_tiled(g, seed, options, tile_size, skinned, output)
+        _generate_tiled(g, seed, options, tile_size, bool(skinned), output)
         return
-    with stage_progress(trees >= PROGRESS_TREES or (skinned and trees > 20), "forest") as bar:
+    if skinned is False and output.suffix.lower() == ".usdz":
+        raise ForestError(
+            "a .usdz is always skinned (ARKit allows no PointInstancer): drop --no-skinned "
+            "or write .usdc",
+            path="skinned",
+        )
+    heavy = trees >= PROGRESS_TREES or (skinned is not False and trees > 20)
+    with stage_progress(heavy, "forest") as bar:
         forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
         if glb:
             from forest.gltf.document import write_glb
@@ -176,10 +190,11 @@ def generate(
             write_glb(forest, output, tiles=tiles, progress=bar)
         else:
             write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+    wrote_skinned = glb or wants_skinned(forest, output, skinned)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
         f"{len(forest.bones)} bones, {frames} frame(s)"
-        + (", skinned" if skinned or glb else "")
+        + (", skinned" if wrote_skinned else ", posed")
     )
 
 
@@ -233,8 +248,9 @@ def demo(output: Path) -> None:
     except OSError as exc:
         raise ForestError(f"cannot create folder: {exc.strerror}", path=str(output)) from None
     jobs = [
-        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), False),
-        ("spruces.usda", "spruce", ForestOptions(trees=3, area=(16.0, 16.0)), False),
+        # small forests: the skinned default (SKINNED_MAX_TREES)
+        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), True),
+        ("spruces.usda", "spruce", ForestOptions(trees=3, area=(16.0, 16.0)), True),
         ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
     ]
     for name, preset, options, skinned in jobs:
