@@ -15,7 +15,9 @@ Checks (each failure is listed under "failures" and makes the exit status 1):
   vertex fully weighted to bones of its armature (Blender names vertex groups by the joint's
   last path element, so joints sharing a leaf name lose their weights);
 * with ``--expect`` (written by tests/test_blender.py from the same file with pxr): the instance
-  transforms and the skinned points on every frame match what USD computes (UsdSkel).
+  transforms and the skinned points on every frame match what USD computes (UsdSkel), and
+  every leaf vertex lies within its cloud's branch radius of USD's skinning of it;
+* with ``--tile-images N``: one UDIM image with N tiles, every tile's file found, pixels read.
 
 The JSON report is printed as the last line of stdout (and written to ``--json-out``).
 The script needs only bpy and numpy; it runs on Blender 4.2 through 5.x.
@@ -234,6 +236,67 @@ def instance_error(
     return err
 
 
+def leaves_error(
+    ob: bpy.types.Object | None,
+    want: np.ndarray,
+    radius: np.ndarray,
+    conv: np.ndarray,
+    info: dict[str, Any],
+) -> str | None:
+    """Blender's leaf clouds against USD's skinning of them at every expected frame: each
+    vertex must lie within its cloud's branch radius (metres, ``radius`` per vertex) of
+    where UsdSkel puts it, so every cloud stays on its branch. ``want`` is (frames, v, 3)."""
+    if ob is None:
+        return "no skinned Leaves mesh"
+    if len(ob.data.vertices) != want.shape[1]:
+        return f"{ob.name} has {len(ob.data.vertices)} vertices, USD {want.shape[1]}"
+    worst = 0.0
+    for f in range(want.shape[0]):
+        bpy.context.scene.frame_set(f)
+        e = want[f] @ conv[:3, :3].T + conv[:3, 3]
+        d = np.linalg.norm(world_points(ob) - e, axis=1)
+        worst = max(worst, float((d / radius).max()))
+    info["leaves_error_of_branch_radius"] = float(f"{worst:.3g}")
+    if not worst <= 1.0:
+        return f"{ob.name}: a leaf vertex is {worst:.3g} branch radii from USD's skinning"
+    return None
+
+
+def tile_images(expected: int) -> tuple[dict[str, Any], list[str]]:
+    """The UDIM bark images Blender loaded: every tile's file found and its pixels read."""
+    report: dict[str, Any] = {}
+    failures: list[str] = []
+    tiled = [im for im in bpy.data.images if im.source == "TILED"]
+    report["tiled_images"] = [im.name for im in tiled]
+    if len(tiled) != 1:
+        return report, [f"{len(tiled)} UDIM images imported, expected 1 (the bark)"]
+    im = tiled[0]
+    numbers = sorted(t.number for t in im.tiles)
+    path = bpy.path.abspath(im.filepath, library=im.library)
+    missing = [
+        n for n in numbers if not Path(path.replace("<UDIM>", str(n))).is_file()
+    ]
+    n_pixels = len(im.pixels)  # reading the pixels loads the image buffer
+    # each tile's size comes from its decoded file: 0 x 0 where Blender could not read it
+    unread = [t.number for t in im.tiles if t.size[0] <= 0 or t.channels <= 0]
+    loaded = bool(im.has_data) and n_pixels > 0 and not unread
+    report.update(
+        udim_path=path,
+        udim_tiles=len(numbers),
+        udim_first=numbers[:1],
+        udim_loaded=loaded,
+        udim_missing=missing,
+        udim_unread=unread,
+    )
+    if len(numbers) != expected:
+        failures.append(f"{len(numbers)} UDIM tiles imported, expected {expected}")
+    if missing:
+        failures.append(f"UDIM tiles {missing[:5]} not found at {path}")
+    if not loaded:
+        failures.append(f"the UDIM image {im.name}: tiles {unread[:5]} not read ({path})")
+    return report, failures
+
+
 def check(args: argparse.Namespace) -> dict[str, Any]:
     failures: list[str] = []
     report: dict[str, Any] = {"blender": bpy.app.version_string, "scene": str(args.scene)}
@@ -389,6 +452,21 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
                 f"{args.tol:g}; inf: the prototypes drawn do not match)"
             )
         by_tree = {tree_name(o) or o.name: o for o in skinned if base_name(o.name) == "Bark"}
+        leaves_by_tree = {
+            tree_name(o) or o.name: o for o in skinned if base_name(o.name) == "Leaves"
+        }
+        for k, t in enumerate(exp["tree_names"]):
+            t = str(t)
+            if f"leaves_points_{k}" in exp.files:
+                leaf_failure = leaves_error(
+                    leaves_by_tree.get(t),
+                    exp[f"leaves_points_{k}"],
+                    exp[f"leaves_radius_{k}"],
+                    conv,
+                    trees.setdefault(t, {}),
+                )
+                if leaf_failure:
+                    failures.append(f"{t}: {leaf_failure}")
         for k, t in enumerate(exp["tree_names"]):
             t = str(t)
             want = exp[f"skinned_points_{k}"]  # (frames, v, 3) USD world space
@@ -423,6 +501,10 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
                     f"({100 * worst / diag:.1f}% of the tree's size) away from "
                     f"USD's skinning (frame {worst_frame}; tolerance {tol:.3g})"
                 )
+    if args.tile_images is not None:
+        images, image_failures = tile_images(args.tile_images)
+        report.update(images)
+        failures += image_failures
     report["trees"] = trees
     report["failures"] = failures
     report["ok"] = not failures
@@ -446,6 +528,9 @@ def main(argv: list[str] | None = None) -> int:
         default=1e-3,
         help="tolerance: instance matrices (absolute) and skinned points "
         "(fraction of the tree's bounding-box diagonal)",
+    )
+    ap.add_argument(
+        "--tile-images", type=int, help="UDIM bark tiles expected loaded (a --tiles scene)"
     )
     ap.add_argument("--json-out", type=Path)
     args = ap.parse_args(sys.argv[1:] if argv is None else argv)
