@@ -20,6 +20,7 @@ from forest.errors import ForestError, OutputError
 from forest.usd.read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
 from worker.camera import Camera, CameraSpec, place_camera
+from worker.clip import DEFAULT_FPS, ORBIT_FRAMES, check_clip, orbit_camera_eyes, write_clip
 from worker.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points
 from worker.gl_context import create_context, raise_gl_error
 from worker.metrics import render_metrics, write_metrics
@@ -54,6 +55,9 @@ class RenderRequest:
     camera: CameraSpec = field(default_factory=CameraSpec)
     ground: bool = False  # a ground under the trees and a sky gradient (worker.staging)
     staged: bool = False  # ground, sky, sun shadows, MSAA, tone map (worker.staging.STAGED)
+    clip: Path | None = None  # .mp4/.webm/.gif/.webp of the measured frames (worker.clip)
+    orbit: bool = False  # the camera turns once about the target over the frames
+    fps: float | None = None  # the clip's rate; None: the scene's (else 24)
 
     def check(self) -> None:
         self.camera.check()
@@ -85,6 +89,13 @@ class RenderRequest:
             )
         if self.output.suffix.lower() != ".png":
             raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
+        if self.clip is not None:
+            if not self.clip.parent.resolve().is_dir():
+                raise OutputError("folder does not exist", path=str(self.clip))
+            fps = DEFAULT_FPS if self.fps is None else self.fps
+            check_clip(self.clip, (self.width, self.height), fps)
+        elif self.orbit:
+            raise ForestError("an orbit is a clip: give --clip too", path="orbit")
 
 
 def preview_view(
@@ -129,6 +140,12 @@ def load_scene(path: Path) -> SceneArrays:
         raise ForestError(f"the scene could not be read ({why})", path="scene") from None
 
 
+def scene_fps(scene: SceneArrays) -> float:
+    """The rate the scene's wind was sampled at (its clip loops at it), else DEFAULT_FPS."""
+    fps = scene.options.get("fps")
+    return float(fps) if isinstance(fps, int | float) and 0 < fps <= 120 else DEFAULT_FPS
+
+
 def render_file(
     req: RenderRequest, on_stage: Callable[[str], None] | None = None
 ) -> RenderMetrics:
@@ -170,15 +187,28 @@ def render_file(
             spec=req.camera,
             ground=req.ground or req.staged,
         )
+        n_draw = req.frames
+        if req.clip is not None and req.frames == 1:
+            # a clip of the whole wind loop (or an orbit of a still scene)
+            n_draw = n_frames if n_frames > 1 else ORBIT_FRAMES if req.orbit else 1
+        cameras = [camera] * n_draw
+        if req.orbit:
+            cameras = [
+                Camera(eye, camera.target, camera.fov_y, camera.aspect, camera.near, camera.far)
+                for eye in orbit_camera_eyes(camera.eye, camera.target, n_draw)
+            ]
         for _ in range(req.warmup):
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)
         stats = []
-        for k in range(req.frames):
+        clip_frames = []
+        for k in range(n_draw):
             stats.append(
-                renderer.draw(camera, tess, req.frame + k, req.per_instance, cull=req.cull)
+                renderer.draw(cameras[k], tess, req.frame + k, req.per_instance, cull=req.cull)
             )
             if k == 0:
                 preview = renderer.read_color()
+            if req.clip is not None:
+                clip_frames.append(renderer.read_color()[..., :3])
         raise_gl_error(ctx, "rendering")
         metrics = render_metrics(
             renderer,
@@ -188,12 +218,17 @@ def render_file(
             cull=req.cull,
             warmup_frames=req.warmup,
         )
-        # the preview and its figures are replaced together or, on a failure, neither
+        # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
+        if req.clip is not None:
+            outputs.append(req.clip)
         with all_replaced_when_written(outputs) as tmps:
             write_png(tmps[0], preview)
             if req.metrics is not None:
                 write_metrics(tmps[1], metrics)
+            if req.clip is not None:
+                fps = req.fps if req.fps is not None else scene_fps(scene)
+                write_clip(tmps[-1], clip_frames, fps)
         renderer.release()
         return metrics
     finally:

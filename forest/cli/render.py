@@ -98,6 +98,16 @@ def camera_options(fn: Any) -> Any:
     is_flag=True,
     help="Draw the real leaf-cloud mesh at every cloud instead of 2.5D impostors (comparison).",
 )
+@click.option(
+    "--clip",
+    type=click.Path(path_type=Path),
+    help="Also write the frames as a clip: .mp4, .webm, .gif or .webp. Without --frames, "
+    "the scene's whole wind loop (it loops seamlessly).",
+)
+@click.option(
+    "--orbit", is_flag=True, help="Turn the camera once about its target over the clip."
+)
+@click.option("--fps", type=float, help="The clip's frame rate (default: the scene's).")
 @camera_options
 @input_errors
 def render(
@@ -123,6 +133,9 @@ def render(
     distance: float | None = None,
     ground: bool = False,
     staged: bool = False,
+    clip: Path | None = None,
+    orbit: bool = False,
+    fps: float | None = None,
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
     from worker.camera import CameraSpec
@@ -155,6 +168,9 @@ def render(
             camera=spec,
             ground=ground,
             staged=staged,
+            clip=clip,
+            orbit=orbit,
+            fps=fps,
         )
     )
     med = m.median
@@ -177,6 +193,8 @@ def render(
             "triangles"
         )
     click.echo(f"renderer: {m.renderer}")
+    if clip is not None:
+        click.echo(f"wrote {clip}: {len(m.frames)} frame(s)")
     if metrics is not None:
         click.echo(f"wrote {metrics}")
 

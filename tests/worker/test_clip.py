@@ -1,0 +1,119 @@
+"""``forest render --clip``: the wind loop (or an orbit) encoded, decoded again by the same
+libraries with the frame count, size and rate asked for."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import imageio.v2 as iio2
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from PIL import Image
+
+from forest.cli import main
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
+from forest.usd.scene import write_scene
+from worker.clip import MEDIA_TYPES, orbit_camera_eyes, write_clip
+
+FRAMES, FPS = 6, 12.0
+# imageio-ffmpeg's frame reader leaves its ffmpeg pipe to the garbage collector once the
+# frames run out (a ResourceWarning in the library's generator, not in our writer)
+pytestmark = pytest.mark.filterwarnings(
+    "ignore::ResourceWarning", "ignore::pytest.PytestUnraisableExceptionWarning"
+)
+
+
+@pytest.fixture(scope="module")
+def windy(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    forest = generate_forest(
+        load_preset("alternating"), 2, ForestOptions(trees=1, frames=FRAMES, fps=FPS)
+    )
+    # the clip loops: the pose after the last frame is the first one
+    np.testing.assert_allclose(forest.palette(FRAMES / FPS), forest.palette(0.0), atol=1e-9)
+    return write_scene(forest, tmp_path_factory.mktemp("clip") / "windy.usdc")
+
+
+def video_frames(path: Path) -> tuple[list[np.ndarray], dict[str, Any]]:
+    r: Any = iio2.get_reader(path, format="FFMPEG")
+    try:
+        return [np.asarray(f) for f in r], r.get_meta_data()
+    finally:
+        r.close()
+
+
+def decode(path: Path) -> tuple[int, tuple[int, int], float]:
+    """Frame count, (width, height) and frames per second, as the encoder's library reads."""
+    if path.suffix in (".mp4", ".webm"):
+        frames, meta = video_frames(path)
+        w, h = meta["size"]
+        return len(frames), (int(w), int(h)), float(meta["fps"])
+    im: Any
+    with Image.open(path) as im:
+        n = int(im.n_frames)
+        im.seek(min(1, n - 1))  # webp tells a frame's duration once it is read
+        im.load()
+        return n, im.size, 1000.0 / im.info["duration"]
+
+
+@pytest.mark.parametrize("suffix", sorted(MEDIA_TYPES))
+def test_clip_of_the_wind_loop(windy: Path, tmp_path: Path, suffix: str) -> None:
+    clip = tmp_path / f"wind{suffix}"
+    res = CliRunner().invoke(
+        main, ["render", str(windy), "-o", str(tmp_path / "p.png"), "--clip", str(clip),
+               "--width", "64", "--height", "48", "--tess-max", "1",
+               "--metrics", str(tmp_path / "m.json")],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    n, size, fps = decode(clip)
+    assert n == FRAMES and size == (64, 48)
+    # gif and webp store whole milliseconds (gif: 10 ms steps): 12 fps is 83 (gif 80) ms
+    assert fps == pytest.approx(FPS, rel=0.05 if suffix in (".gif", ".webp") else 1e-6)
+    assert f"wrote {clip}: {FRAMES} frame(s)" in res.output
+    assert (tmp_path / "m.json").read_text().count('"cpu_ms"') >= FRAMES  # metrics per frame
+
+
+def test_orbit_and_frame_count(windy: Path, tmp_path: Path) -> None:
+    clip = tmp_path / "orbit.mp4"
+    res = CliRunner().invoke(
+        main, ["render", str(windy), "-o", str(tmp_path / "p.png"), "--clip", str(clip),
+               "--orbit", "--frames", "8", "--fps", "8", "--width", "64", "--height", "48",
+               "--tess-max", "1"],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert decode(clip) == (8, (64, 48), 8.0)
+    frames, _ = video_frames(clip)
+    assert np.abs(frames[0].astype(int) - frames[4]).mean() > 2  # the camera went round
+
+
+def test_orbit_eyes_loop() -> None:
+    eyes = orbit_camera_eyes(np.array([3.0, 2.0, 0.0]), np.array([0.0, 1.0, 0.0]), 4)
+    np.testing.assert_allclose(eyes[:, 1], 2.0)
+    np.testing.assert_allclose(np.hypot(eyes[:, 0], eyes[:, 2]), 3.0)
+    np.testing.assert_allclose(eyes[2], [-3.0, 2.0, 0.0], atol=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--clip", "x.avi"], "a clip is mp4, webm, gif, webp: name it so"),
+        (["--clip", "x.mp4", "--width", "63"], "width: mp4 needs an even width and height"),
+        (["--orbit"], "orbit: an orbit is a clip: give --clip too"),
+        (["--clip", "x.gif", "--fps", "0"], "fps: must be in (0, 120]"),
+    ],
+)
+def test_clip_bad_options(windy: Path, tmp_path: Path, args: list[str], message: str) -> None:
+    res = CliRunner().invoke(
+        main, ["render", str(windy), "-o", str(tmp_path / "p.png"),
+               *[str(tmp_path / a) if a.startswith("x.") else a for a in args]],
+    )  # fmt: skip
+    assert res.exit_code == 2
+    assert message in res.output
+
+
+def test_write_clip_rgba_frames(tmp_path: Path) -> None:
+    frames = [np.full((8, 10, 4), 40 * i, np.uint8) for i in range(3)]
+    write_clip(tmp_path / "a.webp", frames, 10.0)
+    assert decode(tmp_path / "a.webp")[:2] == (3, (10, 8))
