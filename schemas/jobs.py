@@ -124,6 +124,22 @@ class RenderRequest(FiniteModel):
     frame: Annotated[int, Field(ge=0, le=10_000)] = 0
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
     """Measured frames (wind samples from ``frame`` on); the preview is the first."""
+    staged: bool = False
+    """Ground, sky, sun shadows, 4x MSAA and a filmic tone map (the bare mode otherwise)."""
+    clip: Literal["mp4", "webm", "gif"] | None = None
+    """Also encode the frames as ``clip.<format>`` (an artifact with its media type); with
+    ``frames`` 1 the clip is the scene's whole wind loop, which loops seamlessly."""
+    orbit: bool = False
+    """The camera turns once about its target over the clip (needs ``clip``)."""
+
+    @model_validator(mode="after")
+    def _clip_fits(self) -> RenderRequest:
+        if self.orbit and self.clip is None:
+            raise ValueError("orbit: an orbit is a clip: give clip too")
+        if self.clip in ("mp4", "webm") and (self.width % 2 or self.height % 2):
+            name = "width" if self.width % 2 else "height"
+            raise ValueError(f"{name}: {self.clip} needs an even width and height")
+        return self
 
 
 class Artifact(StrictModel):

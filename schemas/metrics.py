@@ -112,3 +112,5 @@ class RenderMetrics(StrictModel):
     """Null when no foliage was drawn (``--no-foliage``, or a scene without foliage)."""
     frames: Annotated[list[FrameMetrics], Field(min_length=1)]
     median: MetricsSummary
+    warnings: list[str] = []
+    """What the render fell back on (e.g. bark tiles not found: placeholder bark)."""

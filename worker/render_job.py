@@ -8,6 +8,7 @@ unmeasured (shader compilation, first uploads), then ``N`` measured frames ``F, 
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,7 +28,7 @@ from worker.metrics import render_metrics, write_metrics
 from worker.renderer import Renderer, TessSettings, auto_lod
 from worker.scene_buffers import check_scene, scene_points
 from worker.staging import STAGED, Staging
-from worker.textures import tile_images
+from worker.textures import shipped_tile_folder, tile_images
 
 MAX_SIZE = 8192
 MAX_TESS = 64.0  # GL_MAX_TESS_GEN_LEVEL is at least 64 on every GL 4 driver
@@ -140,6 +141,17 @@ def load_scene(path: Path) -> SceneArrays:
         raise ForestError(f"the scene could not be read ({why})", path="scene") from None
 
 
+def bark_warnings(req: RenderRequest, scene: SceneArrays) -> list[str]:
+    """A scene whose material names a tile folder that is not there (every uploaded scene,
+    a scene moved without its tiles) renders other bark: say so, naming the folder."""
+    folder = scene.tile_folder
+    if req.tiles is not None or folder is None or folder.is_dir():
+        return []
+    shipped = shipped_tile_folder(scene.manifest, scene.bark_tile_set)
+    instead = "placeholder bark" if shipped is None else f"shipped {scene.bark_tile_set} bark"
+    return [f"bark tiles not found: {folder}: {instead}"]
+
+
 def scene_fps(scene: SceneArrays) -> float:
     """The rate the scene's wind was sampled at (its clip loops at it), else DEFAULT_FPS."""
     fps = scene.options.get("fps")
@@ -167,6 +179,9 @@ def render_file(
     ctx = create_context()
     try:
         images = tile_images(scene.manifest, req.tiles, scene.tile_folder, bark=scene.bark_tile_set)
+        warnings = bark_warnings(req, scene)
+        for w in warnings:
+            print(f"warning: {w}", file=sys.stderr)
         renderer = Renderer(
             ctx,
             scene,
@@ -217,7 +232,7 @@ def render_file(
             per_instance=req.per_instance,
             cull=req.cull,
             warmup_frames=req.warmup,
-        )
+        ).model_copy(update={"warnings": warnings})
         # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
         if req.clip is not None:

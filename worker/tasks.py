@@ -161,6 +161,9 @@ def run_render(ctx: JobContext) -> Outcome:
         tess_max=p["tess_max"],
         frame=p["frame"],
         frames=p["frames"],
+        staged=bool(p.get("staged", False)),
+        clip=ctx.scratch / f"clip.{p['clip']}" if p.get("clip") else None,
+        orbit=bool(p.get("orbit", False)),
     )
 
     def stage(name: str) -> None:
@@ -180,6 +183,11 @@ def run_render(ctx: JobContext) -> Outcome:
         "primitives": metrics.median.primitives,
     }
     files = {"preview.png": req.output, "metrics.json": ctx.scratch / "metrics.json"}
+    if metrics.warnings:
+        result["warnings"] = metrics.warnings
+    if req.clip is not None:
+        files[req.clip.name] = req.clip
+        result["clip"] = req.clip.name
     return Outcome(files, result)
 
 

@@ -20,6 +20,9 @@ ARTIFACT_TYPES = {
     ".usdc": "model/vnd.usd",
     ".usdz": "model/vnd.usdz+zip",
     ".glb": "model/gltf-binary",
+    ".mp4": "video/mp4",  # render clips (worker.clip)
+    ".webm": "video/webm",
+    ".gif": "image/gif",
 }
 
 

@@ -117,3 +117,49 @@ def test_write_clip_rgba_frames(tmp_path: Path) -> None:
     frames = [np.full((8, 10, 4), 40 * i, np.uint8) for i in range(3)]
     write_clip(tmp_path / "a.webp", frames, 10.0)
     assert decode(tmp_path / "a.webp")[:2] == (3, (10, 8))
+
+
+def test_render_job_clip_artifact_and_missing_bark_warning(windy: Path, tmp_path: Path) -> None:
+    """A render job (the worker's task, as the service runs it) asking for a gif clip of a
+    scene whose tile folder is gone: the clip is an artifact with its media type, and the
+    result and metrics say which bark it fell back on."""
+    from schemas.jobs import RenderRequest
+    from schemas.metrics import RenderMetrics
+    from service.artifacts import ArtifactStore
+    from service.routes.jobs import ARTIFACT_TYPES
+    from worker.tasks import JobContext, run_render
+
+    # the scene's material names a tile folder beside it that is not there (an upload's)
+    forest = generate_forest(
+        load_preset("alternating"), 2, ForestOptions(trees=1, frames=FRAMES, fps=FPS)
+    )
+    scene = write_scene(forest, tmp_path / "scene.usdc", tiles="bark_tiles")
+    store = ArtifactStore(tmp_path / "artifacts")
+    store.publish("a" * 32, scene, "scene.usdc")
+    req = RenderRequest(forest_job="a" * 32, width=32, height=24, tess_max=1, clip="gif")
+    params = req.model_dump(mode="json") | {"scene": "scene.usdc"}
+    out = run_render(JobContext("b" * 32, params, store.scratch("b" * 32), store))
+    assert set(out.files) == {"preview.png", "metrics.json", "clip.gif"}
+    assert out.result["clip"] == "clip.gif"
+    assert ARTIFACT_TYPES[".gif"] == "image/gif"
+    assert decode(out.files["clip.gif"])[:2] == (FRAMES, (32, 24))
+    metrics = RenderMetrics.model_validate_json(out.files["metrics.json"].read_text())
+    assert len(metrics.frames) == FRAMES
+    assert len(metrics.warnings) == 1, metrics.warnings
+    assert metrics.warnings[0].startswith("bark tiles not found: ")
+    assert "bark_tiles" in metrics.warnings[0]
+    assert out.result["warnings"] == metrics.warnings
+
+
+def test_render_request_clip_fields() -> None:
+    from pydantic import ValidationError
+
+    from schemas.jobs import RenderRequest
+
+    with pytest.raises(ValidationError, match="width: mp4 needs an even width and height"):
+        RenderRequest(forest_job="x", width=33, clip="mp4")
+    with pytest.raises(ValidationError, match="orbit: an orbit is a clip"):
+        RenderRequest(forest_job="x", orbit=True)
+    with pytest.raises(ValidationError):
+        RenderRequest.model_validate({"forest_job": "x", "clip": "avi"})
+    assert RenderRequest(forest_job="x", clip="webm", staged=True).clip == "webm"
