@@ -37,7 +37,7 @@ from worker.camera import (
 from worker.foliage import foliage_points
 from worker.gl_context import create_context, raise_gl_error
 from worker.renderer import Renderer, auto_lod
-from worker.staging import Staging
+from worker.staging import STAGED
 from worker.textures import tile_images
 
 if TYPE_CHECKING:
@@ -218,10 +218,11 @@ def _render(
     camera: Camera,
     size: tuple[int, int],
 ) -> NDArray[np.uint8]:
-    """``(h, w, 4)`` uint8 frame 0 of ``scene`` on the ground under a sky gradient."""
+    """``(h, w, 4)`` uint8 frame 0 of ``scene``, staged (ground, sky, sun shadows, MSAA, tone
+    map: worker.staging.STAGED)."""
     # the species' shipped bark set, as the grammar's ``bark`` names it
     images = tile_images(scene.manifest, None, scene.tile_folder, bark=scene.bark_tile_set)
-    renderer = Renderer(ctx, scene, size, images, staging=Staging())
+    renderer = Renderer(ctx, scene, size, images, staging=STAGED)
     try:
         pts = scene_surface_points(scene)
         tess = auto_lod(camera, pts.min(axis=0), pts.max(axis=0), TESS_MAX)
