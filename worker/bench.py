@@ -70,7 +70,7 @@ def _bench_scene(grammar: Grammar, n: int, path: Path) -> tuple[SceneArrays, Til
     job sees), with the placeholder tiles."""
     side = SPACING * math.sqrt(n)
     forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
-    scene = read_scene(write_scene(forest, path))
+    scene = read_scene(write_scene(forest, path, skinned=False))  # read back only
     return scene, procedural_tiles(scene.manifest, scene.manifest.n_slices)
 
 def run_render_bench(

@@ -234,7 +234,8 @@ def _render(
 
 
 def _scene(grammar: Grammar, seed: int, options: ForestOptions, path: Path) -> SceneArrays:
-    return read_scene(write_scene(generate_forest(grammar, seed, options), path))
+    # read back only: the instanced forms suffice (no skinned trees to bake)
+    return read_scene(write_scene(generate_forest(grammar, seed, options), path, skinned=False))
 
 
 def _stand_scene(
