@@ -172,3 +172,31 @@ def test_small_forests_are_skinned_by_default(
     monkeypatch.setattr(scene, "SKINNED_MAX_PIECES", windy_forest.n_instances - 1)
     assert selection(write_scene(windy_forest, tmp_path / "big.usdc")) == POSED
     assert selection(write_scene(windy_forest, tmp_path / "forced.usdc", skinned=True)) == SKINNED
+
+
+def test_cli_skinned_and_no_skinned(tmp_path: Path) -> None:
+    """forest generate: the default for a small forest is skinned, --no-skinned posed, and
+    --no-skinned with a .usdz is a one-line error naming the option (exit 2)."""
+    from click.testing import CliRunner
+
+    from forest.cli.app import main
+
+    def run(*args: str) -> tuple[int, str]:
+        res = CliRunner().invoke(
+            main, ["generate", "--preset", "almond", "--seed", "1", "--trees", "1", *args]
+        )
+        return res.exit_code, res.output
+
+    def selection(path: Path) -> str:
+        stage = Usd.Stage.Open(str(path))
+        return str(stage.GetPrimAtPath(FOREST).GetVariantSet(REPRESENTATION).GetVariantSelection())
+
+    code, out = run("-o", str(tmp_path / "a.usdc"))
+    assert code == 0 and out.strip().endswith("skinned"), out
+    assert selection(tmp_path / "a.usdc") == SKINNED
+    code, out = run("--no-skinned", "-o", str(tmp_path / "b.usdc"))
+    assert code == 0 and out.strip().endswith("posed"), out
+    assert selection(tmp_path / "b.usdc") == POSED
+    code, out = run("--no-skinned", "-o", str(tmp_path / "c.usdz"))
+    assert code == 2 and "skinned" in out and "usdz" in out, out
+    assert not (tmp_path / "c.usdz").exists()
