@@ -189,7 +189,7 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "forest.usdc"
         t0 = time.perf_counter()
-        write_scene(forest, out)
+        write_scene(forest, out, skinned=False)  # the instanced writer, whatever --trees
         t_write = time.perf_counter() - t0
         size = out.stat().st_size
     echo(
