@@ -128,7 +128,8 @@ def run_tile(ctx: JobContext) -> Outcome:
     forest = generate_tile(grammar, plan, i, j, options_from_request(req), progress=note)
     ctx.report("write", 0.7)
     name = tile_artifact(i, j)
-    entry = write_tile_file(forest, ctx.scratch / name, f"./{name}", i, j, skinned=req.skinned)
+    skinned = bool(req.skinned)  # tiles stay posed unless asked
+    entry = write_tile_file(forest, ctx.scratch / name, f"./{name}", i, j, skinned=skinned)
     pieces = 0 if forest is None else forest.n_instances
     return Outcome({name: ctx.scratch / name}, {"tile": entry.to_json(), "pieces": pieces})
 
