@@ -32,6 +32,8 @@ def test_frequencies_snap_to_distinct_multiples() -> None:
     np.testing.assert_allclose(k, np.round(k), atol=1e-12)
     assert (np.diff(k) >= 1).all() and k[0] >= 1
     assert Wind().frequencies() == (0.4, 0.7, 0.7 * 2.3, 2.6)  # no loop: as asked
+    # a clip far shorter than the sway's period does not loop: no 8 Hz sway for 3 frames
+    assert Wind(loop_s=3 / 24).frequencies() == Wind().frequencies()
 
 
 def _hub_positions(f: Forest, times: np.ndarray) -> np.ndarray:

@@ -29,6 +29,11 @@ I32 = NDArray[np.int32]
 LevelHook = Callable[[NDArray[np.intp], F64], None]
 
 
+# a clip loops when it lasts at least this many periods of the slow sway (the sway then runs
+# at most four times as fast as asked); shorter clips are sampled at the frequencies as asked
+LOOP_MIN_CYCLES = 0.25
+
+
 @dataclass(frozen=True)
 class Wind:
     """Wind as a few layered sines per piece, all bending about axes in the horizontal plane.
@@ -45,9 +50,10 @@ class Wind:
 
     ``amp`` grows linearly with depth from ``strength * base`` at the trunk to ``strength`` at
     the deepest pieces, and with thinness: times ``(trunk radius / radius) ** radius_power``,
-    at most ``4``. With ``loop_s > 0`` (a clip of that many seconds; ForestOptions sets it to
-    ``frames / fps``) every frequency is rounded to a distinct non-zero multiple of ``1 /
-    loop_s``, so the pose at ``loop_s`` equals the pose at 0 and the clip loops.
+    at most ``4``. With ``loop_s`` (a clip of that many seconds; ForestOptions sets it to
+    ``frames / fps``) of at least ``LOOP_MIN_CYCLES`` sway periods, every frequency is rounded
+    to a distinct non-zero multiple of ``1 / loop_s``, so the pose at ``loop_s`` equals the
+    pose at 0 and the clip loops.
     """
 
     strength_deg: float = 4.0
@@ -66,7 +72,8 @@ class Wind:
     def frequencies(self) -> tuple[float, float, float, float]:
         """``(sway, gust envelope, gust wobble, flutter)`` in Hz, snapped to the loop."""
         want = (self.frequency_hz, self.gust_hz, 2.3 * self.gust_hz, self.flutter_hz)
-        if not self.loop_s > 0:
+        if not self.loop_s * self.frequency_hz >= LOOP_MIN_CYCLES:
+            # too short a clip to loop: its sway would have to run many times too fast
             return want
         out: list[float] = []
         k_prev = 0

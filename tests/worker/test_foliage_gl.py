@@ -64,7 +64,9 @@ SMALL = {
 
 @pytest.fixture(scope="module")
 def crown_path(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    forest = generate_forest(Grammar.model_validate(SMALL), 1, ForestOptions(trees=1, frames=3))
+    # 3 wind frames a sixth of a second apart: the layered wind moves the clouds visibly
+    options = ForestOptions(trees=1, frames=3, fps=6.0)
+    forest = generate_forest(Grammar.model_validate(SMALL), 1, options)
     return write_scene(forest, tmp_path_factory.mktemp("foliage_gl") / "crown.usda")
 
 
