@@ -66,8 +66,8 @@ def test_demo_says_what_it_wrote(tmp_path: Path) -> None:
     out = forest("demo", "-o", "d", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     written = sorted(p.name for p in (tmp_path / "d").iterdir())
-    assert written == ["almond_skinned.usdz", "forest.usdc", "metrics.json", "preview.png",
-                       "spruces.usda"]
+    assert written == ["almond_skinned.usdz", "birches.usdc", "forest.usdc", "metrics.json",
+                       "preview.png"]
     for name in written:
         assert name in out.stdout
 

@@ -248,15 +248,17 @@ def demo(output: Path) -> None:
     except OSError as exc:
         raise ForestError(f"cannot create folder: {exc.strerror}", path=str(output)) from None
     jobs = [
-        # small forests: the skinned default (SKINNED_MAX_TREES)
-        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), True),
-        ("spruces.usda", "spruce", ForestOptions(trees=3, area=(16.0, 16.0)), True),
+        # a swaying stand, posed pieces (light); a still mixed pair and one animated tree
+        # skinned (exact in any DCC); .usda text of a skinned mature tree would be hundreds
+        # of MB, so the demo writes binary layers
+        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), False),
+        ("birches.usdc", "birch", ForestOptions(trees=2, area=(8.0, 8.0)), True),
         ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
     ]
     for name, preset, options, skinned in jobs:
         forest = generate_forest(load_preset(preset), 1, options)
         path = write_scene(forest, output / name, skinned=skinned)
-        kind = "skinned + instanced" if skinned else "instanced"
+        kind = "skinned + instanced" if skinned else "posed + instanced"
         click.echo(
             f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
             f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
