@@ -126,6 +126,16 @@ class RenderRequest(FiniteModel):
     frame: Annotated[int, Field(ge=0, le=10_000)] = 0
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
     """Measured frames (wind samples from ``frame`` on); the preview is the first."""
+    view: Literal["overview", "side", "eye"] = "overview"
+    """Named camera (worker.camera.CameraSpec): the whole forest from 35 degrees azimuth and
+    18 up, the same horizontally, or eyes 1.7 m above the ground at ``distance``."""
+    eye: tuple[float, float, float] | None = None
+    """Camera position in metres (Y up); with ``target``, it overrides ``view``."""
+    target: tuple[float, float, float] | None = None
+    fov: Annotated[float, Field(ge=1, le=170, allow_inf_nan=False)] = 40.0
+    """Vertical field of view, degrees."""
+    distance: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
+    """Eye view: metres from the forest's centre (default: the least that shows it all)."""
     staged: bool = False
     """Ground, sky, sun shadows, 4x MSAA and a filmic tone map (the bare mode otherwise)."""
     clip: Literal["mp4", "webm", "gif"] | None = None
@@ -135,7 +145,13 @@ class RenderRequest(FiniteModel):
     """The camera turns once about its target over the clip (needs ``clip``)."""
 
     @model_validator(mode="after")
-    def _clip_fits(self) -> RenderRequest:
+    def _camera_and_clip(self) -> RenderRequest:
+        if (self.eye is None) != (self.target is None):
+            raise ValueError(
+                f"{'eye' if self.eye is None else 'target'}: give eye and target together"
+            )
+        if self.eye is not None and self.eye == self.target:
+            raise ValueError("target: must differ from the eye")
         if self.orbit and self.clip is None:
             raise ValueError("orbit: an orbit is a clip: give clip too")
         if self.clip in ("mp4", "webm") and (self.width % 2 or self.height % 2):

@@ -138,6 +138,7 @@ def run_render(ctx: JobContext) -> Outcome:
     """A render job: the scene -> ``preview.png`` + ``metrics.json`` (EGL; GPU or llvmpipe).
     An uploaded scene is untrusted: :func:`worker.scene_guard.check_scene_file` bounds it
     before the reader runs."""
+    from worker.camera import CameraSpec
     from worker.metrics import write_metrics
     from worker.render_job import RenderRequest, render_file
     from worker.scene_guard import check_scene_file
@@ -163,6 +164,13 @@ def run_render(ctx: JobContext) -> Outcome:
         frame=p["frame"],
         frames=p["frames"],
         staged=bool(p.get("staged", False)),
+        camera=CameraSpec(
+            view=p.get("view", "overview"),
+            eye=p.get("eye"),
+            target=p.get("target"),
+            fov=p.get("fov", 40.0),
+            distance=p.get("distance"),
+        ),
         clip=ctx.scratch / f"clip.{p['clip']}" if p.get("clip") else None,
         orbit=bool(p.get("orbit", False)),
     )

@@ -18,7 +18,7 @@ from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
 from worker.clip import MEDIA_TYPES, orbit_camera_eyes, write_clip
 
-FRAMES, FPS = 6, 12.0
+FRAMES, FPS = 6, 6.0  # a 1 s clip: long enough to loop (Wind.loop_s)
 # imageio-ffmpeg's frame reader leaves its ffmpeg pipe to the garbage collector once the
 # frames run out (a ResourceWarning in the library's generator, not in our writer)
 pytestmark = pytest.mark.filterwarnings(
@@ -69,7 +69,7 @@ def test_clip_of_the_wind_loop(windy: Path, tmp_path: Path, suffix: str) -> None
     assert res.exit_code == 0, res.output
     n, size, fps = decode(clip)
     assert n == FRAMES and size == (64, 48)
-    # gif and webp store whole milliseconds (gif: 10 ms steps): 12 fps is 83 (gif 80) ms
+    # gif and webp store whole milliseconds (gif: 10 ms steps): 6 fps is 167 (gif 170) ms
     assert fps == pytest.approx(FPS, rel=0.05 if suffix in (".gif", ".webp") else 1e-6)
     assert f"wrote {clip}: {FRAMES} frame(s)" in res.output
     assert (tmp_path / "m.json").read_text().count('"cpu_ms"') >= FRAMES  # metrics per frame
@@ -163,3 +163,36 @@ def test_render_request_clip_fields() -> None:
     with pytest.raises(ValidationError):
         RenderRequest.model_validate({"forest_job": "x", "clip": "avi"})
     assert RenderRequest(forest_job="x", clip="webm", staged=True).clip == "webm"
+    with pytest.raises(ValidationError, match="target: give eye and target together"):
+        RenderRequest(forest_job="x", eye=(1.0, 2.0, 3.0))
+    with pytest.raises(ValidationError, match="target: must differ from the eye"):
+        RenderRequest(forest_job="x", eye=(1.0, 2.0, 3.0), target=(1.0, 2.0, 3.0))
+    with pytest.raises(ValidationError):
+        RenderRequest(forest_job="x", fov=0.5)
+
+
+def test_render_job_camera(windy: Path, tmp_path: Path) -> None:
+    """A render job's eye and target place the camera as ``forest render --eye --target``."""
+    from schemas.jobs import RenderRequest
+    from service.artifacts import ArtifactStore
+    from worker.render_job import RenderRequest as Job
+    from worker.render_job import render_file
+    from worker.tasks import JobContext, run_render
+
+    store = ArtifactStore(tmp_path / "artifacts")
+    scene = tmp_path / "s.usdc"
+    scene.write_bytes(windy.read_bytes())
+    store.publish("c" * 32, scene, "scene.usdc")
+    cam = {"eye": (3.0, 1.5, 3.0), "target": (0.0, 1.0, 0.0), "fov": 30.0}
+    req = RenderRequest(forest_job="c" * 32, width=32, height=24, tess_max=1, **cam)
+    params = req.model_dump(mode="json") | {"scene": "scene.usdc"}
+    out = run_render(JobContext("d" * 32, params, store.scratch("d" * 32), store))
+    from worker.camera import CameraSpec
+
+    render_file(Job(scene=windy, output=tmp_path / "cli.png", width=32, height=24,
+                    tess_max=1, camera=CameraSpec(**cam)))  # type: ignore[arg-type]  # fmt: skip
+    from worker.textures import read_image_subimages
+
+    a = read_image_subimages(out.files["preview.png"])[0]
+    b = read_image_subimages(tmp_path / "cli.png")[0]
+    np.testing.assert_array_equal(a, b)
