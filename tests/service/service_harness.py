@@ -263,4 +263,5 @@ def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> byt
     assert req.preset is not None
     forest = generate_forest(load_preset(req.preset), req.seed, options_from_request(req))
     (tmp / "ref").mkdir(exist_ok=True)
-    return write_scene(forest, tmp / "ref" / f"{stem}.{body['format']}").read_bytes()
+    path = tmp / "ref" / f"{stem}.{body['format']}"
+    return write_scene(forest, path, skinned=req.skinned).read_bytes()

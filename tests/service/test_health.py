@@ -36,7 +36,9 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
     runner = CliRunner()
     listed = runner.invoke(main, ["worker", "--list"])
     assert listed.exit_code == 0
-    assert listed.output.splitlines() == ["forest\tqueue default", "render\tqueue gpu"]
+    assert listed.output.splitlines() == [
+        "forest\tqueue default", "render\tqueue gpu", "forest_tile\tqueue default"
+    ]
     bad = runner.invoke(main, ["worker", "-Q", "default,cpu"])
     assert bad.exit_code == 2
     assert "error: queues: unknown queue(s) cpu" in bad.output
