@@ -165,6 +165,7 @@ class CameraSpec:
     above the ground, ``distance`` metres (horizontally) from the scene's centre, looking at
     that centre; without ``distance``, the least distance that shows everything. ``eye`` and
     ``target`` (metres, Y up) given together override the view; ``fov`` is vertical, degrees.
+    ``tree``: the view frames that tree of the scene alone (a close-up), not the forest.
     """
 
     view: str = "overview"
@@ -173,6 +174,7 @@ class CameraSpec:
     fov: float = 40.0
     distance: float | None = None
     azimuth: float = 35.0
+    tree: int | None = None
 
     def check(self) -> None:
         if self.view not in VIEWS:
@@ -189,6 +191,8 @@ class CameraSpec:
             raise ForestError(f"must be in [1, 170] degrees, got {self.fov}", path="fov")
         if self.distance is not None and not (np.isfinite(self.distance) and self.distance > 0):
             raise ForestError(f"must be > 0 metres, got {self.distance}", path="distance")
+        if self.tree is not None and self.tree < 0:
+            raise ForestError(f"must be >= 0, got {self.tree}", path="tree")
         if not np.isfinite(self.azimuth):
             raise ForestError(f"must be finite, got {self.azimuth}", path="azimuth")
 

@@ -169,7 +169,7 @@ def impostor_view_projection(camera: Camera, radius: float) -> F64:
     return proj @ view
 
 
-def foliage_points(scene: SceneArrays, frame: int = 0) -> F64:
+def foliage_points(scene: SceneArrays, frame: int = 0, tree: int | None = None) -> F64:
     """``(8 k, 3)`` corners of every cloud's box at ``frame`` (for framing the camera): a box
     that holds every model at any yaw (the largest distance from the vertical axis across,
     the lowest and highest leaf up)."""
@@ -178,8 +178,11 @@ def foliage_points(scene: SceneArrays, frame: int = 0) -> F64:
     pts = np.concatenate([c.positions for c in scene_models(scene)])
     r = float(np.hypot(pts[:, 0], pts[:, 2]).max())
     corners = box_corners(np.array([-r, pts[:, 1].min(), -r]), np.array([r, pts[:, 1].max(), r]))
-    c = scene.foliage_at(frame)
-    return (c[:, None] + scene.foliage_sizes[:, None, None] * corners[None]).reshape(-1, 3)
+    c, size = scene.foliage_at(frame), scene.foliage_sizes
+    if tree is not None:  # the clouds of one tree
+        mine = scene.tree[scene.foliage_instance] == tree
+        c, size = c[mine], size[mine]
+    return (c[:, None] + size[:, None, None] * corners[None]).reshape(-1, 3)
 
 
 def _uniform(prog: moderngl.Program, name: str) -> moderngl.Uniform:

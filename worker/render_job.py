@@ -113,9 +113,13 @@ def preview_view(
     """The camera ``spec`` asks for (default: the automatic overview) around the forest at
     ``frame`` (its leaf clouds too, with ``foliage``; far enough for the ground with
     ``ground``) and its level-of-detail settings."""
-    points = scene_points(scene, frame)
+    tree = spec.tree if spec is not None else None
+    n_trees = int(scene.tree.max()) + 1 if len(scene.tree) else 0
+    if tree is not None and not 0 <= tree < n_trees:
+        raise ForestError(f"the scene has {n_trees} tree(s), numbered from 0", path="tree")
+    points = scene_points(scene, frame, tree)
     if foliage and scene.n_foliage:
-        points = np.concatenate([points, foliage_points(scene, frame)])
+        points = np.concatenate([points, foliage_points(scene, frame, tree)])
     lo, hi = points.min(axis=0), points.max(axis=0)
     camera = place_camera(spec or CameraSpec(), points, size[0] / size[1], ground)
     tess = auto_lod(camera, lo, hi, tess_max, alpha)

@@ -166,10 +166,11 @@ def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
         )
 
 
-def scene_points(scene: SceneArrays, frame: int = 0) -> F64:
-    """``(m, 3)`` world points enclosing the skinned forest at ``frame``: every bone of an
-    instance applied to the corners of its piece's box (the blended surface lies inside the
-    hull of these, as each skinned vertex is a convex blend of its bones' images)."""
+def scene_points(scene: SceneArrays, frame: int = 0, tree: int | None = None) -> F64:
+    """``(m, 3)`` world points enclosing the skinned forest (or its tree ``tree``) at
+    ``frame``: every bone of an instance applied to the corners of its piece's box (the
+    blended surface lies inside the hull of these, as each skinned vertex is a convex blend of
+    its bones' images)."""
     pal = scene.palettes[frame % len(scene.palettes)]
     boxes = np.stack(
         [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in scene.pieces]
@@ -179,7 +180,7 @@ def scene_points(scene: SceneArrays, frame: int = 0) -> F64:
     j = np.arange(n_joints.max())
     out = []
     for t in range(len(scene.pieces)):
-        idx = np.nonzero(scene.proto_indices == t)[0]
+        idx = np.nonzero((scene.proto_indices == t) & ((scene.tree == tree) | (tree is None)))[0]
         if not len(idx):
             continue
         bones = pal[scene.bone_offset[idx][:, None] + j[: n_joints[t]]]  # (m, j, 4, 4)

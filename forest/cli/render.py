@@ -41,6 +41,13 @@ def camera_options(fn: Any) -> Any:
             "--fov", type=float, default=40.0, show_default=True, help="Vertical field, degrees."
         ),
         click.option("--distance", type=float, help="Eye view: metres from the forest's centre."),
+        click.option(
+            "--tree",
+            "tree_index",
+            type=int,
+            metavar="N",
+            help="Frame tree N of the scene alone (a close-up) in the view, not the forest.",
+        ),
         click.option("--ground", is_flag=True, help="A ground under the trees and a sky gradient."),
         click.option(
             "--staged",
@@ -131,6 +138,7 @@ def render(
     target_text: str | None = None,
     fov: float = 40.0,
     distance: float | None = None,
+    tree_index: int | None = None,
     ground: bool = False,
     staged: bool = False,
     clip: Path | None = None,
@@ -147,6 +155,7 @@ def render(
         target=parse_point(target_text, "target"),
         fov=fov,
         distance=distance,
+        tree=tree_index,
     )
 
     m = render_file(
