@@ -136,6 +136,8 @@ class RenderRequest(FiniteModel):
     """Vertical field of view, degrees."""
     distance: Annotated[float, Field(gt=0, allow_inf_nan=False)] | None = None
     """Eye view: metres from the forest's centre (default: the least that shows it all)."""
+    tree: Annotated[int, Field(ge=0, le=10_000_000)] | None = None
+    """The view frames this tree of the scene alone (a close-up), not the forest."""
     staged: bool = False
     """Ground, sky, sun shadows, 4x MSAA and a filmic tone map (the bare mode otherwise)."""
     clip: Literal["mp4", "webm", "gif"] | None = None

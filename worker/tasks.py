@@ -170,6 +170,7 @@ def run_render(ctx: JobContext) -> Outcome:
             target=p.get("target"),
             fov=p.get("fov", 40.0),
             distance=p.get("distance"),
+            tree=p.get("tree"),
         ),
         clip=ctx.scratch / f"clip.{p['clip']}" if p.get("clip") else None,
         orbit=bool(p.get("orbit", False)),

@@ -171,8 +171,16 @@ def test_render_request_clip_fields() -> None:
         RenderRequest(forest_job="x", fov=0.5)
 
 
-def test_render_job_camera(windy: Path, tmp_path: Path) -> None:
-    """A render job's eye and target place the camera as ``forest render --eye --target``."""
+@pytest.mark.parametrize(
+    "cam",
+    [
+        {"eye": (3.0, 1.5, 3.0), "target": (0.0, 1.0, 0.0), "fov": 30.0},
+        {"view": "side", "tree": 0},
+    ],
+)
+def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) -> None:
+    """A render job's camera (eye and target, or a view of one tree) places it as
+    ``forest render`` does."""
     from schemas.jobs import RenderRequest
     from service.artifacts import ArtifactStore
     from worker.render_job import RenderRequest as Job
@@ -183,8 +191,7 @@ def test_render_job_camera(windy: Path, tmp_path: Path) -> None:
     scene = tmp_path / "s.usdc"
     scene.write_bytes(windy.read_bytes())
     store.publish("c" * 32, scene, "scene.usdc")
-    cam = {"eye": (3.0, 1.5, 3.0), "target": (0.0, 1.0, 0.0), "fov": 30.0}
-    req = RenderRequest(forest_job="c" * 32, width=32, height=24, tess_max=1, **cam)
+    req = RenderRequest(forest_job="c" * 32, width=32, height=24, tess_max=1, **cam)  # type: ignore[arg-type]
     params = req.model_dump(mode="json") | {"scene": "scene.usdc"}
     out = run_render(JobContext("d" * 32, params, store.scratch("d" * 32), store))
     from worker.camera import CameraSpec
