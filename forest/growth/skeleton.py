@@ -178,8 +178,12 @@ def draw_pose(
             angle[:, None, 1] - angle[:, None, 0]
         )
         turn = np.where(np.isnan(want) | (tilt < 1e-3), 0.0, want - tilt)
-        spread_azimuth, spread_angle = _add_tilts(
-            spread_azimuth, spread_angle, np.take(tab.tilt_az, graph.piece, axis=0), turn
+        on = turn != 0  # lateral rims only: the trig is the cost here
+        spread_azimuth[on], spread_angle[on] = _add_tilts(
+            spread_azimuth[on],
+            spread_angle[on],
+            np.take(tab.tilt_az, graph.piece, axis=0)[on],
+            turn[on],
         )
     return PoseParams(
         bend_azimuth=rng.random(n) * (2 * np.pi),
