@@ -449,14 +449,20 @@ def write_foliage(
     return inst
 
 
-def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
+def define_world(stage: Usd.Stage, group_path: str) -> tuple[UsdGeom.Xform, UsdGeom.Xform]:
+    """Y up, metres, ``/World`` (an assembly, the default prim) and the group under it."""
     UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
     UsdGeom.SetStageMetersPerUnit(stage, 1.0)
     world = UsdGeom.Xform.Define(stage, "/World")
     Usd.ModelAPI(world).SetKind(Kind.Tokens.assembly)
     stage.SetDefaultPrim(world.GetPrim())
-    group = UsdGeom.Xform.Define(stage, FOREST)
+    group = UsdGeom.Xform.Define(stage, group_path)
     Usd.ModelAPI(group).SetKind(Kind.Tokens.group)
+    return world, group
+
+
+def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
+    _, group = define_world(stage, FOREST)
     prim = group.GetPrim()
     stage.GetRootLayer().documentation = (
         f"interlocking-forest {forest.version}: {forest.options.trees} trees from grammar "

@@ -13,7 +13,6 @@ Root layer::
 from __future__ import annotations
 
 import json
-import os
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,9 +21,11 @@ from typing import Any
 import numpy as np
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, Vt
 
+from forest.atomic import replaced_when_written
 from forest.errors import ForestError
 from forest.growth.generate import Forest
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
+from forest.usd.scene import define_world
 
 TILES = "/World/Tiles"
 TILE_SUFFIX = ".usdc"
@@ -136,15 +137,8 @@ def write_root(
     out = check_output_path(path, (".usda", ".usdc"))
     # authored with payloads unloaded: writing the root never opens a tile
     stage = Usd.Stage.CreateInMemory(load=Usd.Stage.LoadNone)
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp{out.suffix}")
     try:
-        UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
-        UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        world = UsdGeom.Xform.Define(stage, "/World")
-        Usd.ModelAPI(world).SetKind(Kind.Tokens.assembly)
-        stage.SetDefaultPrim(world.GetPrim())
-        group = UsdGeom.Xform.Define(stage, TILES)
-        Usd.ModelAPI(group).SetKind(Kind.Tokens.group)
+        world, group = define_world(stage, TILES)
         stage.GetRootLayer().documentation = doc or (
             f"interlocking-forest tiled forest: {len(tiles)} tile payloads under {TILES}"
         )
@@ -178,10 +172,10 @@ def write_root(
             UsdGeom.ModelAPI.Apply(world.GetPrim()).SetExtentsHint(
                 Vt.Vec3fArray([Gf.Vec3f(*lo3), Gf.Vec3f(*hi3)])
             )
-        if not stage.GetRootLayer().Export(str(tmp)):
-            raise ForestError("cannot write the root layer", path=str(out))
-        os.replace(tmp, out)  # a half-written root never shows
+        # in a private folder, then renamed: a half-written root never shows
+        with replaced_when_written(out) as tmp:
+            if not stage.GetRootLayer().Export(str(tmp)):
+                raise ForestError("cannot write the root layer", path=str(out))
     finally:
         del stage
-        tmp.unlink(missing_ok=True)
     return out
