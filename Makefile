@@ -23,6 +23,7 @@ lint: $(STAMP)
 	$(BIN)/mypy
 
 test: $(STAMP) lint
+	bash tests/setup_node.sh
 	bash tests/setup_blender_venv.sh
 	bash tests/setup_validator_venv.sh
 	$(BIN)/python -m pytest -n 2 --dist loadfile
