@@ -14,6 +14,7 @@ from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from worker.camera import Camera
+from worker.gl_context import create_context
 from worker.renderer import Renderer, TessSettings
 from worker.scene_buffers import scene_bounds
 
@@ -22,21 +23,34 @@ def _bark_pixels(ctx: Any, path: Path) -> np.ndarray:
     """``(k, 3)`` uint8 colours of the pixels the trunk and branches cover."""
     scene = read_scene(path)
     renderer = Renderer(ctx, scene, (64, 64), foliage=None)
-    lo, hi = scene_bounds(scene)
-    target = 0.5 * (lo + hi)
-    eye = target + np.array([0.0, 0.0, 1.2 * float(np.linalg.norm(hi - lo))])
-    renderer.draw(Camera(eye=eye, target=target, near=0.05, far=100.0), TessSettings(max_level=4))
-    covered = renderer.read_depth() < 1.0
-    return renderer.read_color()[..., :3][covered]
+    try:
+        lo, hi = scene_bounds(scene)
+        target = 0.5 * (lo + hi)
+        eye = target + np.array([0.0, 0.0, 1.2 * float(np.linalg.norm(hi - lo))])
+        cam = Camera(eye=eye, target=target, near=0.05, far=100.0)
+        renderer.draw(cam, TessSettings(max_level=4))
+        covered = renderer.read_depth() < 1.0
+        return renderer.read_color()[..., :3][covered]
+    finally:
+        renderer.release()  # the session's one context outlives this test
 
 
 @pytest.mark.parametrize("seed", [5])
 def test_birch_renders_pale_and_oak_dark(gl43: Any, tmp_path: Path, seed: int) -> None:
+    # a context of its own, as `forest render` makes one per job: this test then does not
+    # depend on what earlier tests left in the session's context (llvmpipe memory)
+    ctx = create_context()
     means = {}
+    try:
+        for bark in ("birch", "oak"):
+            g = load_preset("almond").model_copy(update={"bark": bark})
+            forest = generate_forest(g, seed, ForestOptions(trees=1))
+            scene = write_scene(forest, tmp_path / f"{bark}.usdc", skinned=False)
+            means[bark] = _bark_pixels(ctx, scene)
+    finally:
+        ctx.release()
     for bark in ("birch", "oak"):
-        g = load_preset("almond").model_copy(update={"bark": bark})
-        forest = generate_forest(g, seed, ForestOptions(trees=1))
-        px = _bark_pixels(gl43, write_scene(forest, tmp_path / f"{bark}.usda"))
+        px = means[bark]
         assert len(px) > 50
         means[bark] = px.astype(np.float64).mean(axis=0)
     assert means["birch"].mean() > means["oak"].mean() + 40, means
