@@ -9,7 +9,6 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
-from scipy.spatial import cKDTree
 
 from forest.geometry.pieces import PIECE_NAMES, piece_library
 from forest.growth.generate import Forest, ForestOptions, generate_forest
@@ -112,29 +111,8 @@ def test_capped_scene_round_trips_and_validates(tmp_path: Path, suffix: str) -> 
 
 
 def test_capped_skinned_export_matches_our_skinning(tmp_path: Path) -> None:
-    from pxr import UsdSkel
-
-    from forest.usd.skinned import tree_slices
-    from tests.test_usd import _our_skinned_points
+    from tests.test_usd import assert_usd_skinning_matches_ours
 
     f = make("capped")
     stage = Usd.Stage.Open(str(write_scene(f, tmp_path / "capped.usda", skinned=True)))
-    for k, (inst, _) in enumerate(tree_slices(f)):
-        root = stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}")
-        cache = UsdSkel.Cache()
-        cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
-        skel = cache.GetSkelQuery(UsdSkel.Skeleton(root.GetChild("Skeleton")))
-        mesh = root.GetChild("Bark")
-        skin = cache.GetSkinningQuery(mesh)
-        world = np.asarray(
-            UsdGeom.Xformable(root).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
-        ).T
-        tc = Usd.TimeCode(2)
-        points = UsdGeom.Mesh(mesh).GetPointsAttr().Get(tc)
-        assert skin.ComputeSkinnedPoints(skel.ComputeSkinningTransforms(tc), points, tc)
-        usd = np.asarray(points, dtype=np.float64) @ world[:3, :3].T + world[:3, 3]
-        ours = _our_skinned_points(f, inst, 2 / f.options.fps)
-        size = np.ptp(ours, axis=0).max()
-        # the exported mesh is welded at seams: every vertex of ours is one of USD's, and back
-        assert cKDTree(usd).query(ours)[0].max() < 1e-5 * size
-        assert cKDTree(ours).query(usd)[0].max() < 1e-5 * size
+    assert_usd_skinning_matches_ours(stage, f, (2,))
