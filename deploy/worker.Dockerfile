@@ -5,6 +5,7 @@ WORKDIR /app
 COPY pyproject.toml README.md ./
 COPY forest forest
 COPY schemas schemas
+COPY farm farm
 COPY service service
 COPY worker worker
 COPY shaders shaders

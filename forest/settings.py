@@ -20,6 +20,13 @@ class ForestSettings(BaseSettings):
     max_palette_matrices: int = Field(50_000_000, gt=0)
     # depth at which a grammar without max_depth is declared non-terminating
     depth_limit: int = Field(64, gt=0, le=256)
+    # a grammar's size, checked before it is compiled: the presets have at most 12 rules
+    # and 22 alternatives; expansion holds a (pieces, alternatives) table per depth
+    max_grammar_rules: int = Field(256, gt=0)
+    max_grammar_alternatives: int = Field(1024, gt=0)
+    # threads for the block passes of generation (assembly, palette); 0: the usable cores,
+    # at most 4. A farm running one job per core may set 1.
+    threads: int = Field(0, ge=0, le=64)
 
 
 @cache

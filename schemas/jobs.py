@@ -188,6 +188,9 @@ class Job(StrictModel):
     finished_at: datetime | None
     heartbeat_at: datetime | None
     artifacts: list[Artifact]
+    artifacts_deleted_at: datetime | None = None
+    """When the job's artifacts were deleted (``DELETE /v1/jobs/{id}/artifacts``, or
+    ``FOREST_ARTIFACT_TTL_S`` after the job finished); ``artifacts`` is empty from then on."""
     result: dict[str, Any] | None
 
 

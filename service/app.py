@@ -2,43 +2,55 @@
 
 from __future__ import annotations
 
+import logging
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
 from fastapi import FastAPI
 
+from farm.artifacts import ArtifactStore
+from farm.db import migrate
+from farm.dispatch import Dispatcher
+from farm.keys import KeyStore
+from farm.reaper import Reaper
+from farm.store import JobStore
 from forest import __version__
-from service.artifacts import ArtifactStore
-from service.db import migrate
 from service.deps import Services
-from service.dispatch import Dispatcher
 from service.errors import install_handlers
 from service.limits import BodyLimitMiddleware
 from service.metrics import Metrics, MetricsMiddleware
-from service.reaper import Reaper
+from service.openapi import document_shared_responses
 from service.routes import forests, health, jobs, presets, renders, trees, web
 from service.security import Keys, RateLimit, SameSiteWrites
-from service.settings import ServiceSettings, get_settings
-from service.store import JobStore
+from service.settings import ServiceSettings
+
+log = logging.getLogger(__name__)
 
 
 def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> FastAPI:
-    settings = settings or get_settings()
+    settings = settings or ServiceSettings()
     store = JobStore(settings.db_url)
     metrics = Metrics(store)
     services = Services(
         settings, store, ArtifactStore(settings.artifacts), Dispatcher(settings), metrics,
-        Keys(settings), RateLimit(settings),
+        Keys(settings, KeyStore(settings.db_url)), RateLimit(settings),
     )
 
     @asynccontextmanager
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         settings.artifacts.mkdir(parents=True, exist_ok=True)
         migrate(settings.db_url)
+        if services.keys.open():
+            log.warning(
+                "no API keys (FOREST_API_KEYS unset, none made by `forest keys create`): "
+                "the API is open to loopback clients only"
+            )
         thread = None
         if reaper:
             thread = Reaper(
-                store, services.dispatcher, settings.reaper_interval_s, settings.requeue_after_s
+                store, services.dispatcher, settings.reaper_interval_s, settings.requeue_after_s,
+                artifacts=services.artifacts, housekeeping_s=settings.housekeeping_s,
+                artifact_ttl_s=settings.artifact_ttl_s,
             )
             thread.start()
         try:
@@ -62,7 +74,10 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     for module in (presets, trees, forests, renders, jobs, health):
         app.include_router(module.router)
     web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
-    app.add_middleware(BodyLimitMiddleware, max_bytes=settings.max_body_bytes)
+    document_shared_responses(app)
+    app.add_middleware(
+        BodyLimitMiddleware, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s
+    )
     allowed = frozenset(o.strip() for o in settings.allowed_origins.split(",") if o.strip())
     app.add_middleware(SameSiteWrites, allowed=allowed)
     app.add_middleware(MetricsMiddleware, metrics=metrics)

@@ -7,12 +7,12 @@ from typing import Annotated
 
 from fastapi import Depends, Header, Request
 
-from service.artifacts import ArtifactStore
-from service.dispatch import Dispatcher
+from farm.artifacts import ArtifactStore
+from farm.dispatch import Dispatcher
+from farm.store import JobStore
 from service.metrics import Metrics
 from service.security import Keys, RateLimit
 from service.settings import ServiceSettings
-from service.store import JobStore
 
 
 @dataclass

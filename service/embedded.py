@@ -76,11 +76,16 @@ class Workers:
                     proc.kill()
 
 
-def serve(settings: ServiceSettings, host: str, port: int, workers: int) -> None:
-    import uvicorn
-
-    from service.app import create_app
-    from service.db import migrate
+def serve(
+    settings: ServiceSettings, host: str, port: int, workers: int, api_workers: int = 1
+) -> None:
+    """The API in ``api_workers`` processes (one: in this process) and ``workers`` job
+    workers. Several API processes build their app from the environment, so ``settings``
+    must be what ``ServiceSettings()`` reads there; their metrics meet in
+    ``<data>/run/metrics``, emptied at start."""
+    from farm.db import migrate
+    from service.server import run as run_server
+    from service.server import run_processes
 
     Path(settings.data_dir).mkdir(parents=True, exist_ok=True)
     migrate(settings.db_url)  # once, before workers and API race to create the table
@@ -88,6 +93,13 @@ def serve(settings: ServiceSettings, host: str, port: int, workers: int) -> None
     if workers:
         pool.start()
     try:
-        uvicorn.run(create_app(settings), host=host, port=port, log_level="warning")
+        if api_workers > 1:
+            metrics_dir = settings.data_dir.resolve() / "run" / "metrics"
+            run_processes(host, port, api_workers, settings.keep_alive_s, metrics_dir)
+        else:
+            from service.app import create_app
+
+            run_server(create_app(settings), host, port, settings.header_timeout_s,
+                       settings.keep_alive_s)
     finally:
         pool.stop()

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import functools
 
+from forest.cost import forest_cost
 from forest.errors import ForestError, GrammarError
 from forest.growth.grammar import CompiledGrammar, compile_grammar
 from forest.growth.presets import load_preset
@@ -54,3 +55,28 @@ def resolve_grammar(
             "limit_error",
         )
     return grammar, cg
+
+
+def check_cost(
+    req: TreeRequest, settings: ServiceSettings, pieces: float, trees: int, where: str = ""
+) -> None:
+    """The request's estimated peak memory and scene bytes (:func:`forest.cost.forest_cost`)
+    within the settings' caps: 422 naming the cap before any work (``where``: " per tile")."""
+    cost = forest_cost(pieces, trees, req.frames, req.segments, req.format, req.skinned)
+    field: list[str | int] = ["trees"] if trees > 1 else ["grammar" if req.grammar else "preset"]
+    if cost.memory_bytes > settings.max_forest_memory_mb << 20:
+        raise field_error(
+            field,
+            f"about {cost.memory_bytes >> 20} MiB of memory{where} to generate and write; the "
+            f"cap is {settings.max_forest_memory_mb} MiB (max_forest_memory_mb): fewer trees, "
+            "frames or segments",
+            "limit_error",
+        )
+    if cost.scene_bytes > settings.max_scene_bytes:
+        raise field_error(
+            field,
+            f"a scene of about {cost.scene_bytes >> 20} MiB{where}; the cap is "
+            f"{settings.max_scene_bytes >> 20} MiB (max_scene_bytes): fewer trees, frames or "
+            "segments",
+            "limit_error",
+        )

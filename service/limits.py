@@ -1,32 +1,46 @@
-"""Request body cap: 413 before the body is read when Content-Length says so, and while
-reading when a chunked body grows past it."""
+"""Request body limits: size and time.
+
+Size: 413 before the body is read when Content-Length says so, and while reading when a
+chunked body grows past the cap. Time: a body not received within ``timeout_s`` of its first
+read (a client trickling bytes, or one that stops sending) is cut off with 408, and the
+connection closed. Both answer in place of whatever the app says once it has seen the error
+(FastAPI turns any error while it parses a body into 400)."""
 
 from __future__ import annotations
 
+import asyncio
 import json
+import time
 
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 
-class BodyTooLarge(Exception):
-    pass
+class BodyRefused(Exception):
+    def __init__(self, status: int, msg: str, kind: str) -> None:
+        super().__init__(msg)
+        self.status, self.msg, self.kind = status, msg, kind
 
 
 class BodyLimitMiddleware:
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
-        self.app, self.max_bytes = app, max_bytes
+    def __init__(self, app: ASGIApp, max_bytes: int, timeout_s: float | None = None) -> None:
+        self.app, self.max_bytes, self.timeout_s = app, max_bytes, timeout_s
 
-    async def _reject(self, send: Send) -> None:
+    def too_large(self) -> BodyRefused:
+        return BodyRefused(413, f"body over {self.max_bytes} bytes", "too_large")
+
+    @staticmethod
+    async def _reject(send: Send, refused: BodyRefused) -> None:
         body = json.dumps(
-            {"detail": [{"loc": ["body"], "msg": f"body over {self.max_bytes} bytes",
-                         "type": "too_large"}]}
+            {"detail": [{"loc": ["body"], "msg": refused.msg, "type": refused.kind}]}
         ).encode()
         await send(
             {
                 "type": "http.response.start",
-                "status": 413,
+                "status": refused.status,
                 "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode())],
+                            (b"content-length", str(len(body)).encode()),
+                            # the rest of the body is never read: the connection cannot be reused
+                            (b"connection", b"close")],
             }
         )
         await send({"type": "http.response.body", "body": body})
@@ -42,28 +56,51 @@ class BodyLimitMiddleware:
                 except ValueError:
                     too_big = False
                 if too_big:
-                    await self._reject(send)
+                    await self._reject(send, self.too_large())
                     return
         seen = 0
-        started = False
+        deadline: float | None = None
+        body_done = started = replaced = False
+        refused: BodyRefused | None = None
 
-        async def counted() -> Message:
-            nonlocal seen
-            message = await receive()
+        async def limited() -> Message:
+            nonlocal seen, deadline, body_done, refused
+            if body_done or self.timeout_s is None:
+                # after the body, receive() waits for the disconnect (streamed responses
+                # listen for it): no deadline then
+                message = await receive()
+            else:
+                if deadline is None:
+                    deadline = time.monotonic() + self.timeout_s
+                try:
+                    message = await asyncio.wait_for(receive(), deadline - time.monotonic())
+                except TimeoutError:
+                    refused = BodyRefused(
+                        408, f"body not received within {self.timeout_s:g} s", "timeout"
+                    )
+                    raise refused from None
             if message["type"] == "http.request":
                 seen += len(message.get("body", b""))
+                body_done = not message.get("more_body", False)
                 if seen > self.max_bytes:
-                    raise BodyTooLarge
+                    refused = self.too_large()
+                    raise refused
             return message
 
         async def tracking(message: Message) -> None:
-            nonlocal started
+            nonlocal started, replaced
+            if refused is not None and (replaced or not started):
+                if not replaced:
+                    started = replaced = True
+                    await self._reject(send, refused)
+                return
             if message["type"] == "http.response.start":
                 started = True
             await send(message)
 
         try:
-            await self.app(scope, counted, tracking)
-        except BodyTooLarge:
+            await self.app(scope, limited, tracking)
+        except BodyRefused as exc:
             if not started:
-                await self._reject(send)
+                started = True
+                await self._reject(send, exc)

@@ -1,10 +1,16 @@
-"""Who is calling: API keys -> tenants, per-key rate limits, and no cross-site writes.
+"""Who is calling: API keys -> callers (tenant, admin scope), per-key rate limits, and no
+cross-site writes.
 
-``FOREST_API_KEYS`` lists ``key=tenant`` pairs (comma separated); a request names its key in
-the ``X-API-Key`` header and every route depends on :func:`caller_tenant`, which yields the
-caller's tenant (401 without a known key). With no keys configured the API is open and every
-caller is the tenant ``local``: the embedded default for one machine, which says so at start.
-Keys are kept as SHA-256 digests in memory and compared in constant time.
+Keys live in the job store (``farm.keys``: ``forest keys create/list/revoke``, SHA-256 digests
+only); ``FOREST_API_KEYS`` may add ``key=tenant`` (or ``key=tenant:admin``) pairs as a
+bootstrap. A request names its key in the ``X-API-Key`` header and every ``/v1`` route depends
+on :func:`caller`: 401 without a live key. A key found in the store is trusted for
+``FOREST_API_KEY_CACHE_S`` (2 s) before it is looked up again, so a revocation takes effect
+within that long. An admin key sees, cancels and downloads every tenant's jobs; any other key
+only its own tenant's (404 for the rest). With no key anywhere (none in the settings, none ever
+made in the store: revoking the last key closes the API, it does not open it) the API is open,
+every caller is the tenant ``local``, and only loopback clients are answered (403 for the
+rest): the embedded default for one machine, which says so at start.
 
 State-changing requests (POST, PUT, PATCH, DELETE) are rate limited per key with the
 ``limits`` library (moving window; ``FOREST_RATE_LIMIT``, storage ``FOREST_RATE_LIMIT_STORAGE``,
@@ -21,6 +27,8 @@ import hmac
 import json
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Annotated
 
 from fastapi import Depends, HTTPException, Request
@@ -30,6 +38,7 @@ from limits.storage import storage_from_string
 from limits.strategies import MovingWindowRateLimiter
 from starlette.types import ASGIApp, Receive, Scope, Send
 
+from farm.keys import KeyStore, check_tenant, digest
 from service.settings import ServiceSettings
 
 OPEN_TENANT = "local"
@@ -37,42 +46,96 @@ WRITES = frozenset({"POST", "PUT", "PATCH", "DELETE"})
 api_key_header = APIKeyHeader(
     name="X-API-Key",
     auto_error=False,
-    description="API key (FOREST_API_KEYS); not needed when the server runs without keys.",
+    description="API key (`forest keys create`); not needed when the server has no keys.",
 )
+LOOPBACK = frozenset({"::1", "localhost"})  # and 127.0.0.0/8, also IPv4-mapped
 
 
-def _digest(key: str) -> bytes:
-    return hashlib.sha256(key.encode("utf-8", "surrogatepass")).digest()
+@dataclass(frozen=True)
+class Caller:
+    tenant: str
+    """Owner of the jobs this caller submits."""
+    admin: bool = False
+
+    @property
+    def scope(self) -> str | None:
+        """The tenant whose jobs this caller may see; None: every tenant's (admin)."""
+        return None if self.admin else self.tenant
+
+
+def is_loopback(host: str | None) -> bool:
+    return host is not None and (
+        host in LOOPBACK or host.removeprefix("::ffff:").startswith("127.")
+    )
+
+
+def _bootstrap(pairs: str) -> dict[str, Caller]:
+    """``FOREST_API_KEYS``: digest -> caller."""
+    callers: dict[str, Caller] = {}
+    for pair in pairs.split(","):
+        if not pair.strip():
+            continue
+        key, sep, who = pair.strip().partition("=")
+        tenant, _, scope = who.partition(":")
+        if not sep or not key or not tenant or scope not in ("", "admin"):
+            raise ValueError(
+                "FOREST_API_KEYS: give key=tenant or key=tenant:admin pairs, comma separated"
+            )
+        callers[digest(key)] = Caller(check_tenant(tenant), admin=scope == "admin")
+    return callers
 
 
 class Keys:
-    """The configured keys as digest -> tenant; empty: the API is open."""
+    """Finds the caller of a key: the bootstrap keys of the settings, then the job store's
+    live keys (each found one trusted for ``api_key_cache_s``)."""
 
-    def __init__(self, settings: ServiceSettings) -> None:
-        self.tenants: dict[bytes, str] = {}
-        for pair in settings.api_keys.split(","):
-            if not pair.strip():
-                continue
-            key, sep, tenant = pair.strip().partition("=")
-            if not sep or not key or not tenant:
-                raise ValueError("FOREST_API_KEYS: give key=tenant pairs, comma separated")
-            self.tenants[_digest(key)] = tenant[:64]
+    def __init__(
+        self,
+        settings: ServiceSettings,
+        store: KeyStore,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.bootstrap = _bootstrap(settings.api_keys)
+        self.store, self.ttl, self.clock = store, settings.api_key_cache_s, clock
+        self._found: dict[str, tuple[float, Caller]] = {}  # digest -> (trusted until, caller)
+        self._open: tuple[float, bool] = (-math.inf, False)  # (known until, open)
 
-    @property
     def open(self) -> bool:
-        return not self.tenants
+        """No key anywhere: no bootstrap key and none ever made in the store."""
+        if self.bootstrap:
+            return False
+        until, is_open = self._open
+        now = self.clock()
+        if now >= until:
+            is_open = not self.store.has_keys()
+            self._open = (now + self.ttl, is_open)
+        return is_open
 
-    def tenant(self, key: str | None) -> str | None:
-        if self.open:
-            return OPEN_TENANT
+    def caller(self, key: str | None) -> Caller | None:
+        """The key's caller; ``Caller(local)`` when the API is open; None: no such live key."""
+        if self.open():
+            return Caller(OPEN_TENANT)
         if not key:
             return None
-        d = _digest(key)
+        d = digest(key)
         found = None
-        for digest, tenant in self.tenants.items():  # every digest compared: constant time
-            if hmac.compare_digest(digest, d):
-                found = tenant
-        return found
+        for known, who in self.bootstrap.items():  # every digest compared: constant time
+            if hmac.compare_digest(known, d):
+                found = who
+        if found is not None:
+            return found
+        now = self.clock()
+        cached = self._found.get(d)
+        if cached is not None and now < cached[0]:
+            return cached[1]
+        # an unknown key is looked up every time (not cached), so a new key works at once
+        live = self.store.lookup(key)
+        if live is None:
+            self._found.pop(d, None)
+            return None
+        who = Caller(live.tenant, live.admin)
+        self._found[d] = (now + self.ttl, who)
+        return who
 
 
 class RateLimit:
@@ -97,23 +160,36 @@ class RateLimit:
                 )
 
 
-def caller_tenant(
+def caller(
     request: Request, key: Annotated[str | None, Depends(api_key_header)] = None
-) -> str:
-    """The caller's tenant (401 without a valid key, 429 over the rate limit)."""
+) -> Caller:
+    """The caller (401 without a live key, 403 off loopback when the API is open, 429 over the
+    rate limit)."""
     services = request.app.state.services
-    tenant = services.keys.tenant(key)
-    if tenant is None:
+    who = services.keys.caller(key)
+    if who is None:
         raise HTTPException(
             401, "a valid X-API-Key header is required", headers={"WWW-Authenticate": "ApiKey"}
         )
+    if services.keys.open() and not is_loopback(request.client.host if request.client else None):
+        raise HTTPException(
+            403,
+            "this server has no API keys and answers loopback clients only; "
+            "create a key with `forest keys create`",
+        )
     if request.method in WRITES:
         # per key (a tenant's keys are limited apart); the open server limits its one caller
-        who = hashlib.sha256((key or OPEN_TENANT).encode()).hexdigest()[:32]
-        services.rate_limit.hit(who)
-    return tenant
+        who_key = hashlib.sha256((key or OPEN_TENANT).encode()).hexdigest()[:32]
+        services.rate_limit.hit(who_key)
+    return who
 
 
+def caller_tenant(who: Annotated[Caller, Depends(caller)]) -> str:
+    """The caller's tenant: the owner of what it submits."""
+    return who.tenant
+
+
+CallerDep = Annotated[Caller, Depends(caller)]
 Tenant = Annotated[str, Depends(caller_tenant)]
 
 

@@ -9,13 +9,18 @@ from typing import Any
 
 from fastapi import HTTPException
 from fastapi.responses import JSONResponse
+from kombu.exceptions import OperationalError as KombuOperationalError
+from sqlalchemy.exc import DBAPIError
 
+from farm.db import JobRow
+from farm.store import IdempotencyConflict
 from schemas.jobs import Artifact, Job
-from service.db import JobRow
 from service.deps import Services
-from service.store import IdempotencyConflict
+from service.errors import RETRY_AFTER_S
 
 log = logging.getLogger(__name__)
+BROKER_UNAVAILABLE = "the broker is unavailable; the job was not submitted; retry later"
+NOT_SUBMITTED = "not submitted: the broker was unavailable (the request was answered 503)"
 ERRORS: dict[int | str, dict[str, Any]] = {
     400: {"description": "Body that is not JSON (bytes that do not decode)"},
     404: {"description": "No such job or artifact"},
@@ -55,6 +60,7 @@ def job_model(row: JobRow, services: Services) -> Job:
         finished_at=_utc(row.finished_at),
         heartbeat_at=_utc(row.heartbeat_at),
         artifacts=arts,
+        artifacts_deleted_at=_utc(row.artifacts_deleted_at),
         result=row.result,
     )
 
@@ -83,11 +89,19 @@ def submit(
                 services.artifacts.publish(row.id, scratch / name, name)
             finally:
                 shutil.rmtree(scratch, ignore_errors=True)
-        # a failed send is not lost: the reaper re-sends queued jobs nobody picked up
         try:
             services.dispatcher.send(row.id, kind)
-        except Exception:  # broker away; the job stays queued in the table
-            log.exception("could not send job %s; the reaper will", row.id)
+        except (KombuOperationalError, OSError, DBAPIError) as exc:
+            # the broker is away: answer 503 and fail the job now rather than leave it for the
+            # reaper to send later (the client, told to retry, would make it twice)
+            log.warning("broker unavailable for job %s: %s", row.id, type(exc).__name__)
+            abandoned = services.store.abandon(row.id, NOT_SUBMITTED)
+            if abandoned is not None:
+                services.artifacts.remove(row.id)  # its uploaded input
+                raise HTTPException(
+                    503, BROKER_UNAVAILABLE, headers={"Retry-After": str(RETRY_AFTER_S)}
+                ) from None
+            row = services.store.get(row.id) or row  # a worker has it: the message went out
     job = job_model(row, services)
     return JSONResponse(
         job.model_dump(mode="json"),

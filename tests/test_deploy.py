@@ -3,7 +3,9 @@ run here, so this is the check we can make)."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
+from typing import Any
 
 import yaml
 
@@ -93,3 +95,65 @@ def test_kubernetes_manifests() -> None:
     assert limits["nvidia.com/gpu"] == 1
     scaled = [d for d in docs if d["kind"] == "ScaledObject"]
     assert {d["spec"]["triggers"][0]["metadata"]["queueName"] for d in scaled} == {"default", "gpu"}
+
+
+def _pod_specs() -> list[tuple[str, dict[str, Any]]]:
+    """(name, pod spec) of every workload in deploy/k8s (Deployments, StatefulSets, Jobs...)."""
+    specs = []
+    for f in sorted((DEPLOY / "k8s").glob("*.yaml")):
+        for d in yaml.safe_load_all(f.read_text()):
+            template = (d or {}).get("spec", {}).get("template") if isinstance(d, dict) else None
+            if template is not None:
+                specs.append((d["metadata"]["name"], template["spec"]))
+    return specs
+
+
+def test_kubernetes_pods_are_locked_down() -> None:
+    specs = _pod_specs()
+    assert {name for name, _ in specs} >= {"forest-api", "forest-worker", "forest-gpu-worker"}
+    for name, spec in specs:
+        pod = spec.get("securityContext", {})
+        assert pod.get("runAsNonRoot") is True and pod.get("runAsUser", 0) > 0, name
+        assert pod.get("seccompProfile") == {"type": "RuntimeDefault"}, name
+        mounts = {v["name"] for v in spec.get("volumes", [])}
+        for c in spec["containers"] + spec.get("initContainers", []):
+            sc = c.get("securityContext", {})
+            where = f"{name}/{c['name']}"
+            assert sc.get("allowPrivilegeEscalation") is False, where
+            assert sc.get("readOnlyRootFilesystem") is True, where
+            assert sc.get("capabilities", {}).get("drop") == ["ALL"], where
+            assert not sc.get("capabilities", {}).get("add"), where
+            assert not sc.get("privileged"), where
+            # a read-only root needs a writable /tmp (tempfile, multiprocessing)
+            tmp = [m for m in c.get("volumeMounts", []) if m["mountPath"] == "/tmp"]
+            assert tmp and tmp[0]["name"] in mounts, where
+
+
+def _defaulted_secrets(text: str) -> list[str]:
+    """Secrets in a compose file that Compose would start without: a password, key or
+    credential URL not written as ``${VAR:?message}``."""
+    found = []
+    for var, rest in re.findall(r"\$\{(\w+)([^}]*)\}", text):
+        if re.search(r"PASSWORD|PASS$|SECRET|KEYS?$", var) and not rest.startswith(":?"):
+            found.append(var)
+    compose = yaml.load(text, _ComposeLoader)
+    for name, svc in compose.get("services", {}).items():
+        env = svc.get("environment") or {}
+        for key, value in env.items() if isinstance(env, dict) else ():
+            secrets = re.findall(r"//\w+:([^@]+)@", str(value))  # a password in a URL
+            if re.search(r"PASSWORD|PASS$", key):
+                secrets.append(str(value))
+            found += [f"{name}.{key}" for v in secrets if not re.fullmatch(r"\$\{\w+:\?[^}]*\}", v)]
+    return found
+
+
+def test_compose_has_no_default_passwords() -> None:
+    """Every secret comes from the environment (or .env) and Compose refuses to start without
+    it (``${VAR:?message}``): no password has a default such as ``forest``."""
+    for f in sorted(DEPLOY.glob("compose*.yaml")):
+        assert _defaulted_secrets(f.read_text()) == [], f.name
+    base = (DEPLOY / "compose.yaml").read_text()
+    for weak in (":-forest}", "}"):  # the check sees a default, and a variable left optional
+        mutated = base.replace(":?set POSTGRES_PASSWORD}", weak)
+        assert "POSTGRES_PASSWORD" in _defaulted_secrets(mutated)
+    assert _defaulted_secrets(base.replace("${RABBITMQ_PASSWORD:?set RABBITMQ_PASSWORD}", "forest"))

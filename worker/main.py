@@ -6,11 +6,11 @@ from __future__ import annotations
 import os
 import socket
 
+from farm.db import migrate
+from farm.dispatch import QUEUES
+from farm.reaper import Reaper, tidy_once
+from farm.settings import get_settings
 from forest.errors import ForestError
-from service.db import migrate
-from service.dispatch import QUEUES
-from service.reaper import Reaper
-from service.settings import get_settings
 
 
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
@@ -30,7 +30,13 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     migrate(settings.db_url)
     settings.artifacts.mkdir(parents=True, exist_ok=True)
     rt = runtime()
-    reaper = Reaper(rt.store, rt.dispatcher, settings.reaper_interval_s, settings.requeue_after_s)
+    # a worker killed mid-job (this one's predecessor, say) left its scratch folder behind
+    tidy_once(rt.store, rt.artifacts)
+    reaper = Reaper(
+        rt.store, rt.dispatcher, settings.reaper_interval_s, settings.requeue_after_s,
+        artifacts=rt.artifacts, housekeeping_s=settings.housekeeping_s,
+        artifact_ttl_s=settings.artifact_ttl_s,
+    )
     reaper.start()
     node = name or f"forest-{os.getpid()}@{socket.gethostname()}"
     app.worker_main(

@@ -56,7 +56,7 @@ def render_metrics(
         piece_types=len(scene.pieces),
         instances=scene.n_instances,
         quads=int(np.asarray(n_quads)[scene.proto_indices].sum()),
-        bones=int(scene.palettes.shape[1]),
+        bones=scene.n_bones,
         textures=renderer.images.source,
         tessellation=tess.schema(),
         warmup_frames=warmup_frames,

@@ -19,15 +19,16 @@ import socket
 import time
 import uuid
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
+from farm.artifacts import ArtifactStore
+from farm.dispatch import TASK_NAME, Dispatcher, make_celery
+from farm.settings import FarmSettings, get_settings
+from farm.store import Claim, JobStore, tile_job_ids
 from forest.errors import ForestError
-from service.artifacts import ArtifactStore
-from service.dispatch import TASK_NAME, Dispatcher, make_celery
-from service.settings import ServiceSettings, get_settings
-from service.store import Claim, JobStore, tile_job_ids
+from worker.scene_guard import UploadCaps
 from worker.supervise import job_limits, scrub_paths, supervise, under
 
 log = logging.getLogger(__name__)
@@ -48,7 +49,7 @@ class JobContext:
     progress: float = 0.0
     on_report: Callable[[str, float], None] | None = None
     test_hook: str = ""
-    max_time_samples: int = 10_000
+    upload_caps: UploadCaps = field(default_factory=UploadCaps)
 
     def report(self, stage: str, fraction: float) -> None:
         self.stage, self.progress = stage, fraction
@@ -137,11 +138,12 @@ def run_tile(ctx: JobContext) -> Outcome:
 def run_render(ctx: JobContext) -> Outcome:
     """A render job: the scene -> ``preview.png`` + ``metrics.json`` (EGL; GPU or llvmpipe).
     An uploaded scene is untrusted: :func:`worker.scene_guard.check_scene_file` bounds it
-    before the reader runs."""
+    before the reader runs, and its bark comes from its own package or the shipped set its
+    material names, never from a folder its paths name."""
     from worker.camera import CameraSpec
     from worker.metrics import write_metrics
     from worker.render_job import RenderRequest, render_file
-    from worker.scene_guard import check_scene_file
+    from worker.scene_guard import check_scene_file, package_tiles
 
     p = ctx.params
     # a forest job's scene, or the file uploaded with this job
@@ -149,8 +151,11 @@ def run_render(ctx: JobContext) -> Outcome:
     if scene is None:
         raise ForestError("the forest job's scene is gone from the artifact store", path="scene")
     ctx.report("check", 0.05)
-    if p.get("forest_job") is None:
-        check_scene_file(scene, ctx.max_time_samples)
+    uploaded = p.get("forest_job") is None
+    tiles = None
+    if uploaded:
+        checked = check_scene_file(scene, ctx.upload_caps)
+        tiles = package_tiles(scene, checked, ctx.scratch / "package-tiles")
     if ctx.test_hook == "abort-on-read":  # tests: a reader that crashes (as pxr can)
         ctx.report("read", 0.1)
         os.abort()
@@ -164,6 +169,8 @@ def run_render(ctx: JobContext) -> Outcome:
         frame=p["frame"],
         frames=p["frames"],
         staged=bool(p.get("staged", False)),
+        tiles=tiles,
+        scene_tiles=not uploaded,
         camera=CameraSpec(
             view=p.get("view", "overview"),
             eye=p.get("eye"),
@@ -182,8 +189,15 @@ def run_render(ctx: JobContext) -> Outcome:
             _hold_gil(float(ctx.test_hook.split(":", 1)[1]))
 
     metrics = render_file(req, on_stage=stage)
-    # metrics.json names the scene by its artifact name, never by a server path
-    metrics = metrics.model_copy(update={"scene": p["scene"]})
+    # metrics.json names the scene by its artifact name and the bark by its set, never by a
+    # server path
+    metrics = metrics.model_copy(
+        update={
+            "scene": p["scene"],
+            "textures": job_textures(metrics.textures, ctx.scratch),
+            "warnings": [scrub_paths(w) for w in metrics.warnings],
+        }
+    )
     write_metrics(ctx.scratch / "metrics.json", metrics)
     result = {
         "renderer": metrics.renderer,
@@ -201,6 +215,21 @@ def run_render(ctx: JobContext) -> Outcome:
     return Outcome(files, result)
 
 
+def job_textures(source: str, scratch: Path) -> str:
+    """Where a job's bark came from, for its metrics: a shipped set by name, the upload's own
+    tiles, or the source with any server path cut to its last part."""
+    from forest.bark.tilesets import DEFAULT_SET, set_dir
+
+    shipped = set_dir(DEFAULT_SET).parent
+    path = Path(source)
+    if path.is_absolute() and under(shipped, path):
+        name = path.resolve().relative_to(shipped.resolve()).parts[0]
+        return f"shipped bark tile set {name!r}"
+    if path.is_absolute() and under(scratch, path):
+        return "the upload's own bark tiles"
+    return scrub_paths(source)
+
+
 def _hold_gil(seconds: float) -> None:
     """Tests: a C call that keeps the GIL (``sleep`` through ``PyDLL``), as a long GL draw does."""
     import ctypes
@@ -215,7 +244,7 @@ TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles
 class Runtime:
     """Per-process store, artifact store and dispatcher, built from settings on first use."""
 
-    def __init__(self, settings: ServiceSettings) -> None:
+    def __init__(self, settings: FarmSettings) -> None:
         self.settings = settings
         self.store = JobStore(settings.db_url)
         self.artifacts = ArtifactStore(settings.artifacts)
@@ -232,6 +261,18 @@ def runtime() -> Runtime:
     return _runtime
 
 
+def upload_caps(s: FarmSettings) -> UploadCaps:
+    """The caps of an uploaded scene, from the settings (its values must decode into half
+    the job's memory limit)."""
+    return UploadCaps(
+        time_samples=s.max_upload_time_samples,
+        frames=s.max_upload_frames,
+        instances=s.max_upload_instances,
+        bones=s.max_upload_bones,
+        memory_bytes=s.job_memory_mb << 20 if s.job_memory_mb > 0 else None,
+    )
+
+
 def run_attempt(
     report: Callable[[str, float], None],
     kind: TaskKind,
@@ -241,13 +282,13 @@ def run_attempt(
     artifacts_root: Path,
     pause_s: float,
     test_hook: str,
-    max_time_samples: int,
+    upload_caps: UploadCaps,
 ) -> tuple[dict[str, str], dict[str, Any]]:
     """The child's side of an attempt: run ``kind``; its files (names -> paths in the scratch
     folder) and result."""
     ctx = JobContext(
         job_id, params, scratch, ArtifactStore(artifacts_root), on_report=report,
-        test_hook=test_hook, max_time_samples=max_time_samples,
+        test_hook=test_hook, upload_caps=upload_caps,
     )
     if pause_s > 0:  # test hook: a window in which a test kills or cancels the job
         ctx.report("test-pause", 0.0)
@@ -286,7 +327,7 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
             run_attempt,
             (
                 kind, job_id, claim.params, scratch, rt.artifacts.root, pause, s.test_hook,
-                s.max_upload_time_samples,
+                upload_caps(s),
             ),
             job_limits(s.job_memory_mb, s.job_cpu_s),
             heartbeat,

@@ -21,26 +21,48 @@ from forest.cli.app import bench, input_errors, main, parse_counts
 )
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
-@click.option("--workers", type=click.IntRange(0, 64), default=2, show_default=True)
-def serve(data_dir: Path, host: str, port: int, workers: int) -> None:
+@click.option(
+    "--workers",
+    type=click.IntRange(0, 64),
+    default=2,
+    show_default=True,
+    help="Job worker processes (forest and render jobs).",
+)
+@click.option(
+    "--api-workers",
+    type=click.IntRange(1, 64),
+    default=1,
+    show_default=True,
+    help="API processes sharing the port: synchronous requests (POST /v1/trees) run "
+    "side by side; /metrics sums all of them.",
+)
+def serve(data_dir: Path, host: str, port: int, workers: int, api_workers: int) -> None:
     """The HTTP API plus local worker processes. With no FOREST_DATABASE_URL /
     FOREST_BROKER_URL / FOREST_ARTIFACTS_DIR set, everything lives in --data (SQLite)."""
     import os
 
     from service.embedded import serve as run_serve
-    from service.settings import get_settings, override_settings
+    from service.settings import ServiceSettings
 
     os.environ["FOREST_DATA_DIR"] = str(data_dir.resolve())
-    override_settings(None)
-    s = get_settings()
-    click.echo(f"forest serve: http://{host}:{port} (docs at /docs), {workers} worker(s)")
+    s = ServiceSettings()
+    click.echo(
+        f"forest serve: http://{host}:{port} (docs at /docs), {api_workers} API process(es), "
+        f"{workers} worker(s)"
+    )
     click.echo(f"  jobs {s.db_url.split('@')[-1]}, broker {s.broker.split('@')[-1]}")
     if not s.api_keys:
-        click.echo(
-            "  no API keys (FOREST_API_KEYS unset): the API is open to whoever reaches "
-            f"{host}:{port}; keep it on loopback"
-        )
-    run_serve(s, host, port, workers)
+        from farm.db import migrate
+        from farm.keys import KeyStore
+
+        migrate(s.db_url)
+        if not KeyStore(s.db_url).has_keys():
+            click.echo(
+                "  no API keys (none in the job store, FOREST_API_KEYS unset): the API is open "
+                "to loopback clients only (others get 403); `forest keys create --tenant T` "
+                "makes one"
+            )
+    run_serve(s, host, port, workers, api_workers)
 
 
 @main.command("worker")
@@ -53,7 +75,7 @@ def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -
     """Join a cluster: consume jobs from the broker and job store in the settings
     (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
     if list_kinds:
-        from service.dispatch import KIND_QUEUES
+        from farm.dispatch import KIND_QUEUES
         from worker.tasks import KINDS
 
         for kind in KINDS:

@@ -10,7 +10,7 @@ from fastapi.responses import JSONResponse
 from schemas.jobs import ForestRequest, Job, tile_grid
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
-from service.inputs import resolve_grammar
+from service.inputs import check_cost, resolve_grammar
 from service.security import Tenant
 from service.views import ERRORS, submit
 
@@ -31,5 +31,8 @@ def create_forest(
     if per_tile > s.max_forest_trees:
         where = " per tile" if req.tile_size else ""
         raise field_error(["trees"], f"at most {s.max_forest_trees} trees{where}", "limit_error")
-    resolve_grammar(req, s, per_tile, s.max_forest_pieces)
+    _, cg = resolve_grammar(req, s, per_tile, s.max_forest_pieces)
+    check_cost(
+        req, s, cg.expected_pieces * per_tile, per_tile, " per tile" if req.tile_size else ""
+    )
     return submit(services, "forest", req.model_dump(mode="json"), idempotency_key, tenant)

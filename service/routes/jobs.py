@@ -7,9 +7,11 @@ from typing import Annotated
 from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import FileResponse
 
+from farm.reaper import delete_artifacts
+from farm.store import FINISHED
 from schemas.jobs import Job, JobKind, JobPage, JobState
 from service.deps import ServicesDep
-from service.security import Tenant
+from service.security import CallerDep
 from service.views import ERRORS, job_model
 
 router = APIRouter(prefix="/v1/jobs", tags=["jobs"])
@@ -29,34 +31,49 @@ ARTIFACT_TYPES = {
 @router.get("", response_model=JobPage)
 def list_jobs(
     services: ServicesDep,
-    tenant: Tenant,
+    caller: CallerDep,
     state: JobState | None = None,
     kind: JobKind | None = None,
     limit: Annotated[int, Query(ge=1, le=200)] = 50,
     offset: Annotated[int, Query(ge=0, le=10**9)] = 0,
 ) -> JobPage:
-    rows, total = services.store.list_jobs(state, kind, limit, offset, tenant)
+    rows, total = services.store.list_jobs(state, kind, limit, offset, caller.scope)
     return JobPage(
         items=[job_model(r, services) for r in rows], total=total, limit=limit, offset=offset
     )
 
 
 @router.get("/{job_id}", response_model=Job, responses=ERRORS)
-def get_job(job_id: str, services: ServicesDep, tenant: Tenant) -> Job:
-    row = services.store.get(job_id, tenant)
+def get_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
+    row = services.store.get(job_id, caller.scope)
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)
 
 
 @router.delete("/{job_id}", response_model=Job, responses=ERRORS)
-def cancel_job(job_id: str, services: ServicesDep, tenant: Tenant) -> Job:
+def cancel_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
     """Cancel: a queued job is canceled at once; a running one's process is killed at the
     worker's next heartbeat (within seconds)."""
-    row = services.store.cancel(job_id, tenant)
+    row = services.store.cancel(job_id, caller.scope)
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)
+
+
+@router.delete("/{job_id}/artifacts", response_model=Job, responses=ERRORS)
+def delete_job_artifacts(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
+    """Delete a finished job's artifacts (its files; the job stays and says when). A queued or
+    running job's are refused (409): cancel it first. Deleting again changes nothing."""
+    row = services.store.get(job_id, caller.scope)
+    if row is None:
+        raise HTTPException(404, "no such job")
+    if row.state not in FINISHED:
+        raise HTTPException(409, f"the job is {row.state}: cancel it, or wait until it ends")
+    delete_artifacts(services.store, services.artifacts, job_id)
+    done = services.store.get(job_id)
+    assert done is not None
+    return job_model(done, services)
 
 
 @router.get(
@@ -71,8 +88,10 @@ def cancel_job(job_id: str, services: ServicesDep, tenant: Tenant) -> Job:
         **ERRORS,
     },
 )
-def get_artifact(job_id: str, name: str, services: ServicesDep, tenant: Tenant) -> FileResponse:
-    row = services.store.get(job_id, tenant)
+def get_artifact(
+    job_id: str, name: str, services: ServicesDep, caller: CallerDep
+) -> FileResponse:
+    row = services.store.get(job_id, caller.scope)
     if row is None or name not in (row.artifacts or []):
         raise HTTPException(404, "no such artifact")
     path = services.artifacts.path(job_id, name)

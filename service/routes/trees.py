@@ -16,7 +16,7 @@ from forest.usd.scene import write_scene
 from schemas.jobs import SceneFormat, TreeRequest
 from service.deps import ServicesDep
 from service.errors import forest_error
-from service.inputs import library_settings, resolve_grammar
+from service.inputs import check_cost, library_settings, resolve_grammar
 from service.routes.jobs import ARTIFACT_TYPES
 from service.security import Tenant
 
@@ -38,6 +38,7 @@ RESPONSES: dict[int | str, dict[str, Any]] = {
 def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Response:
     s = services.settings
     grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
+    check_cost(req, s, cg.expected_pieces, 1)  # generated in this process
     options = options_from_request(req)
     name = f"{req.preset or grammar.name}-{req.seed}.{req.format}"
     with tempfile.TemporaryDirectory(prefix="forest-tree-") as tmp:

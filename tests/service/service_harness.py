@@ -12,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -149,8 +150,10 @@ def free_port() -> int:
 class Server:
     """``forest serve`` in a subprocess; ``stop()`` leaves no process behind."""
 
-    def __init__(self, data: Path, env: dict[str, str], workers: int = 2) -> None:
-        self.data, self.workers = data, workers
+    def __init__(
+        self, data: Path, env: dict[str, str], workers: int = 2, api_workers: int = 1
+    ) -> None:
+        self.data, self.workers, self.api_workers = data, workers, api_workers
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
         self.env |= {"FOREST_DATA_DIR": str(data)} | FAST | env
         self.proc: subprocess.Popen[bytes] | None = None
@@ -175,6 +178,8 @@ class Server:
                 str(self.port),
                 "--workers",
                 str(self.workers),
+                "--api-workers",
+                str(self.api_workers),
             ],
             env=self.env,
             stdout=log,
@@ -265,3 +270,52 @@ def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> byt
     (tmp / "ref").mkdir(exist_ok=True)
     path = tmp / "ref" / f"{stem}.{body['format']}"
     return write_scene(forest, path, skinned=req.skinned).read_bytes()
+
+
+class Proxy:
+    """A TCP proxy to a server (PostgreSQL, RabbitMQ, Redis) that a test can cut: the server
+    goes away for whoever reaches it through the proxy; a new proxy on the same ``port`` brings
+    it back."""
+
+    def __init__(self, target: tuple[str, int], port: int = 0) -> None:
+        self.target = target
+        self.sock = socket.create_server(("127.0.0.1", port))
+        self.port = self.sock.getsockname()[1]
+        self.conns: list[socket.socket] = []
+        self.open = True
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while self.open:
+            try:
+                client, _ = self.sock.accept()
+            except OSError:
+                return
+            if not self.open:
+                client.close()
+                return
+            upstream = socket.create_connection(self.target)
+            self.conns += [client, upstream]
+            for a, b in ((client, upstream), (upstream, client)):
+                threading.Thread(target=self._pipe, args=(a, b), daemon=True).start()
+
+    @staticmethod
+    def _pipe(a: socket.socket, b: socket.socket) -> None:
+        try:
+            while data := a.recv(65536):
+                b.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (a, b):
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+
+    def cut(self) -> None:
+        self.open = False
+        self.sock.close()
+        for c in list(self.conns):
+            # a pipe thread may have shut it down already: close it whatever shutdown says
+            with contextlib.suppress(OSError):
+                c.shutdown(socket.SHUT_RDWR)
+            c.close()

@@ -21,15 +21,15 @@ from service_harness import (
     require_server,
 )
 
-from service.dispatch import Dispatcher, make_celery
-from service.settings import ServiceSettings
+from farm.dispatch import Dispatcher, make_celery
+from farm.settings import FarmSettings
 
 
 @pytest.mark.parametrize(
     "url", ["redis://127.0.0.1:6379/3", "rediss://h:6380/0", "redis+socket:///tmp/redis.sock"]
 )
 def test_redis_broker_options(tmp_path: Path, url: str) -> None:
-    s = ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
+    s = FarmSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
     assert s.is_redis
     app = make_celery(s)
     assert app.conf.broker_transport_options == {
@@ -39,13 +39,13 @@ def test_redis_broker_options(tmp_path: Path, url: str) -> None:
     assert app.conf.task_acks_late and app.conf.task_reject_on_worker_lost
     assert app.conf.worker_prefetch_multiplier == 1
     assert [q.name for q in app.conf.task_queues] == ["blue.default", "blue.gpu"]
-    unprefixed = make_celery(ServiceSettings(data_dir=tmp_path, broker_url=url))
+    unprefixed = make_celery(FarmSettings(data_dir=tmp_path, broker_url=url))
     assert unprefixed.conf.broker_transport_options == {"visibility_timeout": 3600.0}
 
 
 @pytest.mark.parametrize("url", [None, "amqp://guest:guest@127.0.0.1:5672//"])
 def test_other_brokers_get_no_redis_options(tmp_path: Path, url: str | None) -> None:
-    s = ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
+    s = FarmSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
     assert not s.is_redis
     assert not make_celery(s).conf.broker_transport_options
 
@@ -53,14 +53,14 @@ def test_other_brokers_get_no_redis_options(tmp_path: Path, url: str | None) -> 
 def test_redis_visibility_timeout_must_outlast_the_reaper(tmp_path: Path) -> None:
     redis = "redis://127.0.0.1:6379/0"
     with pytest.raises(ValidationError, match="broker_visibility_timeout_s"):  # 30 + 60 + 5
-        ServiceSettings(data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60)
-    ok = ServiceSettings(
+        FarmSettings(data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60)
+    ok = FarmSettings(
         data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60, lease_s=5,
         requeue_after_s=15,
     )
     assert ok.broker_visibility_timeout_s == 60
     # no other broker has a visibility timeout: nothing to check
-    assert ServiceSettings(data_dir=tmp_path, broker_visibility_timeout_s=60)
+    assert FarmSettings(data_dir=tmp_path, broker_visibility_timeout_s=60)
 
 
 @pytest.mark.parametrize("broker", ["RabbitMQ", "Redis"])
@@ -68,7 +68,7 @@ def test_each_kind_reaches_its_own_queue_only(tmp_path: Path, broker: str) -> No
     addr, url = {"RabbitMQ": (RABBIT, RABBIT_URL), "Redis": (REDIS, REDIS_URL)}[broker]
     require_server(broker, addr)
     prefix = f"forest-test-{uuid.uuid4().hex[:12]}."
-    d = Dispatcher(ServiceSettings(data_dir=tmp_path, broker_url=url, queue_prefix=prefix))
+    d = Dispatcher(FarmSettings(data_dir=tmp_path, broker_url=url, queue_prefix=prefix))
     try:
         with d.app.connection_for_write() as conn:
             channel = conn.default_channel

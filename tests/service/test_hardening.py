@@ -1,7 +1,9 @@
 """A farm that hostile input cannot knock over, through a real ``forest serve`` on the three
 backends: uploads that crash the USD reader (a crafted ``.usdc``: four bytes of a valid scene
-changed, found by mutation; pxr segfaults on it), a time-sample bomb, a sublayer to a server
-file and a non-USD file each fail once with a clear error (no lost worker, no retry); a render
+changed, found by mutation; pxr segfaults on it), a time-sample bomb, an instance bomb (a 4 KB
+file of 3 million indices), a sublayer to a server file, a reference to another job's scene, a
+texture path climbing out of a .usdz and a non-USD file each fail once with a clear error that
+names the field and no server path (no lost worker, no retry); a render
 whose C call holds the GIL for more than three lease periods completes with one attempt; a
 canceled running render ends within seconds; tenants see only their own jobs (404 else); the
 per-key rate limit answers 429 with Retry-After; NaN, Infinity and 1e400 answer 422; cross-site
@@ -10,18 +12,17 @@ closes."""
 
 from __future__ import annotations
 
-import contextlib
 import gzip
-import socket
-import threading
+import re
 import time
+import zipfile
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import httpx
 import pytest
-from service_harness import PG, Server, require_server, served
+from service_harness import PG, RABBIT, REDIS, Proxy, Server, require_server, served
 
 DATA = Path(__file__).parent / "data"
 A = {"X-API-Key": "key-a"}
@@ -62,7 +63,9 @@ def failed_once(server: Server, name: str, data: bytes) -> str:
     assert r.status_code == 202, r.text
     job = server.wait(r.json()["id"], timeout=60)
     assert (job["state"], job["attempts"]) == ("failed", 1), job
-    assert "/" not in job["error"], job["error"]  # no server path
+    # no server path: nothing absolute (prim paths show without their leading "/")
+    assert not re.search(r"(^|[\s'@(])/", job["error"]), job["error"]
+    assert str(server.data) not in job["error"], job["error"]
     return str(job["error"])
 
 
@@ -85,6 +88,43 @@ def test_sublayer_outside_the_upload_fails_once(server: Server) -> None:
     scene = b"#usda 1.0\n(\n subLayers = [@/etc/hosts.usda@]\n)\n"
     error = failed_once(server, "sub.usda", scene)
     assert "self-contained" in error, error
+
+
+def test_instance_bomb_fails_once(server: Server, tmp_path: Path) -> None:
+    from pxr import Sdf, Vt
+
+    path = tmp_path / "instances.usdc"
+    layer = Sdf.Layer.CreateNew(str(path))
+    world = Sdf.PrimSpec(layer, "World", Sdf.SpecifierDef, "Xform")
+    forest = Sdf.PrimSpec(world, "Forest", Sdf.SpecifierDef, "Xform")
+    pieces = Sdf.PrimSpec(forest, "Pieces", Sdf.SpecifierDef, "PointInstancer")
+    attr = Sdf.AttributeSpec(pieces, "protoIndices", Sdf.ValueTypeNames.IntArray)
+    attr.default = Vt.IntArray(3_000_000)  # a few KB in the file
+    layer.Save()
+    error = failed_once(server, "instances.usdc", path.read_bytes())
+    assert error == (
+        "scene: World/Forest/Pieces.protoIndices: 3000000 entries, over the cap of 2000000 "
+        "instances"
+    )
+
+
+def test_reference_to_another_jobs_scene_fails_once(server: Server) -> None:
+    other = forest_scene(server)
+    scene = server.data.resolve() / "artifacts" / other / "scene.usdc"
+    assert scene.is_file()
+    for arc in (f"references = @{scene}@", f"payload = @../{other}/scene.usdc@"):
+        error = failed_once(server, "ref.usda", b'#usda 1.0\ndef "W" (%s) {}\n' % arc.encode())
+        assert error.startswith("scene: W: ") and "self-contained" in error, error
+
+
+def test_texture_climbing_out_of_a_package_fails_once(server: Server, tmp_path: Path) -> None:
+    path = tmp_path / "scene.usdz"
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
+        z.writestr("scene.usda", '#usda 1.0\ndef Shader "S" {\n asset inputs:file = '
+                   '@../../tiles/bark.<UDIM>.png@\n}\n')  # fmt: skip
+    error = failed_once(server, "scene.usdz", path.read_bytes())
+    assert error.startswith("scene: S.inputs:file: asset path '../../tiles/bark.<UDIM>.png' "
+                            "leaves the upload"), error  # fmt: skip
 
 
 def test_non_usd_upload_is_422(server: Server) -> None:
@@ -180,53 +220,6 @@ def test_cross_site_upload_refused(server: Server) -> None:
     assert r.status_code == 403
 
 
-class Proxy:
-    """A TCP proxy to PostgreSQL that the test can cut (the database goes away)."""
-
-    def __init__(self, target: tuple[str, int]) -> None:
-        self.target = target
-        self.sock = socket.create_server(("127.0.0.1", 0))
-        self.port = self.sock.getsockname()[1]
-        self.conns: list[socket.socket] = []
-        self.open = True
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while self.open:
-            try:
-                client, _ = self.sock.accept()
-            except OSError:
-                return
-            if not self.open:
-                client.close()
-                return
-            upstream = socket.create_connection(self.target)
-            self.conns += [client, upstream]
-            for a, b in ((client, upstream), (upstream, client)):
-                threading.Thread(target=self._pipe, args=(a, b), daemon=True).start()
-
-    @staticmethod
-    def _pipe(a: socket.socket, b: socket.socket) -> None:
-        try:
-            while data := a.recv(65536):
-                b.sendall(data)
-        except OSError:
-            pass
-        finally:
-            for s in (a, b):
-                with contextlib.suppress(OSError):
-                    s.shutdown(socket.SHUT_RDWR)
-
-    def cut(self) -> None:
-        self.open = False
-        self.sock.close()
-        for c in list(self.conns):
-            # a pipe thread may have shut it down already: close it whatever shutdown says
-            with contextlib.suppress(OSError):
-                c.shutdown(socket.SHUT_RDWR)
-            c.close()
-
-
 def test_database_outage_is_503(backend: dict[str, str], tmp_path: Path) -> None:
     url = backend.get("FOREST_DATABASE_URL")
     if url is None:
@@ -243,3 +236,50 @@ def test_database_outage_is_503(backend: dict[str, str], tmp_path: Path) -> None
             assert r.headers["retry-after"] == "5"
             assert r.json()["detail"] == "the job store is unavailable; retry later"
         assert server.get("/readyz").status_code == 503
+
+
+def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path: Path) -> None:
+    """The broker goes away (a proxy the test cuts): a job POST answers 503 with Retry-After
+    and the job it made is failed at once, saying so (not left for the reaper to send after
+    the client, told to retry, made it again); a job accepted before the outage completes,
+    and once the broker is back the retry is accepted and completes."""
+    broker = backend.get("FOREST_BROKER_URL")
+    if broker is None:
+        pytest.skip("the embedded broker is a file: it cannot go away")
+    target, name = (RABBIT, "RabbitMQ") if broker.startswith("amqp") else (REDIS, "Redis")
+    require_server(name, target)
+    proxy = Proxy(target)
+    port = proxy.port
+    env = backend | {
+        "FOREST_API_KEYS": ENV["FOREST_API_KEYS"],
+        "FOREST_BROKER_URL": broker.replace(f":{target[1]}/", f":{port}/"),
+    }
+    try:
+        for server in served(tmp_path / "broker-outage", env):
+            server.headers = dict(A)
+            before = server.post("/v1/forests", {"preset": "almond", "seed": 11})
+            assert before.status_code == 202, before.text
+            proxy.cut()
+            retry = {"Idempotency-Key": "outage-12"}
+            body = {"preset": "almond", "seed": 12}
+            for _ in range(2):
+                r = server.post("/v1/forests", body, headers=retry)
+                assert r.status_code == 503, r.text
+                assert r.headers["retry-after"] == "5"
+                assert r.json()["detail"] == (
+                    "the broker is unavailable; the job was not submitted; retry later"
+                )
+            jobs = server.get("/v1/jobs?limit=200").json()["items"]
+            refused = [j for j in jobs if j["params"].get("seed") == 12]
+            assert len(refused) == 2, jobs
+            for job in refused:
+                assert job["state"] == "failed" and "broker was unavailable" in job["error"]
+            proxy = Proxy(target, port)  # the broker is back
+            again = server.post("/v1/forests", body, headers=retry)
+            assert again.status_code == 202, again.text
+            assert again.json()["id"] not in {j["id"] for j in refused}
+            for job_id in (before.json()["id"], again.json()["id"]):
+                done = server.wait(job_id, timeout=120)
+                assert (done["state"], done["attempts"]) == ("completed", 1), done
+    finally:
+        proxy.cut()

@@ -68,6 +68,10 @@ def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
     job = wait_running(paused, job_id)
     pid = int(job["worker"].split(":")[1])
     assert pid in paused.worker_pids()
+    # the attempt's scratch folder, named after its worker (farm/scratch.py)
+    artifacts = paused.data / "artifacts"
+    left = list(artifacts.glob(f".{job_id}.{pid}@*"))
+    assert len(left) == 1 and left[0].is_dir(), sorted(p.name for p in artifacts.iterdir())
     os.kill(pid, signal.SIGKILL)
     done = paused.wait(job_id, timeout=60)
     assert done["state"] == "completed", done
@@ -84,6 +88,13 @@ def test_killed_worker_loses_nothing(paused: Server, tmp_path: Path) -> None:
         assert redis_unacked(prefix) == 1
         assert redis_redeliver_now(prefix) == 1
         assert settles_at_zero(lambda: redis_pending(prefix)), "the redelivered message stays"
+    # the worker started in the dead one's place removed what it left (its own attempt's
+    # folder is gone with the attempt)
+    deadline = time.monotonic() + 30
+    while left[0].exists() and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert not left[0].exists(), paused.log()
+    assert not list(artifacts.glob(f".{job_id}.*"))
     time.sleep(3)  # a redelivered message or a reaper round must not run it again
     again = paused.get(f"/v1/jobs/{job_id}").json()
     assert (again["state"], again["attempts"], again["finished_at"]) == (

@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from service.db import migrate
-from service.store import IdempotencyConflict, JobStore
+from farm.db import migrate
+from farm.store import IdempotencyConflict, JobStore
 
 
 @pytest.fixture
@@ -51,6 +51,33 @@ def test_expired_lease_is_requeued_then_failed_at_the_cap(store: JobStore) -> No
     assert resend == [] and [r.id for r in failed] == [row.id]
     job = store.get(row.id)
     assert job is not None and job.state == "failed" and "lease expired" in (job.error or "")
+
+
+def test_a_new_attempt_starts_at_progress_zero(store: JobStore) -> None:
+    row, _ = store.create("forest", {"seed": 7}, max_attempts=5)
+    first = store.claim(row.id, "a", lease_s=0.05)
+    assert first is not None and store.heartbeat(first, 0.05, 0.7, "write") is False
+    running = store.get(row.id)
+    assert running is not None and running.progress == 0.7
+    time.sleep(0.1)
+    resend, _ = store.reap(requeue_after_s=3600)  # the worker died
+    assert [r.id for r in resend] == [row.id]
+    requeued = store.get(row.id)
+    assert requeued is not None and (requeued.state, requeued.progress) == ("queued", 0.0)
+    second = store.claim(row.id, "b", lease_s=60)
+    assert second is not None and second.attempt == 2
+    assert store.heartbeat(second, 60, 0.4, "grow") is False
+    assert store.retry(second, "disk full")  # a failed attempt, retried
+    retried = store.get(row.id)
+    assert retried is not None and (retried.state, retried.progress) == ("queued", 0.0)
+    # a claim resets it too (a job can be claimed straight from an expired lease)
+    third = store.claim(row.id, "c", lease_s=0.05)
+    assert third is not None and store.heartbeat(third, 0.05, 0.9) is False
+    time.sleep(0.1)
+    fourth = store.claim(row.id, "d", lease_s=60)
+    assert fourth is not None and fourth.attempt == 4
+    claimed = store.get(row.id)
+    assert claimed is not None and (claimed.progress, claimed.stage) == (0.0, "started")
 
 
 def test_cancel(store: JobStore) -> None:

@@ -16,10 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from farm.db import migrate
+from farm.settings import FarmSettings, override_settings
+from farm.store import JobStore
 from forest.errors import ForestError
-from service.db import migrate
-from service.settings import ServiceSettings, override_settings
-from service.store import JobStore
 from worker import tasks
 from worker.supervise import scrub_paths
 from worker.tasks import JobContext, Outcome, execute
@@ -27,7 +27,7 @@ from worker.tasks import JobContext, Outcome, execute
 
 @pytest.fixture
 def store(tmp_path: Path) -> Iterator[JobStore]:
-    settings = ServiceSettings(
+    settings = FarmSettings(
         data_dir=tmp_path, max_attempts=2, retry_delay_s=0, lease_s=1.0, heartbeat_s=0.2,
         job_memory_mb=1024,
     )

@@ -1,11 +1,11 @@
-"""Alembic environment: runs on the connection that :func:`service.db.migrate` passes in."""
+"""Alembic environment: runs on the connection that :func:`farm.db.migrate` passes in."""
 
 from __future__ import annotations
 
 from alembic import context
 from sqlalchemy import create_engine
 
-from service.db import Base
+from farm.db import Base
 
 config = context.config
 target_metadata = Base.metadata

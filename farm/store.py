@@ -10,7 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import uuid
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
@@ -19,7 +19,9 @@ from sqlalchemy import Engine, func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
-from service.db import JobRow, engine_for, utcnow
+from farm.db import JobRow, engine_for, utcnow
+
+FINISHED = ("completed", "failed", "canceled")
 
 
 class IdempotencyConflict(Exception):
@@ -195,6 +197,56 @@ class JobStore:
             )
         return self.get(job_id)
 
+    def abandon(self, job_id: str, error: str) -> JobRow | None:
+        """A job that never reached the broker is failed with ``error`` and its idempotency
+        key let go (the caller was told to retry: the retry makes a new job). Only while it is
+        still queued with no attempt; None if a worker took it after all (the message did go
+        out)."""
+        with self.session() as s, s.begin():
+            res = s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == "queued", JobRow.attempts == 0)
+                .values(
+                    state="failed", stage="failed", error=error, finished_at=utcnow(),
+                    idempotency_key=None,
+                )
+                .execution_options(synchronize_session=False)
+            )
+        return self.get(job_id) if res.rowcount == 1 else None  # type: ignore[attr-defined]
+
+    def artifacts_deleted(self, job_id: str) -> JobRow | None:
+        """Record that a finished job's artifacts were deleted (its folder is gone): it lists
+        none from now on. None unless the job is finished."""
+        with self.session() as s, s.begin():
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state.in_(FINISHED))
+                .values(artifacts=[], artifacts_deleted_at=func.coalesce(
+                    JobRow.artifacts_deleted_at, utcnow()
+                ))
+                .execution_options(synchronize_session=False)
+            )
+        row = self.get(job_id)
+        return row if row is not None and row.state in FINISHED else None
+
+    def expired(self, ttl_s: float, limit: int = 200) -> list[str]:
+        """Finished jobs whose artifacts outlived ``ttl_s`` and are not deleted yet, oldest
+        first."""
+        cutoff = utcnow() - timedelta(seconds=ttl_s)
+        with self.session() as s:
+            return list(
+                s.scalars(
+                    select(JobRow.id)
+                    .where(
+                        JobRow.state.in_(FINISHED),
+                        JobRow.finished_at < cutoff,
+                        JobRow.artifacts_deleted_at.is_(None),
+                    )
+                    .order_by(JobRow.finished_at)
+                    .limit(limit)
+                )
+            )
+
     def counts(self) -> dict[tuple[str, str], int]:
         with self.session() as s:
             rows = s.execute(
@@ -347,6 +399,7 @@ class JobStore:
             {
                 "state": "queued",
                 "stage": "retrying",
+                "progress": 0.0,  # the next attempt starts over
                 "lease_owner": None,
                 "lease_expires": None,
                 "error": error,
@@ -379,6 +432,23 @@ class JobStore:
 
     # -- reaper -----------------------------------------------------------------------------
 
+    def unfinished(self, job_ids: Iterable[str]) -> set[str]:
+        """Which of these jobs are queued or running (a scratch folder of theirs may be in
+        use); unknown ids are not."""
+        ids = list(job_ids)
+        found: set[str] = set()
+        with self.session() as s:
+            for i in range(0, len(ids), 500):  # bounded IN lists
+                found.update(
+                    s.scalars(
+                        select(JobRow.id).where(
+                            JobRow.id.in_(ids[i : i + 500]),
+                            JobRow.state.in_(("queued", "active")),
+                        )
+                    )
+                )
+        return found
+
     def reap(self, requeue_after_s: float) -> tuple[list[JobRow], list[JobRow]]:
         """Expired leases go back to ``queued`` (or ``failed`` past the attempt cap; canceled
         if cancel was asked). Answers (jobs to send to the broker again, jobs failed)."""
@@ -407,7 +477,10 @@ class JobStore:
                     "error": f"worker lost {row.attempts} time(s) (lease expired)",
                 }
             else:
-                values = {"state": "queued", "stage": "requeued", "enqueued_at": now}
+                # the next attempt starts over: a queued job shows none of a dead one's progress
+                values = {
+                    "state": "queued", "stage": "requeued", "progress": 0.0, "enqueued_at": now
+                }
             if values["state"] != "queued":
                 values["finished_at"] = now
             with self.session() as s, s.begin():

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 import re
 import shutil
-import tempfile
+from collections.abc import Callable, Iterable
 from pathlib import Path
 
+from farm import scratch as scratch_folders
 from forest.atomic import replaced_when_written
 
 NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,127}$")
@@ -31,9 +32,16 @@ class ArtifactStore:
         return p if p.is_file() else None
 
     def scratch(self, job_id: str) -> Path:
-        """A private temporary folder beside the job's folder (same file system: rename works)."""
-        self.root.mkdir(parents=True, exist_ok=True)
-        return Path(tempfile.mkdtemp(prefix=f".{job_id}.", dir=self.root))
+        """A private temporary folder beside the job's folder (same file system: rename works),
+        named after this process so that a sweep removes it if the process dies with it
+        (:mod:`farm.scratch`)."""
+        if not JOB_ID.match(job_id):
+            raise ValueError(f"bad job id {job_id!r}")
+        return scratch_folders.make(self.root, job_id)
+
+    def sweep_scratch(self, unfinished: Callable[[Iterable[str]], set[str]] | None) -> list[Path]:
+        """Remove scratch folders that dead processes left (:func:`farm.scratch.sweep`)."""
+        return scratch_folders.sweep(self.root, unfinished)
 
     def publish(self, job_id: str, src: Path, name: str) -> Path:
         """Move a finished file into place atomically; an existing artifact of the same name
@@ -47,6 +55,10 @@ class ArtifactStore:
         with replaced_when_written(dest / name) as tmp:
             shutil.move(src, tmp)
         return dest / name
+
+    def remove(self, job_id: str) -> None:
+        """Delete the job's folder and every file in it (none there: nothing to do)."""
+        shutil.rmtree(self.folder(job_id), ignore_errors=True)
 
     def size(self, job_id: str, name: str) -> int:
         p = self.path(job_id, name)

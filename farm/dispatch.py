@@ -12,7 +12,7 @@ from typing import Any
 from celery import Celery
 from kombu import Exchange, Queue
 
-from service.settings import ServiceSettings
+from farm.settings import FarmSettings
 
 TASK_NAME = "forest.run_job"
 KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu", "forest_tile": "default"}
@@ -28,7 +28,7 @@ def queue(name: str, args: dict[str, Any]) -> Queue:
     return Queue(name, Exchange(name, type="direct"), routing_key=name, queue_arguments=args)
 
 
-def make_celery(settings: ServiceSettings) -> Celery:
+def make_celery(settings: FarmSettings) -> Celery:
     app = Celery("forest", broker=settings.broker, set_as_current=False)
     args: dict[str, Any] = {"x-queue-type": "quorum"} if settings.quorum_queues else {}
     if settings.broker.startswith("sqla+"):
@@ -66,7 +66,7 @@ def make_celery(settings: ServiceSettings) -> Celery:
 class Dispatcher:
     """Sends ``forest.run_job(job_id)`` to the queue of the job's kind."""
 
-    def __init__(self, settings: ServiceSettings) -> None:
+    def __init__(self, settings: FarmSettings) -> None:
         self.settings = settings
         self.app = make_celery(settings)
 

@@ -1,4 +1,5 @@
-"""The job table (SQLAlchemy 2) and engines; the schema is owned by Alembic migrations."""
+"""The job store's tables (jobs, API keys; SQLAlchemy 2) and engines; the schema is owned by
+Alembic migrations."""
 
 from __future__ import annotations
 
@@ -58,8 +59,24 @@ class JobRow(Base):
     created_at: Mapped[datetime] = mapped_column(DateTime, index=True)
     enqueued_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
     started_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
-    finished_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    finished_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True, index=True)
+    artifacts_deleted_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    """When the job's artifacts were deleted (on request or past ``artifact_ttl_s``)."""
 
+
+
+class ApiKeyRow(Base):
+    """An API key (``farm.keys``): only its SHA-256 digest is stored, never the key."""
+
+    __tablename__ = "api_keys"
+
+    id: Mapped[str] = mapped_column(String(16), primary_key=True)
+    """Not secret: names the key in listings and revocations (and is part of the key)."""
+    digest: Mapped[str] = mapped_column(String(64), unique=True)
+    tenant: Mapped[str] = mapped_column(String(64), index=True)
+    admin: Mapped[bool] = mapped_column(Boolean, default=False)
+    created_at: Mapped[datetime] = mapped_column(DateTime)
+    revoked_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
 
 _engines: dict[str, Engine] = {}
 _lock = Lock()

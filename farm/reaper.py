@@ -1,0 +1,88 @@
+"""The reaper: expired leases (a worker died) and queued jobs whose message went missing are
+sent to the broker again. Runs as a thread in the API process and in every worker process;
+every ``housekeeping_s`` it also removes scratch folders that dead processes left behind and
+the artifacts of jobs finished more than ``artifact_ttl_s`` ago."""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+
+from farm.artifacts import ArtifactStore
+from farm.dispatch import Dispatcher
+from farm.store import JobStore
+
+log = logging.getLogger(__name__)
+
+
+def reap_once(store: JobStore, dispatcher: Dispatcher, requeue_after_s: float) -> int:
+    resend, failed = store.reap(requeue_after_s)
+    for row in resend:
+        dispatcher.send(row.id, row.kind)
+        log.info("re-enqueued job %s (%s)", row.id, row.stage)
+    for row in failed:
+        log.warning("job %s failed: lease expired after %d attempt(s)", row.id, row.attempts)
+    return len(resend)
+
+
+def tidy_once(store: JobStore, artifacts: ArtifactStore, artifact_ttl_s: float = 0.0) -> int:
+    """Remove the scratch folders of dead processes (:mod:`farm.scratch`) and, with a TTL,
+    expired artifacts; how many folders went."""
+    swept = artifacts.sweep_scratch(store.unfinished)
+    for path in swept:
+        log.info("removed the scratch folder %s (its process is gone)", path.name)
+    expired = expire_artifacts(store, artifacts, artifact_ttl_s) if artifact_ttl_s else 0
+    return len(swept) + expired
+
+
+def delete_artifacts(store: JobStore, artifacts: ArtifactStore, job_id: str) -> None:
+    """Delete a finished job's artifact folder, then record it (a crash between the two
+    leaves the record to the next round, which deletes again: nothing is half done)."""
+    artifacts.remove(job_id)
+    store.artifacts_deleted(job_id)
+
+
+def expire_artifacts(store: JobStore, artifacts: ArtifactStore, ttl_s: float) -> int:
+    """Delete the artifacts of jobs finished more than ``ttl_s`` ago (a batch per round)."""
+    ids = store.expired(ttl_s)
+    for job_id in ids:
+        delete_artifacts(store, artifacts, job_id)
+        log.info("deleted the artifacts of job %s (older than %g s)", job_id, ttl_s)
+    return len(ids)
+
+
+class Reaper(threading.Thread):
+    def __init__(
+        self,
+        store: JobStore,
+        dispatcher: Dispatcher,
+        interval_s: float,
+        requeue_after_s: float,
+        artifacts: ArtifactStore | None = None,
+        housekeeping_s: float = 300.0,
+        artifact_ttl_s: float = 0.0,
+    ) -> None:
+        super().__init__(name="forest-reaper", daemon=True)
+        self.store, self.dispatcher, self.artifacts = store, dispatcher, artifacts
+        self.interval_s, self.requeue_after_s = interval_s, requeue_after_s
+        self.housekeeping_s, self.artifact_ttl_s = housekeeping_s, artifact_ttl_s
+        self.stopped = threading.Event()
+
+    def run(self) -> None:
+        tidied = time.monotonic()
+        while not self.stopped.wait(self.interval_s):
+            try:
+                reap_once(self.store, self.dispatcher, self.requeue_after_s)
+            except Exception:  # a database or broker hiccup: try again next round
+                log.exception("reaper round failed")
+            # listing the artifact folder is not free (shared storage): less often
+            if self.artifacts is not None and time.monotonic() - tidied >= self.housekeeping_s:
+                tidied = time.monotonic()
+                try:
+                    tidy_once(self.store, self.artifacts, self.artifact_ttl_s)
+                except Exception:
+                    log.exception("housekeeping round failed")
+
+    def stop(self) -> None:
+        self.stopped.set()

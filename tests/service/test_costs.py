@@ -1,0 +1,85 @@
+"""Costs bounded before work starts, in the API process (no worker runs): a forest whose
+estimated memory or scene bytes pass the caps, a tree too costly to answer in the API process
+and a grammar of too many rules are each 422 naming the field and the cap; a forest within
+them passes."""
+
+from __future__ import annotations
+
+import asyncio
+from pathlib import Path
+from typing import Any
+
+import httpx
+
+from farm.db import migrate
+from schemas.jobs import ForestRequest
+from service.app import create_app
+from service.inputs import check_cost, resolve_grammar
+from service.settings import ServiceSettings
+
+
+def post(settings: ServiceSettings, path: str, body: dict[str, Any]) -> httpx.Response:
+    migrate(settings.db_url)  # what the app's start-up does (the transport runs no lifespan)
+    settings.artifacts.mkdir(parents=True, exist_ok=True)
+    app = create_app(settings, reaper=False)
+
+    async def send() -> httpx.Response:
+        transport = httpx.ASGITransport(app=app)
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
+            return await client.post(path, json=body)
+
+    return asyncio.run(send())
+
+
+def refused(r: httpx.Response, loc: list[str], cap: str) -> str:
+    assert r.status_code == 422, r.text
+    detail = r.json()["detail"][0]
+    assert detail["loc"] == ["body", *loc], detail
+    assert f"({cap})" in detail["msg"], detail
+    return str(detail["msg"])
+
+
+def test_the_issue_forest_is_refused_by_the_memory_cap(tmp_path: Path) -> None:
+    """10,000 trees x 44 frames: about 9.5 GB when it ran, more than a worker's 8 Gi."""
+    body = {"preset": "alternating", "trees": 10_000, "frames": 44}
+    msg = refused(post(ServiceSettings(data_dir=tmp_path), "/v1/forests", body), ["trees"],
+                  "max_forest_memory_mb")  # fmt: skip
+    assert msg.startswith("about ") and "the cap is 4096 MiB" in msg, msg
+
+
+def test_scene_bytes_cap(tmp_path: Path) -> None:
+    settings = ServiceSettings(data_dir=tmp_path, max_scene_bytes=64 << 20)
+    body = {"preset": "alternating", "trees": 500, "frames": 24, "format": "usda"}
+    refused(post(settings, "/v1/forests", body), ["trees"], "max_scene_bytes")
+
+
+def test_tiles_are_capped_each(tmp_path: Path) -> None:
+    settings = ServiceSettings(data_dir=tmp_path, max_forest_memory_mb=300)
+    body = {"preset": "alternating", "trees": 4000, "area": [400, 400], "tile_size": 100,
+            "frames": 8}  # fmt: skip
+    msg = refused(post(settings, "/v1/forests", body), ["trees"], "max_forest_memory_mb")
+    assert "memory per tile" in msg, msg
+
+
+def test_a_tree_too_costly_for_the_api_process(tmp_path: Path) -> None:
+    settings = ServiceSettings(data_dir=tmp_path, max_forest_memory_mb=512)
+    body = {"preset": "oak", "frames": 480}
+    refused(post(settings, "/v1/trees", body), ["preset"], "max_forest_memory_mb")
+
+
+def test_a_grammar_of_4000_rules_is_refused(tmp_path: Path) -> None:
+    n = 4000
+    rules = {
+        f"R{i}": [{"piece": "I", "successors": [{"symbol": f"R{i + 1}"} if i + 1 < n else None]}]
+        for i in range(n)
+    }
+    body = {"grammar": {"name": "chain", "axiom": "R0", "rules": rules}}
+    refused(post(ServiceSettings(data_dir=tmp_path), "/v1/forests", body), ["grammar", "rules"],
+            "max_grammar_rules")  # fmt: skip
+
+
+def test_a_forest_within_the_caps_passes(tmp_path: Path) -> None:
+    settings = ServiceSettings(data_dir=tmp_path)
+    req = ForestRequest(preset="alternating", trees=2_000, frames=4)
+    _, cg = resolve_grammar(req, settings, req.trees, settings.max_forest_pieces)
+    check_cost(req, settings, cg.expected_pieces * req.trees, req.trees)  # no 422
