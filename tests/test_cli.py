@@ -99,6 +99,13 @@ BAD_INPUTS = [
         {"axiom": "A", "rules": {"A": [{"piece": "Y", "successors": [None]}]}},
         "rules.A[0].successors: piece Y has 2 leaf rim(s)",
     ),
+    (
+        {
+            "axiom": "R0",
+            "rules": {f"R{i}": [{"piece": "I", "successors": [None]}] for i in range(300)},
+        },
+        "rules: 300 rules; a grammar has at most 256 (max_grammar_rules)",
+    ),
 ]
 
 
@@ -128,6 +135,10 @@ def test_bad_grammar_gets_one_line_and_exit_2(tmp_path: Path, grammar: dict, mes
         (["--preset", "almond", "--grammar", "bad.json"], "exactly one of --preset"),
         (["--preset", "almond", "--frames", "-3"], "frames must be between 0"),
         (["--preset", "almond", "--area", "0", "10"], "'--area'"),
+        # the API's bounds (schemas.jobs): NaN, infinity and out of range refused alike
+        (["--preset", "almond", "--wind", "nan"], "'--wind': 'nan' is not a finite number"),
+        (["--preset", "almond", "--wind", "1e9"], "'--wind'"),
+        (["--preset", "almond", "--fps", "inf"], "'--fps'"),
     ],
 )
 def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:

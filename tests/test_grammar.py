@@ -381,3 +381,111 @@ def test_forest_piece_cap() -> None:
     with pytest.raises(LimitError) as exc:
         generate_forest(load_preset("alternating"), 1, ForestOptions(trees=100), settings=settings)
     assert exc.value.path == "max_pieces_per_forest"
+
+
+def chain(n: int) -> dict[str, Any]:
+    """``n`` rules, each growing the next: the costly shape (every symbol one level on)."""
+    rules = {
+        f"R{i}": [{"piece": "I", "successors": [{"symbol": f"R{i + 1}"} if i + 1 < n else None]}]
+        for i in range(n)
+    }
+    return {"name": "chain", "axiom": "R0", "rules": rules}
+
+
+def test_a_4000_rule_chain_is_refused_by_the_rule_cap() -> None:
+    data = chain(4000)
+    assert len(json.dumps(data)) > 250_000  # the 254 KB grammar that took 33 s
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(data)
+    assert exc.value.path == "rules"
+    assert exc.value.message == "4000 rules; a grammar has at most 256 (max_grammar_rules)"
+
+
+def test_alternatives_are_capped_in_all() -> None:
+    alts = [{"piece": "I", "successors": [None]}] * 600
+    data = {"axiom": "A", "rules": {"A": alts, "B": alts}}
+    with pytest.raises(GrammarError) as exc:
+        compile_dict(data)
+    assert (exc.value.path, exc.value.message) == (
+        "rules", "1200 alternatives in all; a grammar has at most 1024 (max_grammar_alternatives)"
+    )  # fmt: skip
+
+
+def test_a_cap_sized_grammar_validates() -> None:
+    settings = ForestSettings()
+    cg = compile_dict(chain(settings.max_grammar_rules))
+    # no max_depth: the chain stops at the depth limit, one piece per level
+    assert cg.expected_pieces == settings.depth_limit + 1
+    cg = compile_dict(chain(settings.max_grammar_rules) | {"max_depth": 10})
+    assert cg.expected_pieces == 11
+
+
+def _ends_by_fixpoint(cg: Any) -> set[str]:
+    """Reference: the symbols that can end, by iterating to a fixpoint over every rule."""
+    ends: set[str] = set()
+    while True:
+        new = {
+            cg.symbols[s]
+            for a, s in enumerate(cg.alt_symbol)
+            if a != cg.cap_alt and all(r < 0 or cg.symbols[r] in ends for r in cg.alt_succ[a])
+        }
+        if new == ends:
+            return ends
+        ends = new
+
+
+def _expected_by_table(cg: Any) -> float:
+    """Reference: expected pieces through the dense (symbols, alternatives) choice table."""
+    level = np.zeros(len(cg.symbols))
+    level[cg.axiom] = 1.0
+    total = 0.0
+    for d in range(cg.max_depth + 1):
+        cum = cg.choice_table(d)
+        tot = cum[:, -1]
+        p = np.diff(cum, axis=1, prepend=0.0) / np.where(tot > 0, tot, 1.0)[:, None]
+        grown = level * (tot > 0)
+        total += grown.sum()
+        if not grown.any():
+            break
+        nxt = np.zeros(len(cg.symbols))
+        for a, s in enumerate(cg.alt_symbol):
+            for r in cg.alt_succ[a]:
+                if r >= 0:
+                    nxt[r] += grown[s] * p[s, a]
+        level = nxt
+    return total
+
+
+SYMBOLS = ["A", "B", "C", "D", "E"]
+successor = st.one_of(st.none(), st.sampled_from(SYMBOLS).map(lambda s: {"symbol": s}))
+alternative = st.fixed_dictionaries(
+    {
+        "piece": st.just("Y"),
+        "weight": st.sampled_from([0.5, 1.0, 3.0]),
+        "successors": st.lists(successor, min_size=2, max_size=2),
+        "min_depth": st.integers(0, 3),
+    }
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(rules=st.lists(st.lists(alternative, min_size=1, max_size=3), min_size=5, max_size=5))
+def test_linear_checks_agree_with_the_table_ones(rules: list[list[dict[str, Any]]]) -> None:
+    by_symbol = dict(zip(SYMBOLS, rules, strict=True))
+    by_symbol["A"] = [{**alt, "min_depth": 0} for alt in by_symbol["A"]]
+    data: dict[str, Any] = {"axiom": "A", "max_depth": 6, "rules": by_symbol}
+    cg = compile_dict(data)
+    assert cg.expected_pieces == pytest.approx(_expected_by_table(cg), rel=1e-12)
+    del data["max_depth"]
+    g = parse_grammar(data)
+    reach = {"A"}
+    for _ in SYMBOLS:  # reachable symbols, by brute force
+        reach |= {
+            s["symbol"] for r in reach for alt in by_symbol[r] for s in alt["successors"] if s
+        }
+    loose = ForestSettings(max_pieces_per_tree=10**18, depth_limit=8)  # termination only
+    if reach <= _ends_by_fixpoint(cg):
+        compile_grammar(g, loose)
+    else:
+        with pytest.raises(GrammarError, match="never terminate"):
+            compile_grammar(g, loose)

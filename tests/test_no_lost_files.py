@@ -16,6 +16,7 @@ from pxr import Usd, UsdUtils
 
 import forest.usd.files
 import forest.usd.scene
+from farm.artifacts import ArtifactStore
 from forest.atomic import all_replaced_when_written, replaced_when_written, write_text
 from forest.bark import tileset as tileset_mod
 from forest.bark.tileset import TileGeometry, build_tileset, default_classes, write_tileset
@@ -27,7 +28,6 @@ from forest.growth.presets import load_preset
 from forest.usd.files import FORMATS
 from forest.usd.read import read_scene
 from forest.usd.scene import BARK_TILES, write_scene
-from service.artifacts import ArtifactStore
 
 STEM = "forest"
 

@@ -20,7 +20,7 @@ SEEDS = st.integers(min_value=0, max_value=2**63 - 1)
 def check_tiles(f: Forest) -> None:
     tiles = f.tile_indices
     n_quads = np.array([len(p.quads) for p in f.pieces])
-    assert tiles.dtype == np.int32
+    assert tiles.dtype == np.int16
     assert tiles.shape == (f.n_instances, n_quads.max())
     by_id = {c.id: c for c in f.manifest.classes}
     for pid, piece in enumerate(f.pieces):

@@ -15,6 +15,7 @@ from pxr import Usd
 
 from forest.cli import main
 from forest.errors import ForestError, LimitError
+from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.growth.tiling import TilePlan, generate_tile
 from forest.usd.tiled import TILES, tiles_folder, write_root, write_tile
@@ -140,6 +141,45 @@ def test_tile_trees_are_the_plans(tmp_path: Path) -> None:
     _, m = plan.tile_trees(1, 0, *SCALE)
     np.testing.assert_array_equal(forest.tree_transforms, m)
     assert forest.options.trees == len(m)
+
+
+def trees_of(forest: Forest) -> dict[int, dict[str, np.ndarray]]:
+    """Each tree's arrays by its id: piece graph (parents relative to the tree), pose, world
+    transforms and posed palette."""
+    g, pose, palette = forest.graph, forest.pose, forest.palette()
+    starts = np.searchsorted(g.tree, np.arange(len(forest.tree_ids) + 1))
+    bone_at = np.append(forest.bones.offset, len(forest.bones))
+    out = {}
+    for t, tree_id in enumerate(forest.tree_ids.tolist()):
+        a, b = int(starts[t]), int(starts[t + 1])
+        arrays = {f: getattr(g, f)[a:b] for f in g.__dataclass_fields__ if f != "tree"}
+        arrays["parent"] = np.where(g.parent[a:b] >= 0, g.parent[a:b] - a, -1)
+        arrays |= {f"pose.{f}": getattr(pose, f)[a:b] for f in pose.__dataclass_fields__}
+        arrays["model"] = forest.tree_transforms[t]
+        arrays["transforms"] = forest.transforms[a:b]
+        arrays["palette"] = palette[bone_at[a] : bone_at[b]]
+        out[tree_id] = arrays
+    return out
+
+
+@pytest.mark.parametrize(("preset", "placement"), [("almond", "poisson"), ("oak", "grid")])
+def test_tiled_forest_equals_untiled_tree_for_tree(preset: str, placement: str) -> None:
+    grammar = load_preset(preset)
+    trees, area, seed = 23 if preset == "oak" else 40, (30.0, 20.0), 7
+    options = ForestOptions(trees=trees, area=area, placement=placement)  # type: ignore[arg-type]
+    whole = trees_of(generate_forest(grammar, seed, options))
+    plan = TilePlan(trees, area, 10.0, seed)
+    tiled: dict[int, dict[str, np.ndarray]] = {}
+    for i, j in plan.tiles():
+        forest = generate_tile(grammar, plan, i, j, options)
+        if forest is not None:
+            assert not tiled.keys() & trees_of(forest).keys()  # no tree in two tiles
+            tiled |= trees_of(forest)
+    assert len(whole) == trees and sorted(tiled) == sorted(whole)  # same placements
+    for tree_id, arrays in whole.items():
+        assert arrays.keys() == tiled[tree_id].keys()
+        for name, a in arrays.items():  # bit for bit: same grammar choices, shape and pose
+            np.testing.assert_array_equal(tiled[tree_id][name], a, err_msg=f"{tree_id} {name}")
 
 
 def test_cli_tile_size(tmp_path: Path) -> None:

@@ -3,6 +3,7 @@ automatic framing of an axis-aligned box."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -106,9 +107,11 @@ def frame_points(
     fov_y: float = 40.0,
     azimuth_deg: float = 35.0,
     elevation_deg: float = 18.0,
+    target_in: ArrayLike | None = None,
 ) -> Camera:
-    """A camera looking at the centre of the points' box from ``azimuth`` (about +Y, from +Z)
-    and ``elevation``, at the least distance at which every point is in view.
+    """A camera looking at ``target`` (default: the centre of the points' box) from
+    ``azimuth`` (about +Y, from +Z) and ``elevation``, at the least distance at which every
+    point is in view.
 
     For a point at ``r`` from the target, with the camera at distance ``D`` on the unit
     vector ``b``: its depth is ``D - r.b``, and it is in view when ``|r.s| <= depth * tan(h/2)``
@@ -117,7 +120,7 @@ def frame_points(
     """
     pts = np.asarray(points_in, dtype=np.float64).reshape(-1, 3)
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    target = 0.5 * (lo + hi)
+    target = 0.5 * (lo + hi) if target_in is None else np.asarray(target_in, dtype=np.float64)
     az, el = np.deg2rad(azimuth_deg), np.deg2rad(elevation_deg)
     back = np.array([np.cos(el) * np.sin(az), np.sin(el), np.cos(el) * np.cos(az)])
     rot = look_at(target + back, target)[:3, :3]  # rows: right, up, back
@@ -165,7 +168,8 @@ class CameraSpec:
     above the ground, ``distance`` metres (horizontally) from the scene's centre, looking at
     that centre; without ``distance``, the least distance that shows everything. ``eye`` and
     ``target`` (metres, Y up) given together override the view; ``fov`` is vertical, degrees.
-    ``tree``: the view frames that tree of the scene alone (a close-up), not the forest.
+    ``tree``: the view frames that tree of the scene alone (a close-up), not the forest, with
+    its silhouette (not its box's centre) in the middle of the image.
     """
 
     view: str = "overview"
@@ -223,7 +227,8 @@ def place_camera(
     spec: CameraSpec, points_in: ArrayLike, aspect: float, ground: bool = False
 ) -> Camera:
     """The camera ``spec`` asks for, for a scene enclosed by ``points`` (``(m, 3)`` world);
-    ``ground`` fits the clip planes to the ground quad too (:func:`with_ground`)."""
+    ``ground`` fits the clip planes to the ground quad too (:func:`with_ground`). A close-up
+    (``spec.tree``, ``points`` being that tree's) is :func:`centred` on its silhouette."""
     spec.check()
     pts = np.asarray(points_in, dtype=np.float64).reshape(-1, 3)
     if spec.eye is not None and spec.target is not None:
@@ -231,20 +236,47 @@ def place_camera(
         dist = float(np.linalg.norm(target - eye))
         near, far = _clip_planes(eye, (target - eye) / dist, pts, dist)
         cam = Camera(eye, target, spec.fov, aspect, near, far)
-    elif spec.view == "eye":
-        cam = _eye_level(spec, pts, aspect)
     else:
-        elevation = OVERVIEW_ELEVATION if spec.view == "overview" else 0.0
-        cam = frame_points(pts, aspect, spec.fov, spec.azimuth, elevation)
+        if spec.view == "eye":
+
+            def aim(target: F64 | None) -> Camera:
+                return _eye_level(spec, pts, aspect, target)
+        else:
+            elevation = OVERVIEW_ELEVATION if spec.view == "overview" else 0.0
+
+            def aim(target: F64 | None) -> Camera:
+                return frame_points(pts, aspect, spec.fov, spec.azimuth, elevation, target)
+
+        cam = aim(None) if spec.tree is None else centred(aim, pts)
     return with_ground(cam) if ground else cam
 
 
-def _eye_level(spec: CameraSpec, pts: F64, aspect: float) -> Camera:
-    """Eyes at :data:`EYE_HEIGHT` looking at the centre of the points' box from ``azimuth``,
+def centred(aim: Callable[[F64 | None], Camera], pts: F64, steps: int = 12) -> Camera:
+    """The camera ``aim(target)`` gives, its target moved across the view until the points'
+    projected extent is centred in the image. Aiming at the centre of the points' world box
+    does not do that: seen obliquely, a lopsided crown fills its box unevenly (a box corner
+    may be empty), and perspective enlarges the near side; so pan by the extent's offset
+    (NDC times the half-field at the target's depth) and refit, a few times."""
+    cam = aim(None)
+    for _ in range(steps):
+        clip = np.c_[pts, np.ones(len(pts))] @ cam.view_projection().T
+        ndc = clip[:, :2] / clip[:, 3:]
+        off = 0.5 * (ndc.min(axis=0) + ndc.max(axis=0))
+        if np.abs(off).max() < 1e-3:
+            break
+        rot = look_at(cam.eye, cam.target)[:3, :3]  # rows: right, up, back
+        half_v = float(np.linalg.norm(cam.target - cam.eye)) * np.tan(np.deg2rad(cam.fov_y) / 2)
+        cam = aim(cam.target + off[0] * half_v * cam.aspect * rot[0] + off[1] * half_v * rot[1])
+    return cam
+
+
+def _eye_level(spec: CameraSpec, pts: F64, aspect: float, target_in: F64 | None = None) -> Camera:
+    """Eyes at :data:`EYE_HEIGHT` looking at ``target`` (default: the centre of the points'
+    box) from ``azimuth``,
     at ``spec.distance`` or else the least horizontal distance (found by bisection on the
     box's corners: wider is always better) that shows the whole box with the frame margin."""
     lo, hi = pts.min(axis=0), pts.max(axis=0)
-    target = 0.5 * (lo + hi)
+    target = 0.5 * (lo + hi) if target_in is None else target_in
     az = np.deg2rad(spec.azimuth)
     back = np.array([np.sin(az), 0.0, np.cos(az)])
     corners = box_corners(lo, hi)

@@ -269,6 +269,9 @@ class FoliageRenderer:
                     limit=max_size,
                 )
             self.impostor = ctx.texture(atlas, 4, dtype="f4")
+            # nearest in every mode: alpha is a leaf's depth or the empty marker -1, and any
+            # filtering (mip levels above all) averages the two into a negative value where a
+            # cloud is sparse, discarding it (distant willow curtains vanished)
             self.impostor.filter = (moderngl.NEAREST, moderngl.NEAREST)
             self.impostor.repeat_x = self.impostor.repeat_y = False
             self._impostor_depth = ctx.depth_renderbuffer(atlas)

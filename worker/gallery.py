@@ -106,7 +106,7 @@ def posed_vertices(scene: SceneArrays, frame: int = 0, chunk: int = 1024) -> F64
     """``(m, 3)`` float64 world positions of every piece vertex, skinned as the vertex shader
     skins them (blend of the palette's bone matrices by the piece's joint weights), at palette
     sample ``frame``. Per piece type, ``chunk`` instances at a time (bounded memory)."""
-    pal = scene.palettes[frame % len(scene.palettes)]
+    pal = scene.palette(frame)
     out = []
     for t, piece in enumerate(scene.pieces):
         idx = np.nonzero(scene.proto_indices == t)[0]

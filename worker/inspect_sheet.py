@@ -8,6 +8,10 @@ the GL renderer.
 
 VTK draws through EGL when there is no X display (``VTK_DEFAULT_OPENGL_WINDOW``), so this
 works on a headless machine with Mesa's EGL, like the renderer.
+
+VTK terminates the process's EGL display when its window goes, and with it every other EGL
+context of the process: draw sheets in a process that renders nothing else with moderngl
+(``forest inspect`` is one).
 """
 
 from __future__ import annotations
@@ -61,7 +65,7 @@ class SkinnedForest:
 
 def skin_forest(scene: SceneArrays, frame: int = 0, limit: int = MAX_INSTANCES) -> SkinnedForest:
     """Linear blend skinning of every instance (of the first trees, past ``limit``)."""
-    pal = scene.palettes[frame % len(scene.palettes)]
+    pal = scene.palette(frame)
     keep = np.arange(scene.n_instances)
     if scene.n_instances > limit:
         last_tree = scene.tree[limit - 1]

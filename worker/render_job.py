@@ -49,6 +49,10 @@ class RenderRequest:
     frames: int = 1
     warmup: int = 1
     tiles: Path | None = None
+    scene_tiles: bool = True
+    """Read the bark tiles from the folder the scene's material names. False for an uploaded
+    scene, whose paths point into the server: the shipped set its material names instead
+    (or ``tiles``, the tiles its package carries)."""
     per_instance: bool = False
     cull: bool = True
     foliage: FoliageMode | None = "impostor"  # None: no foliage
@@ -88,6 +92,9 @@ class RenderRequest:
             raise ForestError(
                 f"must be in [8, 4096], got {self.impostor_size}", path="impostor_size"
             )
+        if self.fps is not None and not (np.isfinite(self.fps) and 0 < self.fps <= 120):
+            # refused with or without a clip: an option that is given is checked
+            raise ForestError(f"must be in (0, 120], got {self.fps}", path="fps")
         if self.output.suffix.lower() != ".png":
             raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
         if self.clip is not None:
@@ -146,13 +153,16 @@ def load_scene(path: Path) -> SceneArrays:
 
 
 def bark_warnings(req: RenderRequest, scene: SceneArrays) -> list[str]:
-    """A scene whose material names a tile folder that is not there (every uploaded scene,
-    a scene moved without its tiles) renders other bark: say so, naming the folder."""
+    """A scene whose material names a tile folder that is not there (a scene moved without
+    its tiles) or is not read (an upload's) renders other bark: say so, naming the folder
+    only where the scene is the caller's own file."""
     folder = scene.tile_folder
-    if req.tiles is not None or folder is None or folder.is_dir():
+    if req.tiles is not None or folder is None or (req.scene_tiles and folder.is_dir()):
         return []
     shipped = shipped_tile_folder(scene.manifest, scene.bark_tile_set)
     instead = "placeholder bark" if shipped is None else f"shipped {scene.bark_tile_set} bark"
+    if not req.scene_tiles:
+        return [f"the upload carries no bark tiles its material names: {instead}"]
     return [f"bark tiles not found: {folder}: {instead}"]
 
 
@@ -173,7 +183,7 @@ def render_file(
     scene = load_scene(req.scene)
     if on_stage is not None:
         on_stage("render")
-    n_frames = len(scene.palettes)
+    n_frames = scene.n_frames
     if req.frame >= n_frames:
         raise ForestError(
             f"the scene has {n_frames} palette sample(s): frame must be below {n_frames}",
@@ -182,7 +192,8 @@ def render_file(
     check_scene(scene, scene.manifest.n_slices)  # before any GL or texture work
     ctx = create_context()
     try:
-        images = tile_images(scene.manifest, req.tiles, scene.tile_folder, bark=scene.bark_tile_set)
+        scene_folder = scene.tile_folder if req.scene_tiles else None
+        images = tile_images(scene.manifest, req.tiles, scene_folder, bark=scene.bark_tile_set)
         warnings = bark_warnings(req, scene)
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)

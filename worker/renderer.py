@@ -180,9 +180,6 @@ class Renderer:
                 self.draw_fbo = ctx.framebuffer([self.hdr, *extra], self.depth)
                 self._staged_objects.append(self.draw_fbo)
             self._staged_objects += [self.post_fbo, self.hdr]
-            if self.foliage is not None and self.foliage.impostor is not None:
-                # filtered and mip-mapped (a few levels: the atlas's tiles must not bleed)
-                self.foliage.impostor.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
         self._bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
 
     # -- programs -----------------------------------------------------------------------------
@@ -291,7 +288,6 @@ class Renderer:
         pass1 = None
         if self.foliage is not None:
             pass1 = self.foliage.prepare(camera, SUN, SKY, force=force_impostor)
-            self._mipmap_impostor(pass1.draw_calls > 0)
         fbo = self.draw_fbo
         fbo.use()
         fbo.viewport = (0, 0, *self.size)
@@ -375,7 +371,6 @@ class Renderer:
         pass1 = None
         if self.foliage is not None:  # the clouds' picture as the sun sees them, first
             pass1 = self.foliage.prepare(light, SUN, SKY, force=True)
-            self._mipmap_impostor(pass1.draw_calls > 0)
         fbo = self.stage.begin_shadows()
         self.ctx.patch_vertices = 4
         # the sun's view needs no fine tessellation: a coarse silhouette casts the same shadow
@@ -395,11 +390,6 @@ class Renderer:
             gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
         self.stage.end_shadows()
         return calls, primitives, gpu_ms
-
-    def _mipmap_impostor(self, rendered: bool) -> None:
-        fol = self.foliage
-        if rendered and self.hdr is not None and fol is not None and fol.impostor is not None:
-            fol.impostor.build_mipmaps(0, 4)
 
     def _finish_frame(self) -> None:
         """Resolve the multisampled frame and tone-map it into ``color`` (staged mode)."""

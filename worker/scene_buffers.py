@@ -7,7 +7,8 @@ patches (per type) every quad as a patch of 4 vertices: position, normal, st,   
                    joint indices, joint weights (prototype space)
 instances          one record per piece instance, sorted by piece type:         SSBO 0
                    transform, bone offset, tile-index offset, scene index
-palette            the forest's bone palette at the current frame (mat4)        SSBO 1
+palette            the forest's bone palette at the current frame (mat4),       SSBO 1
+                   rebuilt from the scene's rig on the GPU (worker.bone_kinematics)
 tiles              every instance's tile index per quad, instance after         SSBO 2
                    instance (no padding)
 ================== ============================================================ ==========
@@ -36,7 +37,8 @@ from forest.errors import LimitError, SceneError
 from forest.geometry.pieces import QUAD_ST, PieceArrays
 from forest.geometry.transforms import F64, transform_points
 from forest.usd.read import SceneArrays
-from forest.usd.scene import PIECES
+from forest.usd.scene import JOINT_ROTATIONS, PIECES
+from worker.bone_kinematics import BONE_DTYPE, MAT4_BYTES, PaletteKinematics
 from worker.camera import box_corners
 
 if TYPE_CHECKING:
@@ -64,10 +66,6 @@ INSTANCE_DTYPE = np.dtype(
         ("pad", "<i4"),
     ]
 )
-MAT4_BYTES = 64
-# keep every frame's palette ready as float32 when all of them fit in this many bytes;
-# above, each frame is converted when it is drawn
-PALETTE_CACHE_BYTES = 256 * 2**20
 
 
 def gl_matrices(m: F64) -> NDArray[np.float32]:
@@ -124,11 +122,11 @@ class InstanceLayout:
 
 def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
     """Raise SceneError (naming prim and attribute) where the arrays would make the GPU read
-    outside a buffer: joint indices, bone offsets, tile indices, a non-finite palette."""
+    outside a buffer: joint indices, bone offsets, tile indices, non-finite rotations."""
     n = scene.n_instances
     if n == 0:
         raise SceneError("the forest has no piece instances", path=f"{PIECES}.protoIndices")
-    n_bones = scene.palettes.shape[1]
+    n_bones = scene.n_bones
     top = np.zeros(len(scene.pieces), np.int64)
     for i, p in enumerate(scene.pieces):
         where = f"{PROTOTYPES}/{p.name}"
@@ -148,8 +146,8 @@ def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
             f"instance {bad[0]} reaches bone {last[bad[0]]} of a palette of {n_bones}",
             path=f"{PIECES}.primvars:forest:boneOffset",
         )
-    if not np.isfinite(scene.palettes).all():
-        raise SceneError("non-finite matrices", path=f"{PIECES}.forest:bonePalette")
+    if not np.isfinite(scene.joint_rotations).all():
+        raise SceneError("non-finite rotations", path=f"{PIECES}.{JOINT_ROTATIONS}")
     n_quads = np.array([len(p.quads) for p in scene.pieces], np.int64)
     q = n_quads[scene.proto_indices]
     mask = np.arange(scene.tile_indices.shape[1])[None, :] < q[:, None]
@@ -171,7 +169,7 @@ def scene_points(scene: SceneArrays, frame: int = 0, tree: int | None = None) ->
     ``frame``: every bone of an instance applied to the corners of its piece's box (the
     blended surface lies inside the hull of these, as each skinned vertex is a convex blend of
     its bones' images)."""
-    pal = scene.palettes[frame % len(scene.palettes)]
+    pal = scene.palette(frame)
     boxes = np.stack(
         [np.stack([p.positions.min(axis=0), p.positions.max(axis=0)]) for p in scene.pieces]
     )
@@ -195,8 +193,8 @@ def scene_bounds(scene: SceneArrays, frame: int = 0) -> tuple[F64, F64]:
 
 
 class SceneBuffers:
-    """GPU buffers of one scene on one context. ``use(frame)`` binds the storage buffers and
-    uploads that frame's palette if it is not the one already there."""
+    """GPU buffers of one scene on one context. ``use(frame)`` rebuilds that frame's palette
+    on the GPU if it is not the one already there, then binds the storage buffers."""
 
     def __init__(
         self, ctx: moderngl.Context, scene: SceneArrays, n_slices: int | None = None
@@ -207,10 +205,11 @@ class SceneBuffers:
         self.ctx = ctx
         self.scene = scene
         self.layout = InstanceLayout.from_scene(scene)
-        n_frames, n_bones = scene.palettes.shape[:2]
+        n_bones = scene.n_bones
         limit = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE", 2**27))
         for what, size, path in (
-            ("the palette", n_bones * MAT4_BYTES, "forest:bonePalette"),
+            ("the palette", n_bones * MAT4_BYTES, "forest:boneParents"),
+            ("the bones", n_bones * BONE_DTYPE.itemsize, "forest:boneParents"),
             ("the instances", self.layout.records.nbytes, "protoIndices"),
             ("the tile indices", self.layout.tiles.nbytes, "primvars:forest:tileIndices"),
         ):
@@ -226,32 +225,23 @@ class SceneBuffers:
         self.instances = ctx.buffer(self.layout.records.tobytes())
         self.tiles = ctx.buffer(self.layout.tiles.tobytes())
         self.palette = ctx.buffer(reserve=n_bones * MAT4_BYTES)
-        # each frame converted when first drawn (a job may draw one of many), kept if all fit
-        fits = n_frames * n_bones * MAT4_BYTES <= PALETTE_CACHE_BYTES
-        self._converted: dict[int, NDArray[np.float32]] | None = {} if fits else None
+        self.kinematics = PaletteKinematics(ctx, scene.rig, self.palette)
         self.frame: int | None = None
 
     @property
     def n_frames(self) -> int:
-        return int(self.scene.palettes.shape[0])
-
-    def palette_frame(self, frame: int) -> NDArray[np.float32]:
-        f = frame % self.n_frames
-        if self._converted is None:
-            return gl_matrices(self.scene.palettes[f])
-        if f not in self._converted:
-            self._converted[f] = gl_matrices(self.scene.palettes[f])
-        return self._converted[f]
+        return self.scene.n_frames
 
     def use(self, frame: int = 0) -> None:
         f = frame % self.n_frames
         if f != self.frame:
-            self.palette.write(self.palette_frame(f))
+            self.kinematics.run(self.scene.joint_rotations[f])
             self.frame = f
         self.instances.bind_to_storage_buffer(0)
         self.palette.bind_to_storage_buffer(1)
         self.tiles.bind_to_storage_buffer(2)
 
     def release(self) -> None:
+        self.kinematics.release()
         for b in (*self.patches, self.instances, self.tiles, self.palette):
             b.release()

@@ -156,21 +156,28 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
 
 
 def shipped_tile_folder(manifest: TileSetManifest, name: str = "default") -> Path | None:
-    """The package's tile set ``name`` (``forest.bark.tilesets``), when it exists and has the
-    scene's tile classes. An unknown name is a :class:`TileSetError`."""
-    try:
-        from forest.bark.tilesets import SETS, set_dir
-    except ImportError:
-        return None
+    """The package's tile set ``name`` (``forest.bark.tilesets``) when it has the scene's
+    tile classes (None: a scene of other classes, which the shipped tiles do not fit). An
+    unknown name, or a shipped set missing from this installation, is a
+    :class:`TileSetError` naming the set (never its folder): placeholder bark in its stead
+    would hide a broken install."""
+    from forest.bark.tilesets import SETS, set_dir
+
     if name not in SETS:
         raise TileSetError(
             f"no shipped bark tile set {name!r} (shipped: {', '.join(SETS)})", path="bark"
         )
-    folder = set_dir(name)
     same = [(c.id, c.first, c.count) for c in manifest.classes] == [
         (c.id, c.first, c.count) for c in DEFAULT_MANIFEST.classes
     ]
-    return folder if same and folder.is_dir() else None
+    if not same:
+        return None
+    folder = set_dir(name)
+    if not folder.is_dir():
+        raise TileSetError(
+            f"the shipped bark tile set {name!r} is missing from this installation", path="bark"
+        )
+    return folder
 
 
 def tile_images(

@@ -11,16 +11,24 @@ interpolation are used, so the same seed gives the same bytes on every machine.
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from types import ModuleType
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import ndimage
 
 F64 = NDArray[np.float64]
 
 FURROW = np.array([38.0, 27.0, 20.0])
 PLATE = np.array([146.0, 128.0, 108.0])
 LICHEN = np.array([118.0, 132.0, 96.0])
+
+
+def _ndimage() -> ModuleType:
+    """scipy.ndimage on first use: a third of a second to import, and only making bark
+    needs it (the grammar checks import this module for its species names)."""
+    from scipy import ndimage
+
+    return ndimage
 
 
 def value_noise(
@@ -42,7 +50,7 @@ def value_noise(
     )
     if shift_x is not None:
         xx = xx + shift_x
-    return ndimage.map_coordinates(
+    return _ndimage().map_coordinates(
         lattice, [yy / cell_y + 1.5, xx / cell_x + pad], order=3, mode="nearest"
     )
 
@@ -113,7 +121,7 @@ def noise(
     yy = yy + shift_y
     if shift_x is not None:
         xx = xx + shift_x
-    return ndimage.map_coordinates(
+    return _ndimage().map_coordinates(
         lattice, [yy / cell_y + pad_y, xx / cell_x + pad_x], order=3, mode="nearest"
     )
 
@@ -287,7 +295,7 @@ def _scales(
     f1, f2, ids = cells(rng, hw, cell_y, cell_x, warp_x=wx, warp_y=wy)
     edge = _smooth((f2 - f1) / crack)
     # how far down its plate a pixel is: the plate's centre is where f1 is least
-    cy = ndimage.mean(
+    cy = _ndimage().mean(
         np.arange(hw[0], dtype=np.float64)[:, None].repeat(hw[1], 1), ids, index=np.unique(ids)
     )
     centre = np.zeros(int(ids.max()) + 1)

@@ -51,32 +51,39 @@ def draw_tile_indices(
     pieces: tuple[PieceArrays, ...],
     manifest: TileSetManifest,
     rng: np.random.Generator,
-) -> NDArray[np.int32]:
-    """``(n, q_max)`` int32 slice per instance and quad, ``-1`` past the piece's last quad.
+) -> NDArray[np.int16]:
+    """``(n, q_max)`` int16 slice per instance and quad, ``-1`` past the piece's last quad
+    (16 bits: half the bytes of the forest's largest array after the palette; a texture
+    array holds far fewer slices, and the scene files still store ``int[]``).
 
-    One uint16 per quad from the bit generator's raw output, mapped by multiply-shift: for
-    ``c`` tiles the bias is at most ``c / 65536`` (below 1/16 for any class size the manifest
-    allows), and it is far cheaper than bounded integer draws. Drawn one piece type at a time,
-    only for the quads that type has, so the per-quad tables broadcast instead of being
-    gathered, and in chunks of rows whose temporaries stay in cache.
+    One uint16 per padded quad from the bit generator's raw output, mapped by multiply-shift:
+    for ``c`` tiles the bias is at most ``c / 65536`` (below 1/16 for any class size the
+    manifest allows), and it is far cheaper than bounded integer draws. Padding maps to -1 by
+    a tile count of 0 and a first slice of -1, so rows are drawn in instance order, in chunks
+    whose temporaries stay in cache, and the output is written once, front to back.
     """
     first, count, n_quads = class_tables(pieces, manifest)
-    out = np.full((len(piece), first.shape[1]), -1, np.int32)
-    for p in range(len(pieces)):
-        rows = np.flatnonzero(piece == p)
-        q = int(n_quads[p])
-        n_count = count[p, :q].astype(np.uint32)
-        buf = np.empty((min(_TILE_CHUNK, len(rows)), q), np.uint32)
-        for at in range(0, len(rows), _TILE_CHUNK):
-            chunk = rows[at : at + _TILE_CHUNK]
-            k = len(chunk) * q
-            raw = rng.bit_generator.random_raw(-(-k // 4)).view(np.uint16)[:k]
-            tile = buf[: len(chunk)]
-            np.multiply(raw.reshape(len(chunk), q), n_count, out=tile)
-            tile >>= 16
-            signed = tile.view(np.int32)
-            signed += first[p, :q]
-            out[chunk, :q] = signed
+    if int((first + count).max(initial=0)) > np.iinfo(np.int16).max:
+        raise ForestError(
+            f"the tile set has over {np.iinfo(np.int16).max} slices", path="tileset.classes"
+        )
+    q_max = first.shape[1]
+    pad = np.arange(q_max) >= n_quads[:, None]
+    base = np.where(pad, -1, first).astype(np.int32)
+    n_count = count.astype(np.uint32)  # 0 on padding already
+    out = np.empty((len(piece), q_max), np.int16)
+    rows = min(_TILE_CHUNK, len(piece))
+    tile = np.empty((rows, q_max), np.uint32)
+    for at in range(0, len(piece), _TILE_CHUNK):
+        kinds = piece[at : at + _TILE_CHUNK]
+        k = len(kinds) * q_max
+        raw = rng.bit_generator.random_raw(-(-k // 4)).view(np.uint16)[:k]
+        t = tile[: len(kinds)]
+        np.multiply(raw.reshape(len(kinds), q_max), np.take(n_count, kinds, axis=0), out=t)
+        t >>= 16
+        signed = t.view(np.int32)
+        signed += np.take(base, kinds, axis=0)
+        out[at : at + len(kinds)] = signed
     return out
 
 

@@ -229,9 +229,9 @@ def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> N
     if not output.parent.resolve().is_dir():
         raise OutputError("folder does not exist", path=str(output))
     s = read_scene(scene)
-    if not 0 <= frame < len(s.palettes):
+    if not 0 <= frame < s.n_frames:
         raise ForestError(
-            f"the scene has {len(s.palettes)} palette sample(s), got {frame}", path="frame"
+            f"the scene has {s.n_frames} palette sample(s), got {frame}", path="frame"
         )
     contact_sheet(s, output, frame, (width, height))
     click.echo(f"wrote {output}: {s.n_instances} pieces, frame {frame}")

@@ -303,3 +303,54 @@ def bench_generate(trees: int, preset: str, repeat: int) -> None:
     from forest.bench.generate import run_generate_bench
 
     run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)
+
+
+@bench.command("forest")
+@click.option("--trees", type=click.IntRange(1), default=1_000_000, show_default=True)
+@click.option(
+    "--tile-size",
+    type=FiniteRange(0, 1e6, min_open=True),
+    default=250.0,
+    show_default=True,
+    help="Metres per tile.",
+)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--frames", type=click.IntRange(0), default=0, show_default=True)
+@click.option(
+    "--workers",
+    default="1,2",
+    show_default=True,
+    help="Comma-separated worker process counts, each a run of its own.",
+)
+@click.option(
+    "--area",
+    type=(FiniteRange(0, 1e6, min_open=True), FiniteRange(0, 1e6, min_open=True)),
+    metavar="W D",
+    default=None,
+    help="Width and depth in metres (default: trees 4 m apart).",
+)
+@input_errors
+def bench_forest(
+    trees: int,
+    tile_size: float,
+    preset: str,
+    frames: int,
+    workers: str,
+    area: tuple[float, float] | None,
+) -> None:
+    """A tiled forest made by 1 and 2 worker processes (the farm's tile work in a process
+    pool): wall time and ratio, peak RSS per worker, bytes per tree and per bone per frame,
+    write time against the page-cache floor."""
+    from forest.bench.forest import run_forest_bench
+    from forest.growth.presets import load_preset
+
+    try:
+        counts = [int(w) for w in workers.split(",")]
+    except ValueError:
+        raise ForestError(
+            f"workers must be integers like 1,2, got {workers!r}", path="workers"
+        ) from None
+    if not counts or min(counts) < 1:
+        raise ForestError(f"workers must be at least 1, got {workers!r}", path="workers")
+    load_preset(preset)  # an unknown preset fails here, before any worker starts
+    run_forest_bench(trees, tile_size, preset, frames, counts, area, echo=click.echo)

@@ -363,9 +363,10 @@ def _joins(sa: str, sb: str) -> bool:
     return sa != sb and (pair in _OPPOSITE or pair in _QUARTER_CW or pair in _QUARTER_CCW)
 
 
-def _side_of(quad: NDArray[np.int32], turn: int, a: int, b: int) -> str:
-    c = np.roll(quad, -turn)
-    return next(s for s, (i, j) in SIDE_CORNERS.items() if {int(c[i]), int(c[j])} == {a, b})
+def _side_of(quad: tuple[int, ...], turn: int, a: int, b: int) -> str:
+    c = quad[turn:] + quad[:turn]  # corners turned; plain tuples: np.roll per call was most
+    # of the library's build time
+    return next(s for s, (i, j) in SIDE_CORNERS.items() if {c[i], c[j]} == {a, b})
 
 
 def _orient_quads(quads: NDArray[np.int32], rim_vertices: NDArray[np.int64]) -> NDArray[np.int32]:
@@ -391,10 +392,13 @@ def _orient_quads(quads: NDArray[np.int32], rim_vertices: NDArray[np.int64]) -> 
     turn = np.zeros(len(quads), np.int64)
     done = np.ones(len(quads), bool)
     done[free] = False
+    corners = [tuple(int(v) for v in quad) for quad in quads]
 
     def fits(q: int) -> bool:
         return all(
-            _joins(_side_of(quads[q], turn[q], a, b), _side_of(quads[n], turn[n], a, b))
+            _joins(
+                _side_of(corners[q], int(turn[q]), a, b), _side_of(corners[n], int(turn[n]), a, b)
+            )
             for n, a, b in nbrs[q]
             if done[n]
         )
@@ -672,9 +676,15 @@ MAKERS = {
 PIECE_NAMES: tuple[str, ...] = tuple(MAKERS)
 
 
-@cache
 def piece_library(segments: int = 1) -> tuple[PieceArrays, ...]:
     """All pieces at one resolution, in :data:`PIECE_NAMES` order (the prototype order)."""
+    # cached by the value: a cache on this signature keeps piece_library() and
+    # piece_library(1) apart and built the library twice (half a second each)
+    return _piece_library(segments)
+
+
+@cache
+def _piece_library(segments: int) -> tuple[PieceArrays, ...]:
     return tuple(make(segments) for make in MAKERS.values())
 
 

@@ -15,3 +15,13 @@ INSTANCE_TRANSFORM_REL = 1e-6
 
 # A similarity's three column norms agree to this before we call it uniformly scaled.
 SIMILARITY_SCALE_REL = 1e-9
+
+# Compact wind (forest.growth.rig): a palette rebuilt in float64 from float32 joint rotations
+# agrees with the generator's to this fraction of the forest's size (float32 quaternions are
+# rotations to about 6e-8 rad; measured 1.5e-8 to 6e-9 of the size on almond and oak).
+PALETTE_REBUILT_REL = 1e-6
+# The same palette by forward kinematics in float32 on the GPU (shaders/palette.comp) agrees
+# with numpy's to this fraction of the largest world coordinate: rounding of world-space
+# translations accumulates over the hierarchy's 40-60 levels (measured 5.4e-7 at 150 m and
+# 4.2e-7 at 11 m on llvmpipe; float32's own spacing is 6e-8).
+PALETTE_GPU_REL = 2e-6

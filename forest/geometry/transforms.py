@@ -83,9 +83,32 @@ def invert_similarity(m: F64) -> F64:
     return out
 
 
+# rows per block of the batched conversions below: their temporaries (a dozen arrays per
+# row) stay a few MB however many matrices come in; results are the same row for row
+BLOCK = 65536
+
+
+def similarity_scale(m: F64) -> F64:
+    """``(..., 4, 4)`` similarities -> uniform scale ``(...)``, the cube root of the
+    linear part's determinant."""
+    if m.ndim != 3 or len(m) <= BLOCK:
+        return np.cbrt(np.linalg.det(m[..., :3, :3]))
+    out = np.empty(len(m))
+    for a in range(0, len(m), BLOCK):
+        out[a : a + BLOCK] = np.cbrt(np.linalg.det(m[a : a + BLOCK, :3, :3]))
+    return out
+
+
 def decompose_similarity(m: F64) -> tuple[F64, F64, F64]:
     """``(..., 4, 4)`` similarities -> translation ``(..., 3)``, quaternion xyzw ``(..., 4)``,
-    uniform scale ``(...)``."""
+    uniform scale ``(...)``. A stack of many is done in blocks of :data:`BLOCK` rows."""
+    if m.ndim == 3 and len(m) > BLOCK:
+        t, q, s = np.empty((len(m), 3)), np.empty((len(m), 4)), np.empty(len(m))
+        for a in range(0, len(m), BLOCK):
+            t[a : a + BLOCK], q[a : a + BLOCK], s[a : a + BLOCK] = decompose_similarity(
+                m[a : a + BLOCK]
+            )
+        return t, q, s
     lin = m[..., :3, :3]
     scale = np.cbrt(np.linalg.det(lin))
     rot = lin / scale[..., None, None]

@@ -38,8 +38,16 @@ def png_bytes(pixels: NDArray[np.uint8]) -> bytes:
 
 def tile_folder(bark: str, tiles: Path | None) -> Path:
     """The folder whose ``bark.<UDIM>.png`` the atlas is made of: ``tiles``, else the
-    shipped set the grammar's ``bark`` names."""
-    return tiles if tiles is not None else set_dir(bark)
+    shipped set the grammar's ``bark`` names (an error naming the set, not its folder, when
+    the installation lacks it)."""
+    if tiles is not None:
+        return tiles
+    folder = set_dir(bark)
+    if not folder.is_dir():
+        raise ForestError(
+            f"the shipped bark tile set {bark!r} is missing from this installation", path="bark"
+        )
+    return folder
 
 
 def read_slices(folder: Path, needed: int) -> NDArray[np.uint8]:

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, piece_library
+from forest.growth import keyed
 from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
 
@@ -35,7 +36,8 @@ class PieceGraph:
     on each lateral rim (rims after the first). height : (n,) float64 metres along the
     trunk's axis where the instance starts (first-order branches: where they leave it).
     taper : (n,) float64 the radius where the instance's children leave, over ``scale``
-    (the pipe model holds against ``taper * scale``).
+    (the pipe model holds against ``taper * scale``). key : (n,) uint64 the instance's random
+    key (:mod:`forest.growth.keyed`): its tree's and its path from the root, nothing else.
     """
 
     tree: I32
@@ -52,6 +54,7 @@ class PieceGraph:
     order: I32
     height: NDArray[np.float64]
     taper: NDArray[np.float64]
+    key: NDArray[np.uint64]
 
     def __len__(self) -> int:
         return len(self.tree)
@@ -112,9 +115,17 @@ class LevelBlock:
             yield lo, self.order[lo:hi]
 
 
-def _uniform(rng: np.random.Generator, lo_hi: NDArray[np.float64]) -> NDArray[np.float64]:
-    u = rng.random(lo_hi.shape[:-1])
+def _uniform(u: NDArray[np.float64], lo_hi: NDArray[np.float64]) -> NDArray[np.float64]:
     return lo_hi[..., 0] + u * (lo_hi[..., 1] - lo_hi[..., 0])
+
+
+# Each piece draws from its own key (forest.growth.keyed: the tree's key at the root, a hash
+# of the parent's key and rim below), so a tree grows the same whichever trees are expanded
+# beside it. Streams of a key (forest.growth.skeleton's pose takes 16 and up): one hash for
+# the piece (lanes: alternative, taper, twist), one per rim (lanes: radius, length; the whole
+# hash is the key of the child on that rim, whose draws hash it again), and the tree's height
+# on the root's key
+_PIECE, _RIM, _TREE_HEIGHT = 0, 1, 1 + MAX_LEAF_RIMS
 
 
 @dataclass(frozen=True, eq=False)
@@ -197,12 +208,13 @@ class _Open:
 
 def expand(
     cg: CompiledGrammar,
-    n_trees: int,
-    rng: np.random.Generator,
+    keys: NDArray[np.uint64],
     settings: ForestSettings,
     tree_radius: NDArray[np.float64] | None = None,
 ) -> PieceGraph:
-    """Grow ``n_trees`` trees from the axiom; every draw is batched over one depth level.
+    """Grow one tree per key ``(n_trees,)`` (:func:`forest.growth.keyed.tree_keys`) from the
+    axiom; every draw is batched over one depth level, and keyed on the tree and the piece's
+    place in it.
 
     ``tree_radius`` ``(n_trees,)`` is each tree's root-rim radius in metres (its model scale;
     1 if not given). Botanical rules of the grammar apply per level, all vectorised: the pipe
@@ -211,11 +223,16 @@ def expand(
     every rim left open gets a cap piece (``close_tips``).
     """
     g = cg.grammar
+    n_trees = len(keys)
     tab = rim_tables()
     sigma_t, rim_y_t, hub_y_t, rims_t = tab.sigma, tab.rim_y, tab.hub_y, tab.rims
     radius0 = np.ones(n_trees) if tree_radius is None else np.asarray(tree_radius, np.float64)
     crown = g.crown
-    tree_h = rng.uniform(*crown.height, n_trees) if crown else np.full(n_trees, np.inf)
+    if crown:
+        u = keyed.draw(keys, _TREE_HEIGHT)
+        tree_h = crown.height[0] + u * (crown.height[1] - crown.height[0])
+    else:
+        tree_h = np.full(n_trees, np.inf)
     f = _Open(
         tree=np.arange(n_trees, dtype=np.int32),
         parent=np.full(n_trees, -1, np.int32),
@@ -228,6 +245,7 @@ def expand(
         h=np.zeros(n_trees),
         roll=np.zeros(n_trees),
         cap=np.zeros(n_trees, bool),
+        key=np.asarray(keys, np.uint64),
     )
     close = g.close_tips and cg.cap_alt >= 0
     out: list[tuple[NDArray, ...]] = []
@@ -237,18 +255,21 @@ def expand(
         # np.take: several times faster than fancy indexing for these row gathers
         cum = np.take(cg.choice_table(depth), f.sym, axis=0)
         total = cum[:, -1]
-        u = rng.random(len(f)) * total
+        h_piece = keyed.hashes(f.key, _PIECE)
+        u = keyed.lane(h_piece, 0) * total
         alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
         ends = f.cap | (total <= 0)  # no eligible alternative at this depth: a tip
         if close:
             alt[ends] = cg.cap_alt
         elif ends.any():
-            f, alt = f.take(~ends), alt[~ends]
+            f, alt, h_piece = f.take(~ends), alt[~ends], h_piece[~ends]
         m = len(alt)
         if m == 0:
             break
         twist = np.take(cg.alt_twist, alt)
-        twist = np.where(twist < 0, rng.integers(0, 6, m, dtype=np.int32), twist).astype(np.int32)
+        if (twist < 0).any():
+            free = (keyed.lane(h_piece, 2) * 6).astype(np.int32)
+            twist = np.where(twist < 0, free, twist).astype(np.int32)
         # phyllotaxis: the axis keeps its exact roll; each piece takes the twist that brings
         # the rounded roll along, so rounding errors never add up
         div = np.take(cg.alt_roll, alt)
@@ -268,8 +289,11 @@ def expand(
         sigma = np.take(sigma_t, piece, axis=0)
         span = f.scale * f.len  # metres per model unit along this piece
         alt_rim = alt[:, None] * MAX_LEAF_RIMS + np.arange(MAX_LEAF_RIMS)  # into (A * R, 2)
-        w = _uniform(rng, np.take(cg.alt_radius.reshape(-1, 2), alt_rim, axis=0))
-        c_len = _uniform(rng, np.take(cg.alt_length.reshape(-1, 2), alt_rim, axis=0))
+        h_rim = keyed.hashes(f.key, _RIM, MAX_LEAF_RIMS)
+        w = _uniform(keyed.lane(h_rim, 0), np.take(cg.alt_radius.reshape(-1, 2), alt_rim, axis=0))
+        c_len = _uniform(
+            keyed.lane(h_rim, 1), np.take(cg.alt_length.reshape(-1, 2), alt_rim, axis=0)
+        )
         lateral = np.arange(MAX_LEAF_RIMS) > 0
         c_h = f.h[:, None] + np.where(
             lateral, np.take(hub_y_t, piece)[:, None], np.take(rim_y_t, piece, axis=0)
@@ -291,7 +315,7 @@ def expand(
             s = w / norm[:, None]  # one child: its radius is the parent's (times taper)
         else:
             s = sigma * w
-        taper = _uniform(rng, np.take(cg.alt_taper, alt, axis=0))
+        taper = _uniform(keyed.lane(h_piece, 1), np.take(cg.alt_taper, alt, axis=0))
         s *= taper[:, None]
         if crown:
             # the trunk's axis narrows like a cone to the crown's top (apical control)
@@ -324,6 +348,7 @@ def expand(
                 f.order,
                 f.h,
                 taper,
+                f.key,
             )
         )
         if depth >= cg.max_depth:
@@ -350,10 +375,11 @@ def expand(
             h=c_h.ravel()[flat],
             roll=np.where(r == 0, roll[i], 0.0),
             cap=~grows.ravel()[flat],
+            key=h_rim.ravel()[flat],
         )
     cols = [np.concatenate(c) for c in zip(*out, strict=True)]
     tree, parent, rim, depth_a, piece_a, sym, alt_a, twist_a = cols[:8]
-    length, radius, scale, order, height, taper_a = cols[8:]
+    length, radius, scale, order, height, taper_a, key = cols[8:]
     # level order -> tree-major order; a stable sort keeps parents before children
     order_ix = np.argsort(tree, kind="stable")
     rank = np.empty_like(order_ix)
@@ -375,10 +401,12 @@ def expand(
         order=order[order_ix].astype(np.int32),
         height=height[order_ix],
         taper=taper_a[order_ix],
+        key=key[order_ix],
     )
 
 
-def _check_limits(count: int, per_tree: NDArray[np.int64], settings: ForestSettings) -> None:
+def check_forest_pieces(count: int, settings: ForestSettings) -> None:
+    """A :class:`LimitError` when a forest has grown past its piece cap."""
     if count > settings.max_pieces_per_forest:
         raise LimitError(
             f"the forest grew past {settings.max_pieces_per_forest} pieces; "
@@ -386,6 +414,10 @@ def _check_limits(count: int, per_tree: NDArray[np.int64], settings: ForestSetti
             path="max_pieces_per_forest",
             limit=settings.max_pieces_per_forest,
         )
+
+
+def _check_limits(count: int, per_tree: NDArray[np.int64], settings: ForestSettings) -> None:
+    check_forest_pieces(count, settings)
     if per_tree.max() > settings.max_pieces_per_tree:
         raise LimitError(
             f"a tree grew past {settings.max_pieces_per_tree} pieces; "

@@ -15,10 +15,12 @@ from forest.errors import LimitError
 from forest.geometry.pieces import HUB, PIECE_NAMES, PieceArrays, piece_library
 from forest.geometry.transforms import F64
 from forest.growth.assembly import topological_transforms
-from forest.growth.expand import PieceGraph, expand
+from forest.growth.expand import PieceGraph
 from forest.growth.foliage import FoliageAnchors, Season, foliage_anchors
 from forest.growth.grammar import CompiledGrammar, compile_grammar
-from forest.growth.scatter import Placement, tree_transforms
+from forest.growth.keyed import GROW, tree_keys
+from forest.growth.parallel import expand_in_groups
+from forest.growth.scatter import Placement, place_trees
 from forest.growth.skeleton import (
     Bones,
     PoseParams,
@@ -98,7 +100,9 @@ class Forest:
     """Everything a scene holds, as numpy arrays (see DESIGN.md, "USD scene contract").
 
     tree_transforms : (t, 4, 4)   transforms : (n, 4, 4) topological world transforms
-    tile_indices : (n, q_max) int32, -1 padded
+    tree_ids : (t,) int64 each tree's stable identity (its global placement cell): a tree's
+    shape and pose follow from the seed and its id alone, whatever forest or tile holds it
+    tile_indices : (n, q_max) int16, -1 padded
     foliage_instance : (k,) int32 instances that bear leaf clouds
     """
 
@@ -109,10 +113,11 @@ class Forest:
     pieces: tuple[PieceArrays, ...]
     graph: PieceGraph
     tree_transforms: F64
+    tree_ids: NDArray[np.int64]
     transforms: F64
     bones: Bones
     pose: PoseParams
-    tile_indices: NDArray[np.int32]
+    tile_indices: NDArray[np.int16]
     manifest: TileSetManifest
     foliage_instance: NDArray[np.int32]
     still_palette: F64 | None = None
@@ -217,22 +222,23 @@ def generate_forest(
             limit=settings.max_pieces_per_forest,
         )
     note = progress or (lambda stage, done, total: None)
-    # independent streams per stage, so a change in one stage never reshuffles another
-    streams = np.random.SeedSequence(seed).spawn(4)
-    rng_scatter, rng_grow, rng_pose, rng_tiles = (np.random.default_rng(s) for s in streams)
+    # bark tiles draw per forest; placement, growth and pose per tree and piece, keyed on the
+    # seed and the tree's id, so a tree is the same in any forest or tile (forest.growth.keyed)
+    rng_tiles = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
     pieces = piece_library(options.segments)
     note("place", 0, 5)
-    trees = tree_transforms(
+    placed = place_trees(
         options.trees,
         options.area,
         grammar.trunk_radius,
         grammar.tree_scale,
-        rng_scatter,
+        seed,
         options.placement,
     )
+    trees = placed.transforms
     note("grow", 1, 5)
     tree_radius = np.cbrt(np.linalg.det(trees[:, :3, :3]))
-    graph = expand(cg, options.trees, rng_grow, settings, tree_radius)
+    graph = expand_in_groups(cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius)
     note("assemble", 2, 5)
     transforms = topological_transforms(graph, trees, pieces)
     note("bones", 3, 5)
@@ -246,7 +252,7 @@ def generate_forest(
             path="max_palette_matrices",
             limit=settings.max_palette_matrices,
         )
-    pose = draw_pose(graph, pieces, cg, rng_pose, options.trees)
+    pose = draw_pose(graph, pieces, cg)
     still = None
     if cg.alt_tropism.any():
         pose, still = apply_tropisms(
@@ -264,6 +270,7 @@ def generate_forest(
         pieces=pieces,
         graph=graph,
         tree_transforms=trees,
+        tree_ids=placed.ids,
         transforms=transforms,
         bones=bones,
         pose=pose,

@@ -125,6 +125,7 @@ class CompiledGrammar:
 def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> CompiledGrammar:
     """Cross-check ``g`` against the piece library and build its tables."""
     settings = settings or get_settings()
+    _check_size(g, settings)
     symbols = tuple(g.rules)
     sid = {s: i for i, s in enumerate(symbols)}
     if g.axiom not in sid:
@@ -204,7 +205,7 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         pipe_exponent=g.pipe_exponent,
         expected_pieces=0.0,
     )
-    if cg.choice_table(0)[cg.axiom, -1] <= 0:
+    if _eligible_weight(cg, 0)[cg.axiom] <= 0:
         raise GrammarError(
             f"axiom {g.axiom!r} has no alternative allowed at depth 0 (check min_depth)",
             path=f"rules.{g.axiom}",
@@ -228,6 +229,37 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
     return cg
 
 
+def _check_size(g: Grammar, settings: ForestSettings) -> None:
+    """The grammar's rule and alternative counts within the settings' caps, before any
+    table is built (what follows is linear in them, expansion is not)."""
+    if len(g.rules) > settings.max_grammar_rules:
+        raise GrammarError(
+            f"{len(g.rules)} rules; a grammar has at most {settings.max_grammar_rules} "
+            "(max_grammar_rules)",
+            path="rules",
+        )
+    n_alt = sum(len(alts) for alts in g.rules.values())
+    if n_alt > settings.max_grammar_alternatives:
+        raise GrammarError(
+            f"{n_alt} alternatives in all; a grammar has at most "
+            f"{settings.max_grammar_alternatives} (max_grammar_alternatives)",
+            path="rules",
+        )
+
+
+def _eligible_weight(cg: CompiledGrammar, depth: int) -> NDArray[np.float64]:
+    """``(S,)`` each symbol's total weight of the alternatives eligible at ``depth`` (the last
+    column of :meth:`CompiledGrammar.choice_table`, without its ``(S, A)`` table)."""
+    weights = _alt_weights(cg, depth)
+    return np.bincount(cg.alt_symbol, weights=weights, minlength=len(cg.symbols)).astype(float)
+
+
+def _alt_weights(cg: CompiledGrammar, depth: int) -> NDArray[np.float64]:
+    """``(A,)`` each alternative's weight at ``depth`` (0 where its depth range excludes it)."""
+    ok = (cg.alt_depth[:, 0] <= depth) & (depth <= cg.alt_depth[:, 1])
+    return cg.alt_weight * ok
+
+
 SAMPLE_TREES = 4
 
 
@@ -235,34 +267,56 @@ def _sampled_pieces(cg: CompiledGrammar, settings: ForestSettings) -> float:
     """Mean pieces per tree of a few trees of average size (1.15 x: a margin for the spread
     of sizes)."""
     from forest.growth.expand import expand  # expand builds on this module's tables
+    from forest.growth.keyed import GROW, tree_keys
 
     g = cg.grammar
     radius = np.full(SAMPLE_TREES, g.trunk_radius * sum(g.tree_scale) / 2)
-    graph = expand(cg, SAMPLE_TREES, np.random.default_rng(0), settings, radius)
+    graph = expand(cg, tree_keys(0, np.arange(SAMPLE_TREES), GROW), settings, radius)
     return 1.15 * len(graph) / SAMPLE_TREES
 
 
 def _check_terminates(cg: CompiledGrammar) -> None:
-    """Without max_depth every reachable symbol must be able to end in a finite tree."""
+    """Without max_depth every reachable symbol must be able to end in a finite tree.
+
+    Linear in the rules (a worklist, as for Horn clauses): a symbol ends once one of its
+    alternatives has only ending successors; each (alternative, rim) is visited once."""
     n = len(cg.symbols)
+    n_alt = len(cg.alt_symbol)
+    rims = [(a, int(s)) for a, row in enumerate(cg.alt_succ) for s in row if s >= 0]
+    waiting_on: list[list[int]] = [[] for _ in range(n)]  # symbol -> alternatives using it
+    pending = np.zeros(n_alt, np.int64)  # per alternative: successors not known to end
+    for a, s in rims:
+        waiting_on[s].append(a)
+        pending[a] += 1
+    live = np.arange(n_alt) != cg.cap_alt
     ends = np.zeros(n, bool)
-    while True:
-        succ_ok = np.where(cg.alt_succ < 0, True, ends[np.maximum(cg.alt_succ, 0)])
-        alt_ok = succ_ok.all(axis=1) & (np.arange(len(cg.alt_symbol)) != cg.cap_alt)
-        new = np.zeros(n, bool)
-        new[cg.alt_symbol[alt_ok]] = True
-        if (new == ends).all():
-            break
-        ends = new
+    todo: list[int] = []
+
+    def settle(a: int) -> None:
+        s = int(cg.alt_symbol[a])
+        if live[a] and not ends[s]:
+            ends[s] = True
+            todo.append(s)
+
+    for first in np.nonzero(pending == 0)[0]:
+        settle(int(first))
+    while todo:
+        for a in waiting_on[todo.pop()]:
+            pending[a] -= 1
+            if pending[a] == 0:
+                settle(a)
+    alts_of: list[list[int]] = [[] for _ in range(n)]
+    for a, s in enumerate(cg.alt_symbol):
+        alts_of[int(s)].append(a)
     reach = np.zeros(n, bool)
     reach[cg.axiom] = True
-    while True:
-        grow = cg.alt_succ[reach[cg.alt_symbol]]
-        new = reach.copy()
-        new[grow[grow >= 0]] = True
-        if (new == reach).all():
-            break
-        reach = new
+    todo = [cg.axiom]
+    while todo:
+        for a in alts_of[todo.pop()]:
+            for s in cg.alt_succ[a]:
+                if s >= 0 and not reach[s]:
+                    reach[s] = True
+                    todo.append(int(s))
     stuck = [cg.symbols[i] for i in np.nonzero(reach & ~ends)[0]]
     if stuck:
         raise GrammarError(
@@ -273,23 +327,23 @@ def _check_terminates(cg: CompiledGrammar) -> None:
 
 
 def _expected_pieces(cg: CompiledGrammar) -> float:
-    """Expected pieces per tree, summed level by level up to max_depth."""
+    """Expected pieces per tree, summed level by level up to max_depth (each level linear
+    in the alternatives)."""
     n = len(cg.symbols)
     level = np.zeros(n)
     level[cg.axiom] = 1.0
     total = 0.0
+    has = cg.alt_succ >= 0
+    succ = cg.alt_succ[has]
     for d in range(cg.max_depth + 1):
-        cum = cg.choice_table(d)
-        tot = cum[:, -1]
-        p = np.diff(cum, axis=1, prepend=0.0) / np.where(tot > 0, tot, 1.0)[:, None]
+        w = _alt_weights(cg, d)
+        tot = np.bincount(cg.alt_symbol, weights=w, minlength=n)
         grown = level * (tot > 0)
         total += grown.sum()
         if total > 1e15 or not grown.any():
             break
-        nxt = np.zeros(n)
-        per_alt = grown[cg.alt_symbol] * p[cg.alt_symbol, np.arange(len(cg.alt_symbol))]
-        for r in range(MAX_LEAF_RIMS):
-            has = cg.alt_succ[:, r] >= 0
-            np.add.at(nxt, cg.alt_succ[has, r], per_alt[has])
-        level = nxt
+        p = w / np.where(tot > 0, tot, 1.0)[cg.alt_symbol]
+        per_alt = grown[cg.alt_symbol] * p
+        per_rim = np.broadcast_to(per_alt[:, None], has.shape)[has]
+        level = np.bincount(succ, weights=per_rim, minlength=n).astype(float)
     return float(total)

@@ -11,7 +11,7 @@ points straight to world space.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from functools import cache, cached_property
 
@@ -21,9 +21,11 @@ from numpy.typing import NDArray
 from forest.geometry import affine, rim
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
 from forest.geometry.transforms import F64, invert_similarity
+from forest.growth import keyed
 from forest.growth.assembly import building_twist_table
 from forest.growth.expand import LevelBlock, PieceGraph, children_radius, rim_tables
 from forest.growth.grammar import CompiledGrammar
+from forest.growth.parallel import for_block_groups
 
 I32 = NDArray[np.int32]
 LevelHook = Callable[[NDArray[np.intp], F64], None]
@@ -151,49 +153,76 @@ class PoseParams:
     phase: F64
 
 
+# pose draws on each piece's key (forest.growth.keyed), past the streams growth took, so a
+# tree's pose is its own whatever forest or tile holds it
+_SPREAD, _BEND, _WANT = 16, 16 + MAX_LEAF_RIMS, 17 + MAX_LEAF_RIMS
+_PHASE = 17 + 2 * MAX_LEAF_RIMS  # on the root's key
+
+
 def draw_pose(
     graph: PieceGraph,
     pieces: tuple[PieceArrays, ...],
     cg: CompiledGrammar,
-    rng: np.random.Generator,
-    n_trees: int,
 ) -> PoseParams:
     """Random bends and spreads from the grammar's ranges; lateral rims turned to their
     ``branch_angle`` within the plane of their rest tilt."""
-    n = len(graph)
     bend = np.take(cg.alt_bend, graph.alt, axis=0)
     spread = np.take(cg.alt_spread, graph.alt, axis=0)
     sigma = np.take(_rest_tip_scale(pieces), graph.piece, axis=0)
-    tree_phase = rng.random(n_trees) * 2 * np.pi
+    roots = np.flatnonzero(graph.parent < 0)  # one per tree, in tree order
+    tree_phase = keyed.draw(graph.key[roots], _PHASE) * (2 * np.pi)
     radius = graph.radius.astype(np.float16).astype(np.float64)
-    spread_azimuth = rng.random((n, MAX_LEAF_RIMS)) * (2 * np.pi)
-    spread_angle = spread[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
-        spread[:, None, 1] - spread[:, None, 0]
-    )
+    # draws only where a rim exists (a cap has none, most pieces fewer than MAX_LEAF_RIMS):
+    # the same values keyed.pairs gives at those (piece, rim) pairs, at a fraction of the
+    # hashing; absent rims keep zeros, which nothing reads
+    tab = rim_tables()
+    rims = np.take(tab.rims, graph.piece)
+    i, r = np.nonzero(np.arange(MAX_LEAF_RIMS) < rims[:, None])
+    key = np.take(graph.key, i)
+    u = _pairs_at(key, r, _SPREAD)
+    spread_azimuth = np.zeros((len(graph), MAX_LEAF_RIMS))
+    spread_angle = np.zeros((len(graph), MAX_LEAF_RIMS))
+    lo, hi = np.take(spread[:, 0], i), np.take(spread[:, 1], i)
+    flat = i * MAX_LEAF_RIMS + r
+    np.put(spread_azimuth, flat, u[:, 0] * (2 * np.pi))
+    np.put(spread_angle, flat, lo + u[:, 1] * (hi - lo))
     angle = np.take(cg.alt_branch_angle, graph.alt, axis=0)
     if not np.isnan(angle[:, 0]).all():
-        tab = rim_tables()
-        tilt = np.take(tab.tilt, graph.piece, axis=0)
-        want = angle[:, None, 0] + rng.random((n, MAX_LEAF_RIMS)) * (
-            angle[:, None, 1] - angle[:, None, 0]
-        )
-        turn = np.where(np.isnan(want) | (tilt < 1e-3), 0.0, want - tilt)
-        on = turn != 0  # lateral rims only: the trig is the cost here
-        spread_azimuth[on], spread_angle[on] = _add_tilts(
-            spread_azimuth[on],
-            spread_angle[on],
-            np.take(tab.tilt_az, graph.piece, axis=0)[on],
+        # lateral rims of branch-angled pieces only: the draws and the trig are the cost here
+        tilt = tab.tilt[np.take(graph.piece, i), r]
+        a_lo, a_hi = np.take(angle[:, 0], i), np.take(angle[:, 1], i)
+        lat = np.flatnonzero(~np.isnan(a_lo) & (tilt >= 1e-3))
+        want = a_lo[lat] + _pairs_at(key[lat], r[lat], _WANT)[:, 0] * (a_hi[lat] - a_lo[lat])
+        turn = want - tilt[lat]
+        on = turn != 0
+        at = flat[lat][on]
+        az, ang = _add_tilts(
+            np.take(spread_azimuth, at),
+            np.take(spread_angle, at),
+            tab.tilt_az.ravel()[np.take(graph.piece, i[lat][on]) * MAX_LEAF_RIMS + r[lat][on]],
             turn[on],
         )
+        np.put(spread_azimuth, at, az)
+        np.put(spread_angle, at, ang)
+    u = keyed.pairs(graph.key, _BEND)
     return PoseParams(
-        bend_azimuth=rng.random(n) * (2 * np.pi),
-        bend_angle=bend[:, 0] + rng.random(n) * (bend[:, 1] - bend[:, 0]),
+        bend_azimuth=u[:, 0] * (2 * np.pi),
+        bend_angle=bend[:, 0] + u[:, 1] * (bend[:, 1] - bend[:, 0]),
         spread_azimuth=spread_azimuth,
         spread_angle=spread_angle,
         tip_scale=sigma * children_radius(graph, radius),
         length=graph.length,
         phase=np.take(tree_phase, graph.tree) + 0.35 * graph.depth,
     )
+
+
+def _pairs_at(keys: NDArray[np.uint64], rim: NDArray[np.intp], stream: int) -> F64:
+    """``(k, 2)`` :func:`keyed.pairs` of each key at its own rim's stream ``stream + rim``
+    (what ``keyed.pairs(keys, stream, MAX_LEAF_RIMS)[j, rim[j]]`` holds)."""
+    h = keyed.mix(keys + np.take(keyed.offsets(stream, MAX_LEAF_RIMS), rim))
+    u = h.view(np.uint32).reshape(len(h), 2).astype(np.float64)
+    u *= 2.0**-32
+    return u
 
 
 def _add_tilts(az0: F64, angle0: F64, az1: F64, angle1: F64) -> tuple[F64, F64]:
@@ -229,31 +258,52 @@ def apply_tropisms(
         on = (gravity != 0) | (light != 0)
         if not on.any():
             return
-        idx, lin, pos = idx[on], root[affine.LIN][:, on], root[affine.TRANS][:, on]
-        gravity, light = gravity[on], light[on]
-        up = np.zeros((3, len(idx)))
-        up[1] = np.sign(gravity)
-        out_xz = pos - np.take(centre, graph.tree[idx], axis=0).T
-        out_xz[1] = 0.0
-        flat = np.linalg.norm(out_xz, axis=0)
-        sun = out_xz / np.maximum(flat, 1e-12)
-        sun[1] = 1.0
-        sun /= np.linalg.norm(sun, axis=0)
-        az, ang = out.bend_azimuth[idx], out.bend_angle[idx]
-        for direction, k in ((up, np.abs(gravity)), (sun, light)):
-            # the direction in the piece's frame (R^T d; R is a rotation times a scale)
-            local = affine.apply_linear(affine.transpose_linear(lin), direction)
-            local /= np.maximum(np.linalg.norm(local, axis=0), 1e-300)
-            side = np.hypot(local[0], local[2])
-            off = np.arccos(np.clip(local[1], -1.0, 1.0))
-            # rotating about +Y x d closes the angle; straight away from d: no preferred side
-            az, ang = _add_tilts(
-                az, ang, np.arctan2(-local[0], local[2]), np.where(side > 1e-9, k * off, 0.0)
+        if not on.all():
+            idx, root, gravity, light = idx[on], root[:, on], gravity[on], light[on]
+        r = root[affine.LIN]  # rows r00 r01 r02 r10 ... of R, a rotation times a scale
+        # the bend as a rotation vector (x, 0, z) about a horizontal axis: tilts toward the
+        # vertical and the light add to it, and only the sum goes back to azimuth and angle
+        cos_az, sin_az = affine.cos_sin(out.bend_azimuth[idx])
+        ang = out.bend_angle[idx]
+        x, z = ang * cos_az, ang * sin_az
+        # the light: outward from the trunk, 45 degrees up (straight up on the trunk's axis)
+        tree = graph.tree[idx]
+        ox = root[3] - np.take(centre[:, 0], tree)
+        oz = root[11] - np.take(centre[:, 2], tree)
+        flat = np.sqrt(ox * ox + oz * oz)
+        on_axis = flat < 1e-12
+        h = np.where(on_axis, 0.0, 1.0 / np.where(on_axis, 1.0, flat * np.sqrt(2.0)))
+        sun_y = np.where(on_axis, 1.0, np.sqrt(0.5))
+        sx, sz = ox * h, oz * h
+        # R^T d: each direction in the piece's frame; for d = (0, +-1, 0), R's second row
+        up = np.sign(gravity)
+        x, z = _tilt_toward(x, z, np.abs(gravity), up * r[3], up * r[4], up * r[5])
+        if light.any():
+            x, z = _tilt_toward(
+                x,
+                z,
+                light,
+                r[0] * sx + r[3] * sun_y + r[6] * sz,
+                r[1] * sx + r[4] * sun_y + r[7] * sz,
+                r[2] * sx + r[5] * sun_y + r[8] * sz,
             )
-        out.bend_azimuth[idx], out.bend_angle[idx] = az, ang
+        out.bend_azimuth[idx] = np.arctan2(z, x)
+        out.bend_angle[idx] = np.hypot(x, z)
 
     poser = Poser(graph, bones, pieces, tree_transforms, transforms, out)
     return out, poser.palette(level_hook=bend_level)
+
+
+def _tilt_toward(x: F64, z: F64, k: F64, lx: F64, ly: F64, lz: F64) -> tuple[F64, F64]:
+    """A horizontal-axis rotation vector ``(x, 0, z)`` plus the fraction ``k`` of the tilt
+    that brings the piece's axis (+Y) onto the direction ``(lx, ly, lz)`` (its frame, any
+    length): about ``+Y x d``, by ``k`` times the angle between them. Straight away from
+    ``d`` there is no preferred side, and no tilt."""
+    norm = np.sqrt(lx * lx + ly * ly + lz * lz)
+    side = np.sqrt(lx * lx + lz * lz)
+    off = np.arccos(np.clip(ly / np.maximum(norm, 1e-300), -1.0, 1.0))
+    turn = np.where(side > 1e-9 * norm, k * off / np.maximum(side, 1e-300), 0.0)
+    return x + turn * lz, z - turn * lx
 
 
 def rest_pose(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> PoseParams:
@@ -490,6 +540,23 @@ class Poser:
         out[off[loc.pos] + TIP0 + loc.r] = affine.to_matrices(loc.tips)
         return out
 
+    def joint_rotations(self, wind: Wind | None = None, time: float = 0.0) -> F64:
+        """``(9, b - n)`` the local rotations of the bones that turn (every hub and terminal;
+        an instance's root never does), in palette order without the roots: what compact
+        wind stores per frame (:mod:`forest.growth.rig`). Rotations only: a terminal's local
+        linear part is this times its scale."""
+        tab = _piece_tables(self.pieces)
+        rot = self._rotations(np.arange(len(self.graph)), wind, time)
+        col = self.graph.piece[rot.pos] * MAX_LEAF_RIMS + rot.r
+        out = np.empty((9, len(self.bones) - len(self.graph)))
+        # bone b of instance i is column b - (i + 1) once the roots are taken out
+        first = self.bones.offset - np.arange(len(self.graph))
+        out[:, first] = rot.hub
+        out[:, first[rot.pos] + 1 + rot.r] = affine.compose_linear(
+            rot.tip, np.take(tab.tip_r, col, axis=1)
+        )
+        return out
+
     def palette(
         self,
         wind: Wind | None = None,
@@ -502,8 +569,15 @@ class Poser:
         ``row_vectors``, so a scene writer needs no second copy. ``level_hook(idx, root)``
         sees each level's root globals ``(12, m)`` before that level's rotations are read."""
         pal = np.empty((len(self.bones), 4, 4))
-        for blk in self.graph.blocks:
-            self._palette_block(blk, pal, wind, time, row_vectors, level_hook)
+        if wind is not None and wind.strength_deg:
+            self._wind_field(wind)  # shared by the threads: made once, before them
+
+        def run(blocks: Sequence[LevelBlock]) -> None:
+            scratch = _BlockScratch.for_blocks(blocks, self.bones)
+            for blk in blocks:
+                self._palette_block(blk, pal, wind, time, row_vectors, level_hook, scratch)
+
+        for_block_groups(run, self.graph.blocks)
         return pal
 
     def _palette_block(
@@ -514,6 +588,7 @@ class Poser:
         time: float,
         row_vectors: bool,
         level_hook: LevelHook | None = None,
+        scratch: _BlockScratch | None = None,
     ) -> None:
         """Forward kinematics of one block, a depth level at a time, in closed forms that
         skip the hubs' and terminals' globals.
@@ -530,8 +605,9 @@ class Poser:
         tab = _piece_tables(self.pieces)
         b0 = int(b.offset[blk.start])
         b1 = int(b.offset[blk.stop]) if blk.stop < len(g) else len(b)
-        cols = np.empty((12, b1 - b0))  # this block's palette, SoA, in computed order
-        bone = np.empty(b1 - b0, np.intp)  # palette row (within the block) of each column
+        scratch = scratch or _BlockScratch(b1 - b0)
+        cols = scratch.columns(b1 - b0)  # this block's palette, SoA, in computed order
+        bone = scratch.bone[: b1 - b0]  # palette row (within the block) of each column
         at = 0  # next free column
         prev = (0, 0, np.zeros(0, np.intp))  # last level: first column of its terminals,
         # its first position in the block's depth order, each instance's first terminal
@@ -583,8 +659,37 @@ class Poser:
             at += 2 * n + k
         column = np.empty_like(bone)
         column[bone] = np.arange(len(bone))
-        mats = affine.to_matrices(cols, row_vectors=row_vectors)
-        np.take(mats, column, axis=0, out=pal[b0:b1], mode="clip")
+        # into palette order a slab at a time: gather the slab's columns into a cache-sized
+        # batch, then transpose it into its rows (no block-sized (b, 4, 4) intermediate)
+        out = pal[b0:b1]
+        for c in range(0, len(column), _SLAB):
+            at_c = column[c : c + _SLAB]
+            slab = scratch.slab[:, : len(at_c)]
+            np.take(cols, at_c, axis=1, out=slab, mode="clip")
+            affine.to_matrices(slab, out=out[c : c + len(at_c)], row_vectors=row_vectors)
+
+
+_SLAB = 2048  # palette rows per slab: (12, 2048) float64 stays in L2
+
+
+class _BlockScratch:
+    """Work arrays of the palette pass, sized for its largest block and shared by all of
+    them: fresh arrays per block would be mapped (and page-faulted) anew each time, costing
+    as much as the arithmetic."""
+
+    def __init__(self, n_bones: int) -> None:
+        self.cols = np.empty(12 * n_bones)
+        self.bone = np.empty(n_bones, np.intp)
+        self.slab = np.empty((12, _SLAB))
+
+    def columns(self, n: int) -> F64:
+        """A C-contiguous ``(12, n)`` view (``np.take`` copies a strided source whole)."""
+        return self.cols[: 12 * n].reshape(12, n)
+
+    @classmethod
+    def for_blocks(cls, blocks: Sequence[LevelBlock], bones: Bones) -> _BlockScratch:
+        ends = np.append(bones.offset, len(bones))
+        return cls(max((int(ends[b.stop] - ends[b.start]) for b in blocks), default=0))
 
 
 def _rotation(vec: F64) -> F64:

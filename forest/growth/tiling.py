@@ -1,17 +1,14 @@
 """Tiled forests: a large area cut into square tiles, each generated on its own (any worker,
 any order) with placements seamless across tile edges.
 
-Placement is a global jittered grid keyed by cell: the area holds ``cols x rows`` cells
-(near-square, at least ``trees`` of them); a hash of ``(seed, cell)`` gives every cell its
-jitter, heading, scale and a rank, and the ``trees`` cells of lowest rank bear a tree. A tree
+Placement is the hashed cell grid of :mod:`forest.growth.scatter` over the whole area: a tree
 belongs to the tile its position falls in (half-open tile rectangles), so any tile computes
 its own trees from the cells under it, with no gap and no tree twice, and the union of the
-tiles equals a one-tile plan of the same area bit for bit. The jitter stays within
-``[JITTER_MARGIN, 1 - JITTER_MARGIN]`` of a cell, so trees of neighbouring cells, in the same
-tile or not, stand at least ``2 * JITTER_MARGIN`` cells apart.
-
-Each tile's growth, pose and bark tiles draw from ``SeedSequence([seed, i, j])``, so a tile's
-file depends only on the seed, the plan and its own index.
+tiles equals the untiled forest's placement bit for bit. Each tree's growth and pose are keyed
+on the forest's seed and its cell (:mod:`forest.growth.keyed`), so a tiled forest equals the
+untiled one tree for tree; a tile's bark tiles and leaf clouds draw from
+``SeedSequence([seed, i, j])``, so a tile's file depends only on the seed, the plan and its
+own index.
 """
 
 from __future__ import annotations
@@ -24,28 +21,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.errors import ForestError, LimitError
-from forest.geometry.transforms import F64, rotation_y, scaling, translation
+from forest.geometry.transforms import F64
 from forest.growth.generate import MAX_AREA, Forest, ForestOptions, Progress, generate_forest
-from forest.growth.scatter import placed
+from forest.growth.scatter import CellGrid, PlacedTrees, Placement, placed
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.jobs import MAX_TILED_TREES, MAX_TILES, tile_grid
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
-
-JITTER_MARGIN = 0.15
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-
-
-def _mix(x: NDArray[np.uint64]) -> NDArray[np.uint64]:
-    """splitmix64's finaliser, elementwise (uint64 arithmetic wraps)."""
-    x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return x ^ (x >> np.uint64(31))
-
-
-def _unit(h: NDArray[np.uint64]) -> F64:
-    """``[0, 1)`` float64 from the top 53 bits of a hash."""
-    return (h >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
 @dataclass(frozen=True)
@@ -100,26 +82,13 @@ class TilePlan:
                 yield i, j
 
     @property
-    def cols(self) -> int:
-        width, depth = self.area
-        return max(1, math.ceil(math.sqrt(self.trees * width / depth)))
-
-    @property
-    def rows(self) -> int:
-        return math.ceil(self.trees / self.cols)
-
-    def _hash(self, cell: NDArray[np.uint64], stream: int) -> NDArray[np.uint64]:
-        with np.errstate(over="ignore"):  # uint64 wraps by design
-            key = np.array([self.seed], np.uint64) * _GOLDEN + np.uint64(stream)
-            return _mix(_mix(cell * _GOLDEN + key))
+    def cells(self) -> CellGrid:
+        """The forest's placement cells (the same as the untiled forest's)."""
+        return CellGrid(self.trees, self.area, self.seed)
 
     def threshold(self) -> np.uint64:
-        """The largest rank that bears a tree: exactly ``trees`` cells rank at or below."""
-        n_cells = self.rows * self.cols
-        rank = self._hash(np.arange(n_cells, dtype=np.uint64), 0)
-        if n_cells == self.trees:
-            return rank.max()
-        return np.partition(rank, self.trees - 1)[self.trees - 1]
+        """The largest cell rank that bears a tree (see :meth:`CellGrid.threshold`)."""
+        return self.cells.threshold()
 
     def rect(self, i: int, j: int) -> tuple[float, float, float, float]:
         """Tile ``(i, j)``'s ``x0, x1, z0, z1`` in area coordinates (``[0, width]``)."""
@@ -134,42 +103,25 @@ class TilePlan:
         base_scale: float,
         scale_range: tuple[float, float],
         threshold: np.uint64 | None = None,
+        placement: Placement = "poisson",
     ) -> tuple[NDArray[np.int64], F64]:
         """Tile ``(i, j)``'s trees: global cell indices ``(k,)`` int64, ascending, and model
         transforms ``(k, 4, 4)`` float64 centred on the area's middle like
         :func:`forest.growth.scatter.tree_transforms`."""
         if not (0 <= i < self.nx and 0 <= j < self.nz):
             raise ForestError(f"tile ({i}, {j}) is outside {self.nx} x {self.nz}", path="tile")
-        thr = self.threshold() if threshold is None else threshold
-        width, depth = self.area
-        cw, cd = width / self.cols, depth / self.rows
-        x0, x1, z0, z1 = self.rect(i, j)
-        # cells that can hold a point of the tile: the jitter keeps a point inside its cell
-        c0, c1 = max(0, int(x0 // cw) - 1), min(self.cols, int(x1 // cw) + 2)
-        r0, r1 = max(0, int(z0 // cd) - 1), min(self.rows, int(z1 // cd) + 2)
-        cols2, rows2 = np.meshgrid(np.arange(c0, c1), np.arange(r0, r1))
-        col, row = cols2.ravel(), rows2.ravel()
-        cell = (row * self.cols + col).astype(np.uint64)
-        keep = self._hash(cell, 0) <= thr
-        span = 1 - 2 * JITTER_MARGIN
-        x = (col + JITTER_MARGIN + span * _unit(self._hash(cell, 1))) * cw
-        z = (row + JITTER_MARGIN + span * _unit(self._hash(cell, 2))) * cd
-        last_x, last_z = i == self.nx - 1, j == self.nz - 1
-        inside = keep & (x >= x0) & ((x < x1) | last_x) & (z >= z0) & ((z < z1) | last_z)
-        cell, x, z = cell[inside], x[inside], z[inside]
-        order = np.argsort(cell, kind="stable")
-        cell, x, z = cell[order], x[order], z[order]
-        heading = _unit(self._hash(cell, 3)) * 2 * np.pi
-        lo, hi = scale_range
-        scale = base_scale * (lo + _unit(self._hash(cell, 4)) * (hi - lo))
-        pos = np.stack([x - width / 2, np.zeros(len(x)), z - depth / 2], axis=-1)
-        m = translation(pos) @ rotation_y(heading) @ scaling(scale)
-        return cell.astype(np.int64), m
+        return self.cells.trees_in(
+            self.rect(i, j),
+            (i == self.nx - 1, j == self.nz - 1),
+            base_scale,
+            scale_range,
+            placement,
+            threshold,
+        )
 
-    def min_spacing(self) -> float:
+    def min_spacing(self, placement: Placement = "poisson") -> float:
         """The least distance between two trees of the plan, metres."""
-        width, depth = self.area
-        return 2 * JITTER_MARGIN * min(width / self.cols, depth / self.rows)
+        return self.cells.min_spacing(placement)
 
     def meta(self) -> dict[str, object]:
         """The plan as JSON (the root layer's ``forest:tiling``)."""
@@ -182,7 +134,8 @@ class TilePlan:
         }
 
     def tile_seed(self, i: int, j: int) -> int:
-        """Tile ``(i, j)``'s generation seed (63 bits, from the forest's seed and the index)."""
+        """Tile ``(i, j)``'s own seed (63 bits, from the forest's seed and the index): its bark
+        tiles and leaf clouds."""
         state = np.random.SeedSequence([self.seed, i, j]).generate_state(2, np.uint64)
         return int(state[0] >> np.uint64(1))
 
@@ -202,11 +155,13 @@ def generate_tile(
     whole area, ``options.trees`` and ``options.area`` taken from the tile); None when no tree
     stands in it."""
     options = options or ForestOptions()
-    _, trees = plan.tile_trees(i, j, grammar.trunk_radius, grammar.tree_scale, threshold)
+    ids, trees = plan.tile_trees(
+        i, j, grammar.trunk_radius, grammar.tree_scale, threshold, options.placement
+    )
     if len(trees) == 0:
         return None
     tile_options = replace(options, trees=len(trees), area=plan.area)
-    with placed(trees):
+    with placed(PlacedTrees(ids, trees, plan.seed)):
         return generate_forest(
             grammar,
             plan.tile_seed(i, j),

@@ -62,11 +62,14 @@ def fit_posed(
     t_out, q_out, s_out = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n)
     joints = np.arange(MAX_JOINTS)
     last = len(palette) - 1
+    top = palette[:, :3, :]  # only the rows the moments need are gathered
     for a in range(0, n, CHUNK):
         z = min(n, a + CHUNK)
         pr = proto[a:z]
         bones = np.minimum(bone_offset[a:z, None] + joints, last)  # unused joints weigh 0
-        s = (palette[bones][:, :, :3, :] @ moments.w[pr]).sum(axis=1)  # (m, 3, 4)
+        # a matmul, then the sum over joints: an einsum contracts in another order, which
+        # moves float64 ulps that flip a few float32 roundings among millions of samples
+        s = (top[bones] @ moments.w[pr]).sum(axis=1)  # (m, 3, 4)
         p_mean = moments.mean[pr]
         q_mean = s[:, :3, 3]
         h = s[:, :3, :3] - q_mean[:, :, None] * p_mean[:, None, :]
@@ -81,22 +84,39 @@ def fit_posed(
 def polar_rotation(h: F64, iterations: int = 8) -> F64:
     """The rotation ``(n, 3, 3)`` nearest each ``h`` (its orthogonal polar factor, so
     ``tr(R^T h)`` is largest): scaled Newton ``X <- (g X + X^-T / g) / 2`` with
-    ``g = |det X|^(-1/3)``, elementwise on cofactors (no batched SVD, several times faster).
+    ``g = |det X|^(-1/3)``, on cofactors (no batched SVD, several times faster). The nine
+    entries are separate rows of n (structure of arrays), so each step is a few dozen
+    whole-row products with no cross products, stacks or small-matrix loops.
     The rare ``h`` with ``det <= 0`` (a reflection, never a skinned piece) take the SVD."""
-    x = h / np.maximum(np.abs(np.linalg.det(h)), 1e-300)[:, None, None] ** (1 / 3)
+    x = np.ascontiguousarray(h.transpose(1, 2, 0))  # (3, 3, n): x[i, k] is entry (i, k)
+    _, det_h = _cofactors(x)
+    x = x / np.maximum(np.abs(det_h), 1e-300) ** (1 / 3)
     for _ in range(iterations):
-        cof = np.stack(
-            [np.cross(x[:, :, 1], x[:, :, 2]), np.cross(x[:, :, 2], x[:, :, 0]),
-             np.cross(x[:, :, 0], x[:, :, 1])], axis=2,
-        )  # fmt: skip: columns c1 x c2, c2 x c0, c0 x c1: the cofactor matrix
-        det = np.einsum("ni,ni->n", x[:, :, 0], cof[:, :, 0])
-        inv_t = cof / det[:, None, None]  # X^-T
+        cof, det = _cofactors(x)
         g = np.abs(det) ** (-1 / 3)
-        x = 0.5 * (g[:, None, None] * x + inv_t / g[:, None, None])
-    bad = ~(np.linalg.det(h) > 0)
+        x = 0.5 * (g * x + cof / det / g)  # cof / det is X^-T
+    out = np.ascontiguousarray(x.transpose(2, 0, 1))
+    bad = ~(det_h > 0)
     if bad.any():
         u, _, vt = np.linalg.svd(h[bad])
         d = np.sign(np.linalg.det(u @ vt))
         u[:, :, 2] *= d[:, None]
-        x[bad] = u @ vt
-    return x
+        out[bad] = u @ vt
+    return out
+
+
+def _cofactors(x: F64) -> tuple[F64, F64]:
+    """The cofactor matrices ``(3, 3, n)`` of ``x`` (rows of n) and the determinants
+    ``(n,)``: cofactor column k is the cross product of the other two columns."""
+    (a00, a01, a02), (a10, a11, a12), (a20, a21, a22) = x
+    c = np.empty_like(x)
+    c[0, 0] = a11 * a22 - a21 * a12
+    c[1, 0] = a21 * a02 - a01 * a22
+    c[2, 0] = a01 * a12 - a11 * a02
+    c[0, 1] = a12 * a20 - a22 * a10
+    c[1, 1] = a22 * a00 - a02 * a20
+    c[2, 1] = a02 * a10 - a12 * a00
+    c[0, 2] = a10 * a21 - a20 * a11
+    c[1, 2] = a20 * a01 - a00 * a21
+    c[2, 2] = a00 * a11 - a10 * a01
+    return c, a00 * c[0, 0] + a10 * c[1, 0] + a20 * c[2, 0]

@@ -4,7 +4,7 @@ gets a SceneError naming the prim and attribute."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,12 +17,15 @@ from forest.errors import SceneError
 from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
 from forest.growth.foliage import FAMILIES, LEAF_GREEN, LeafCloud, anchor_positions
+from forest.growth.rig import BoneRig, rest_rows, rest_table
 from forest.usd.scene import (
     BARK_TILE_SET_ATTR,
     BARK_TILES,
+    BONE_FORMAT,
     ENGINE,
     FOLIAGE,
     FOREST,
+    JOINT_ROTATIONS,
     LOOKS,
     PIECES,
     REPRESENTATION,
@@ -37,7 +40,9 @@ BARK_MATERIAL = f"{LOOKS}/Bark"
 class SceneArrays:
     """A scene's arrays, shaped like the generator's (see ``forest.growth.generate.Forest``).
 
-    palettes : (f, b, 4, 4) float64, one per entry of ``times`` (``None`` for a still scene)
+    rig : the bones' time-independent part      joint_rotations : (f, a, 4) float32 xyzw, the
+    turning bones' rotations at each entry of ``times`` (``None`` for a still scene); the
+    palette of frame ``k`` is :meth:`palette` (forward kinematics, forest.growth.rig)
     """
 
     path: str
@@ -65,7 +70,8 @@ class SceneArrays:
     symbol: I32
     tree_transforms: F64
     times: list[float | None]
-    palettes: F64
+    rig: BoneRig
+    joint_rotations: NDArray[np.float32]
     foliage_positions: F64
     foliage_sizes: F64
     foliage_instance: I32
@@ -84,15 +90,38 @@ class SceneArrays:
     def n_instances(self) -> int:
         return len(self.proto_indices)
 
+    _last_palette: dict[int, F64] = field(default_factory=dict, init=False, repr=False)
+
     @property
     def n_foliage(self) -> int:
         return len(self.foliage_sizes)
+
+    @property
+    def n_frames(self) -> int:
+        """Palette samples: one per entry of ``times``."""
+        return len(self.joint_rotations)
+
+    @property
+    def n_bones(self) -> int:
+        return len(self.rig)
+
+    def palette(self, frame: int = 0) -> F64:
+        """``(b, 4, 4)`` the bone palette (skinning matrices, prototype space -> world) at sample
+        ``frame`` (modulo the samples), rebuilt from the rig in float64; the last one asked is
+        kept (callers ask the same frame several times). Read-only."""
+        f = frame % self.n_frames
+        if f not in self._last_palette:
+            pal = self.rig.palette(self.joint_rotations[f])
+            pal.flags.writeable = False
+            self._last_palette.clear()
+            self._last_palette[f] = pal
+        return self._last_palette[f]
 
     def foliage_at(self, frame: int = 0) -> F64:
         """``(k, 3)`` leaf-cloud centres at palette sample ``frame``: each cloud's bone applied
         to its rest point (clouds without a bone, ``foliage_bone < 0``, stay where the scene
         puts them)."""
-        pal = self.palettes[frame % len(self.palettes)]
+        pal = self.palette(frame)
         bone = np.maximum(self.foliage_bone, 0)
         pos = anchor_positions(pal, bone, self.foliage_rest)
         return np.where((self.foliage_bone >= 0)[:, None], pos, self.foliage_positions)
@@ -225,15 +254,10 @@ def read_scene(path: str | Path) -> SceneArrays:
         )
 
     q_max = max(len(p.quads) for p in pieces)
-    palette_attr = inst_prim.GetAttribute("forest:bonePalette")
-    if not palette_attr or not palette_attr.HasAuthoredValue():
-        raise SceneError("missing attribute", path=f"{PIECES}.forest:bonePalette")
-    samples = palette_attr.GetTimeSamples()
-    fps = stage.GetTimeCodesPerSecond()
-    times: list[float | None] = [s / fps for s in samples] if samples else [None]
-    codes = [Usd.TimeCode(s) for s in samples] or [Usd.TimeCode.Default()]
-    palettes = np.stack([_matrices(inst_prim, "forest:bonePalette", c) for c in codes])
-    foliage = _read_foliage(stage, len(palettes[0]))
+    bone_offset = pv("boneOffset")
+    rig = _read_rig(inst_prim, tuple(pieces), proto_idx, bone_offset)
+    times, rotations = _read_rotations(stage, inst_prim, rig)
+    foliage = _read_foliage(stage, len(rig))
     try:
         options = json.loads(_get(forest, "forest:options"))
         manifest = TileSetManifest.model_validate_json(_get(forest, "forest:tileManifest"))
@@ -252,7 +276,7 @@ def read_scene(path: str | Path) -> SceneArrays:
         proto_indices=proto_idx,
         transforms=transforms,
         tree=pv("treeId"),
-        bone_offset=pv("boneOffset"),
+        bone_offset=bone_offset,
         tile_indices=pv("tileIndices", q_max),
         parent=pv("parent"),
         parent_rim=pv("parentRim"),
@@ -261,9 +285,96 @@ def read_scene(path: str | Path) -> SceneArrays:
         symbol=pv("symbol"),
         tree_transforms=_matrices(forest, "forest:treeTransforms"),
         times=times,
-        palettes=palettes,
+        rig=rig,
+        joint_rotations=rotations,
         **foliage,
     )
+
+
+def _read_rig(
+    prim: Usd.Prim, pieces: tuple[PieceArrays, ...], proto: I32, bone_offset: I32
+) -> BoneRig:
+    """The bones' time-independent part (forest.growth.rig), every array checked against the
+    others, so forward kinematics reads nothing outside them."""
+    where = prim.GetPath()
+    fmt = _get(prim, "forest:boneFormat", required=False)
+    if fmt is None and _has(prim, "forest:bonePalette"):
+        raise SceneError(
+            "this scene stores a matrix per bone per frame (an older version's format): "
+            "generate it again (its grammar, seed and options are in /World/Forest)",
+            path=f"{where}.forest:bonePalette",
+        )
+    if fmt != BONE_FORMAT:
+        raise SceneError(
+            f"bone format {fmt!r}: this version reads format {BONE_FORMAT}",
+            path=f"{where}.forest:boneFormat",
+        )
+    parent = _array(prim, "forest:boneParents", np.int32)
+    b, n = len(parent), len(bone_offset)
+    n_joints = np.array([p.n_joints for p in pieces], np.int64)[proto]
+    owned = np.diff(np.append(bone_offset.astype(np.int64), b))
+    bad = np.flatnonzero(owned != n_joints)
+    if n and bone_offset[0] != 0:
+        raise SceneError(
+            f"the first instance's bones start at {bone_offset[0]}, not 0",
+            path=f"{where}.primvars:forest:boneOffset",
+        )
+    if len(bad):
+        i = int(bad[0])
+        raise SceneError(
+            f"instance {i} owns {owned[i]} of the {b} bones from {bone_offset[i]}, its piece "
+            f"has {n_joints[i]} joints",
+            path=f"{where}.primvars:forest:boneOffset",
+        )
+    rig = BoneRig(
+        parent=parent,
+        translation=_array(prim, "forest:boneTranslations", np.float64, (b, 3)),
+        scale=_array(prim, "forest:boneScales", np.float64, (b,)),
+        root=bone_offset,
+        root_rotation=_array(prim, "forest:rootRotations", np.float64, (n, 4)),
+        rest=rest_rows(proto, bone_offset, b),
+        inv_rest=rest_table(pieces),
+    )
+    for name, arr in (
+        ("forest:boneTranslations", rig.translation),
+        ("forest:boneScales", rig.scale),
+        ("forest:rootRotations", rig.root_rotation),
+    ):
+        if not np.isfinite(arr).all():
+            raise SceneError("non-finite values", path=f"{where}.{name}")
+    _check_unit(rig.root_rotation, f"{where}.forest:rootRotations")
+    try:
+        rig.levels  # noqa: B018  (parents in range, no cycle: checked once here)
+    except ValueError as exc:
+        raise SceneError(str(exc), path=f"{where}.forest:boneParents") from None
+    return rig
+
+
+def _check_unit(q: NDArray[Any], path: str) -> None:
+    """Quaternions must be unit to float32 precision (a zero or scaled one is no rotation)."""
+    norm = np.sqrt(np.einsum("...i,...i->...", q, q, dtype=np.float64))
+    if not np.isfinite(norm).all() or (np.abs(norm - 1.0) > 1e-3).any():
+        raise SceneError("rotations must be finite unit quaternions", path=path)
+
+
+def _read_rotations(
+    stage: Usd.Stage, prim: Usd.Prim, rig: BoneRig
+) -> tuple[list[float | None], NDArray[np.float32]]:
+    """Times and ``(f, a, 4)`` float32 joint rotations of every sample (the default value
+    alone for a still scene)."""
+    attr = prim.GetAttribute(JOINT_ROTATIONS)
+    if not attr or not attr.HasAuthoredValue():
+        raise SceneError("missing attribute", path=f"{PIECES}.{JOINT_ROTATIONS}")
+    samples = attr.GetTimeSamples()
+    fps = stage.GetTimeCodesPerSecond()
+    times: list[float | None] = [s / fps for s in samples] if samples else [None]
+    codes = [Usd.TimeCode(s) for s in samples] or [Usd.TimeCode.Default()]
+    a = len(rig.animated)
+    out = np.empty((len(codes), a, 4), np.float32)
+    for k, code in enumerate(codes):
+        out[k] = _array(prim, JOINT_ROTATIONS, np.float32, (a, 4), code)
+    _check_unit(out, f"{PIECES}.{JOINT_ROTATIONS}")
+    return times, out
 
 
 def _bark_tile_set(stage: Usd.Stage) -> str:

@@ -4,8 +4,10 @@
 meshes are its prototypes. Per instance it carries the topological transform (positions,
 orientations as quath *and* quatf, scales), ids, and primvars ``forest:treeId``,
 ``forest:boneOffset``, ``forest:tileIndices`` and the piece graph. The forest's bone palette
-(skinning matrices, prototype space -> world) is ``forest:bonePalette``, time-sampled with wind.
-Gf matrices use row vectors, so every matrix is transposed on its way out.
+(skinning matrices, prototype space -> world) is stored compactly (:mod:`forest.growth.rig`):
+the bones' parents, translations, scales and root rotations once, and ``forest:jointRotations``
+(one quatf per turning bone) time-sampled with wind. Gf matrices use row vectors, so every
+matrix is transposed on its way out.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
 
 from forest.bark.tilesets import DEFAULT_SET, mean_colour
 from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
-from forest.geometry.transforms import F64, compose_similarity, decompose_similarity
+from forest.geometry.transforms import BLOCK, F64, compose_similarity, decompose_similarity
 from forest.growth.foliage import (
     LEAF_GREEN,
     FoliageAnchors,
@@ -30,6 +32,7 @@ from forest.growth.foliage import (
     yaw_quaternions,
 )
 from forest.growth.generate import Forest
+from forest.growth.rig import BoneRig, forest_rig, joint_rotations
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
 from forest.usd.posed import fit_posed, piece_moments
 from schemas.tileset import UDIM_PATTERN
@@ -44,7 +47,7 @@ BARK_TILES = f"{LOOKS}/Bark/Tiles"  # the UsdUVTexture reading the UDIM tiles
 BARK_TILE_SET_ATTR = "forest:barkTileSet"  # on the bark material: the shipped set's name
 # The variant set on /World/Forest choosing what a consumer that knows nothing of forest:*
 # composes: ENGINE the pieces at their topological transforms (rest; the renderer skins them
-# with forest:bonePalette), POSED the pieces at best-fit posed transforms, time-sampled,
+# with their bone rig), POSED the pieces at best-fit posed transforms, time-sampled,
 # SKINNED one UsdSkel mesh per tree (written with --skinned, then the default).
 REPRESENTATION = "representation"
 ENGINE, POSED, SKINNED = "engine", "posed", "skinned"
@@ -55,6 +58,10 @@ ENGINE, POSED, SKINNED = "engine", "posed", "skinned"
 SKINNED_MAX_TREES = 64
 SKINNED_MAX_PIECES = 20_000
 Progress = Callable[[str, int, int], None]
+# How the Pieces instancer stores its bones (``forest:boneFormat``): 2 is the compact rig of
+# forest.growth.rig; 1 (no attribute) was one matrix4d per bone per frame, forest:bonePalette.
+BONE_FORMAT = 2
+JOINT_ROTATIONS = "forest:jointRotations"
 
 
 def row_major(m: F64) -> Vt.Matrix4dArray:
@@ -266,6 +273,7 @@ def write_instancer(
     for name, arr, size in (
         ("forest:treeId", g.tree, 1),
         ("forest:boneOffset", forest.bones.offset, 1),
+        # int16 straight into int[]: Vt widens it without an int32 copy of the largest array
         ("forest:tileIndices", forest.tile_indices.ravel(), q_max),
         ("forest:parent", g.parent, 1),
         ("forest:parentRim", g.parent_rim, 1),
@@ -275,17 +283,14 @@ def write_instancer(
     ):
         _primvar(prim, name, ints, vertex, Vt.IntArray.FromNumpy(np.ascontiguousarray(arr)), size)
     _attr(prim, "forest:symbols", Sdf.ValueTypeNames.TokenArray, list(forest.grammar.rules))
+    write_rig(prim, forest_rig(forest))  # the rig's arrays go as soon as they are in the layer
     times = forest.frame_times()
     for i, time in enumerate(times):
-        palette = forest.palette(time, row_vectors=True)
+        palette = _row_palette(forest, time)
         code = _time_code(time, forest.options.fps)
-        _attr(
-            prim,
-            "forest:bonePalette",
-            Sdf.ValueTypeNames.Matrix4dArray,
-            Vt.Matrix4dArray.FromNumpy(palette),
-            code,
-        )
+        rotations = joint_rotations(forest, time).astype(np.float32)
+        quats = Vt.QuatfArray.FromNumpy(rotations)
+        _attr(prim, JOINT_ROTATIONS, Sdf.ValueTypeNames.QuatfArray, quats, code)
         t, q, s = fit_posed(moments, g.piece, forest.bones.offset, np.swapaxes(palette, -1, -2))
         with Usd.EditContext(stage, targets[POSED]):
             # the first sample is also the default, so tools that read no time see the pose
@@ -298,15 +303,61 @@ def write_instancer(
                     Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32)),
                     c,
                 )
-                inst.CreateExtentAttr().Set(
-                    _instances_extent(boxes, compose_similarity(t, q, s)), c
-                )
+                inst.CreateExtentAttr().Set(_posed_extent(boxes, t, q, s), c)
         if on_palette is not None:
             on_palette(time, palette)
-        del palette, t, q, s
+        del palette, rotations, quats, t, q, s
         if progress:
             progress("palette", i + 1, len(times))
     return inst
+
+
+def _row_palette(forest: Forest, time: float | None) -> F64:
+    """The palette at ``time`` in USD's row-vector form. A still forest whose generation kept
+    its posed palette gives that one transposed (a view, equal to a fresh row-vector palette
+    bit for bit) instead of posing every bone again into a second copy."""
+    if time is None and forest.still_palette is not None:
+        return np.swapaxes(forest.still_palette, -1, -2)
+    return forest.palette(time, row_vectors=True)
+
+
+def _posed_extent(boxes: F64, t: F64, q: F64, s: F64) -> Vt.Vec3fArray:
+    """:func:`_instances_extent` of the similarities ``(t, q, s)``, composed a block of
+    instances at a time (min and max are exact in any order: the same extent as one pass)."""
+    if not len(t):
+        return _instances_extent(boxes, np.zeros((0, 4, 4)))
+    lo, hi = np.full(3, np.inf, np.float32), np.full(3, -np.inf, np.float32)
+    for a in range(0, len(t), BLOCK):
+        z = a + BLOCK
+        ext = np.asarray(_instances_extent(boxes[a:z], compose_similarity(t[a:z], q[a:z], s[a:z])))
+        lo, hi = np.minimum(lo, ext[0]), np.maximum(hi, ext[1])
+    return Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]))
+
+
+def write_rig(prim: Usd.Prim, rig: BoneRig) -> None:
+    """The time-independent part of the bones (:class:`forest.growth.rig.BoneRig`; the rest
+    joint frames are the prototypes' ``forest:jointRest``) and the format marker."""
+    _attr(prim, "forest:boneFormat", Sdf.ValueTypeNames.Int, BONE_FORMAT)
+    parents = Vt.IntArray.FromNumpy(np.ascontiguousarray(rig.parent, np.int32))
+    _attr(prim, "forest:boneParents", Sdf.ValueTypeNames.IntArray, parents)
+    _attr(
+        prim,
+        "forest:boneTranslations",
+        Sdf.ValueTypeNames.Double3Array,
+        Vt.Vec3dArray.FromNumpy(np.ascontiguousarray(rig.translation)),
+    )
+    _attr(
+        prim,
+        "forest:boneScales",
+        Sdf.ValueTypeNames.DoubleArray,
+        Vt.DoubleArray.FromNumpy(np.ascontiguousarray(rig.scale)),
+    )
+    _attr(
+        prim,
+        "forest:rootRotations",
+        Sdf.ValueTypeNames.QuatdArray,
+        Vt.QuatdArray.FromNumpy(np.ascontiguousarray(rig.root_rotation)),
+    )
 
 
 def _instances_extent(boxes: F64, m: F64) -> Vt.Vec3fArray:
@@ -315,12 +366,15 @@ def _instances_extent(boxes: F64, m: F64) -> Vt.Vec3fArray:
     found without corners (a box's half size along axis i is ``sum_j |A_ij| h_j``)."""
     if not len(boxes):
         return Vt.Vec3fArray.FromNumpy(np.zeros((2, 3), np.float32))
-    centre = (boxes[:, 0] + boxes[:, 1]) / 2
-    half = (boxes[:, 1] - boxes[:, 0]) / 2
-    lin = m[:, :3, :3]
-    c = np.einsum("nij,nj->ni", lin, centre) + m[:, :3, 3]
-    h = np.einsum("nij,nj->ni", np.abs(lin), half)
-    out = np.stack([(c - h).min(axis=0), (c + h).max(axis=0)])
+    out = np.stack([np.full(3, np.inf), np.full(3, -np.inf)])
+    for a in range(0, len(boxes), BLOCK):  # a block at a time: min and max are exact
+        b, lin = boxes[a : a + BLOCK], m[a : a + BLOCK, :3, :3]
+        centre = (b[:, 0] + b[:, 1]) / 2
+        half = (b[:, 1] - b[:, 0]) / 2
+        c = np.einsum("nij,nj->ni", lin, centre) + m[a : a + BLOCK, :3, 3]
+        h = np.einsum("nij,nj->ni", np.abs(lin), half)
+        out[0] = np.minimum(out[0], (c - h).min(axis=0))
+        out[1] = np.maximum(out[1], (c + h).max(axis=0))
     return Vt.Vec3fArray.FromNumpy(out.astype(np.float32))
 
 
@@ -469,7 +523,8 @@ def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
         f"{forest.grammar.name or '(unnamed)'} (axiom {forest.grammar.axiom}), seed "
         f"{int(forest.seed)}; /World/Forest.forest:grammar holds the grammar, "
         "forest:options the options. Variant set 'representation' on /World/Forest: "
-        "engine (pieces at rest + forest:bonePalette), posed (pieces at posed transforms), "
+        "engine (pieces at rest + the bone rig, forest:jointRotations), posed (pieces at "
+        "posed transforms), "
         "skinned (UsdSkel trees, when written)."
     )
     # everything needed to make the scene again
@@ -587,7 +642,7 @@ def representation_variants(
     return vset, targets
 
 
-def tile_udim_st(tile_indices: NDArray[np.int32]) -> F64:
+def tile_udim_st(tile_indices: NDArray[np.integer]) -> F64:
     """``(q, 4, 2)`` faceVarying st placing each quad's corners in the UDIM tile of its
     slice: tile ``1001 + k`` spans u in [k % 10, k % 10 + 1], v in [k // 10, k // 10 + 1]."""
     k = np.maximum(tile_indices, 0)
