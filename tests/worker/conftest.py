@@ -2,10 +2,19 @@
 ``worker.gl_context``, the one place that creates contexts), reset around each test, with
 ``ctx.error == "GL_NO_ERROR"`` asserted after each. Features are skipped by capability
 (``ctx.version_code``), never by guessing the machine. Without any EGL context the GL tests
-skip, unless ``FOREST_REQUIRE_GL=1`` (CI sets it) turns that into a failure."""
+skip, unless ``FOREST_REQUIRE_GL=1`` (CI sets it) turns that into a failure.
+
+GL calls go to the thread's current context, not to the moderngl context they are made on.
+Creating a context makes it current, and releasing it leaves the released one current (EGL
+frees it only once it is unbound) or none: after ``forest render``, ``forest gallery`` or
+a test's own context ran in this process, the session's calls went to a dead context (its
+buffers read back the other context's data) or to none ("cannot create buffer", limits read
+as 0). So every test that uses the session makes it current first and again before the
+checks after it, and a marker buffer made at the start proves the calls reach it."""
 
 from __future__ import annotations
 
+import gc
 import os
 from collections.abc import Iterator
 from pathlib import Path
@@ -61,6 +70,22 @@ ALL_PIECES = {
 }
 
 
+SESSION_MARKER = b"forest gl session marker"
+
+
+def make_current(session: Any) -> None:
+    """Make the session's context current on this thread, check that its objects answer, and
+    collect what tests dropped now (gc_mode "auto" releases it in the context that is
+    current when Python collects it)."""
+    session.__enter__()  # eglMakeCurrent; never __exit__, which would leave no context
+    try:
+        seen = session.extra["marker"].read()
+    except Exception as exc:  # moderngl.Error: the name is not a buffer in the current context
+        seen = repr(exc).encode()
+    assert seen == SESSION_MARKER, f"GL calls do not reach the session's context: {seen!r}"
+    gc.collect()
+
+
 @pytest.fixture(scope="session")
 def gl_session() -> Iterator[Any]:
     from worker.gl_context import GLUnavailableError, create_context
@@ -73,18 +98,37 @@ def gl_session() -> Iterator[Any]:
             raise
         pytest.skip(f"no EGL context: {exc}")
     ctx.gc_mode = "auto"  # objects a test drops are released when Python collects them
+    ctx.extra = {"marker": ctx.buffer(SESSION_MARKER)}
     yield ctx
+    # every test that used it checked the marker before and after; at the session's end only
+    # release it (a later non-GL test may have made and dropped contexts of its own)
+    ctx.__enter__()
     ctx.release()
+
+
+@pytest.fixture(autouse=True)
+def _gl_session_current(request: pytest.FixtureRequest) -> Iterator[None]:
+    """Every test that uses the session context (directly or through ``ctx``/``gl43``)
+    starts and ends with it current."""
+    if "gl_session" not in request.fixturenames:
+        yield
+        return
+    session = request.getfixturevalue("gl_session")
+    make_current(session)
+    yield
+    make_current(session)
 
 
 @pytest.fixture
 def ctx(gl_session: Any) -> Iterator[Any]:
-    """The session's context, reset before and checked after the test."""
+    """The session's context, current, reset before and checked after the test."""
     import moderngl
 
+    make_current(gl_session)
     gl_session.clear_errors()
     gl_session.enable_only(moderngl.NOTHING)
     yield gl_session
+    make_current(gl_session)  # the test may have made (and released) a context of its own
     gl_session.finish()
     assert gl_session.error == "GL_NO_ERROR"
     gl_session.enable_only(moderngl.NOTHING)

@@ -33,7 +33,9 @@ def test_the_tree_asked_for_is_centred(stand: SceneArrays, view: str, tree: int)
     clip = np.c_[pts, np.ones(len(pts))] @ cam.view_projection().T
     ndc = clip[:, :2] / clip[:, 3:]
     centre = 0.5 * (ndc.min(axis=0) + ndc.max(axis=0))
-    assert np.abs(centre).max() <= 0.10  # NDC spans 2: within 5 % of the image's centre
+    # the silhouette, not the world box's centre (a lopsided crown seen obliquely fills its box
+    # unevenly): the camera pans until it is centred, to its 1e-3 stopping tolerance
+    assert np.abs(centre).max() <= 2e-3
     assert (np.abs(ndc) <= 1.0).all()  # and the whole tree in view
     # a close-up: the other trees are not all in the frame
     everyone = scene_points(stand, 0)

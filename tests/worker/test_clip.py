@@ -123,9 +123,9 @@ def test_render_job_clip_artifact_and_missing_bark_warning(windy: Path, tmp_path
     """A render job (the worker's task, as the service runs it) asking for a gif clip of a
     scene whose tile folder is gone: the clip is an artifact with its media type, and the
     result and metrics say which bark it fell back on."""
+    from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
     from schemas.metrics import RenderMetrics
-    from service.artifacts import ArtifactStore
     from service.routes.jobs import ARTIFACT_TYPES
     from worker.tasks import JobContext, run_render
 
@@ -181,8 +181,8 @@ def test_render_request_clip_fields() -> None:
 def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) -> None:
     """A render job's camera (eye and target, or a view of one tree) places it as
     ``forest render`` does."""
+    from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
-    from service.artifacts import ArtifactStore
     from worker.render_job import RenderRequest as Job
     from worker.render_job import render_file
     from worker.tasks import JobContext, run_render

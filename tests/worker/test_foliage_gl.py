@@ -324,10 +324,10 @@ def test_clouds_follow_their_bones_in_the_wind(
     authored = UsdGeom.PointInstancer(stage.GetPrimAtPath(FOLIAGE)).GetPositionsAttr()
     cam = view(crown, 35.0)
     centres = []
-    for frame in range(len(crown.palettes)):
+    for frame in range(crown.n_frames):
         r.buffers.use(frame)
         got = r.foliage.capture_centres(cam).astype(np.float64)
-        pal = crown.palettes[frame]
+        pal = crown.palette(frame)
         bone = pal[crown.foliage_bone]
         want = np.einsum("nij,nj->ni", bone[:, :3, :3], crown.foliage_rest) + bone[:, :3, 3]
         np.testing.assert_allclose(got[:, :3], want, atol=1e-5)

@@ -5,7 +5,6 @@ evaluation shader (``CAPTURE``: an SSBO append) with the rasteriser off."""
 
 from __future__ import annotations
 
-import dataclasses
 from collections.abc import Iterator
 from typing import Any
 
@@ -25,7 +24,7 @@ from forest.usd.scene import write_scene
 from tests.helpers_skin import skin
 from worker.camera import Camera, frame_box
 from worker.renderer import Renderer, TessSettings
-from worker.scene_buffers import scene_bounds
+from worker.scene_buffers import scene_bounds, scene_points
 
 F64 = NDArray[np.float64]
 # Outer level k of a quad patch belongs to the edge between these corners (shaders/piece.tesc)
@@ -53,8 +52,12 @@ def camera_at(scene: SceneArrays, distance: float) -> Camera:
     return Camera(eye=eye, target=target, near=0.05, far=10 * distance + 100)
 
 
-def skinned_corners(scene: SceneArrays, cap: NDArray[np.void], frame: int) -> tuple[F64, F64]:
-    """numpy skinning of the four corners of every captured vertex's patch: ``(m, 4, 3)``."""
+def skinned_corners(
+    scene: SceneArrays, cap: NDArray[np.void], frame: int, palette: F64 | None = None
+) -> tuple[F64, F64]:
+    """numpy skinning of the four corners of every captured vertex's patch: ``(m, 4, 3)``,
+    with the scene's palette of ``frame`` (or ``palette``)."""
+    pal = scene.palette(frame) if palette is None else palette
     inst, quad = cap["ids"][:, 0], cap["ids"][:, 1]
     pos, nrm = np.empty((len(cap), 4, 3)), np.empty((len(cap), 4, 3))
     for t, piece in enumerate(scene.pieces):
@@ -62,10 +65,19 @@ def skinned_corners(scene: SceneArrays, cap: NDArray[np.void], frame: int) -> tu
         if not len(sel):
             continue
         users, row = np.unique(inst[sel], return_inverse=True)
-        p, n = skin(scene.palettes[frame], scene.bone_offset[users], piece)
+        p, n = skin(pal, scene.bone_offset[users], piece)
         corners = piece.quads[quad[sel]]
         pos[sel], nrm[sel] = p[row[:, None], corners], n[row[:, None], corners]
     return pos, nrm
+
+
+def patch_distances(renderer: Renderer, scene: SceneArrays, cam: Camera, frame: int = 0) -> F64:
+    """Distance from the eye to every patch's centre (where the shader takes its inner level),
+    from a level-1 capture skinned in numpy. Tests set their LOD from these, not from metres
+    tied to one layout of the trees."""
+    cap = renderer.capture(cam, TessSettings(max_level=1.0), frame=frame)
+    corners, _ = skinned_corners(scene, cap, frame)
+    return np.linalg.norm(corners.mean(axis=1) - cam.eye, axis=1)
 
 
 def phong_reference(corners: F64, normals: F64, uv: F64, alpha: float) -> tuple[F64, F64]:
@@ -101,12 +113,10 @@ def test_skinned_corners_match_numpy_and_the_palette_is_column_major(
     tol = TEST_RIM_POSITION_REL * diagonal(mixed_scene)
     np.testing.assert_allclose(got, want, atol=tol)
     np.testing.assert_allclose(cap["normal"][:, :3], normals[np.arange(len(cap)), which], atol=1e-5)
-    # the other reading of the same bytes (GLSL taking numpy's rows as columns) would put
-    # the corners far away: the test sees a wrong upload
-    transposed = dataclasses.replace(
-        mixed_scene, palettes=np.swapaxes(mixed_scene.palettes, -1, -2).copy()
-    )
-    wrong, _ = skinned_corners(transposed, cap, frame=1)
+    # the other reading of the same matrices (rows taken as columns) would put the corners
+    # far away: the test sees a palette built or read in the wrong order
+    transposed = np.swapaxes(mixed_scene.palette(1), -1, -2)
+    wrong, _ = skinned_corners(mixed_scene, cap, frame=1, palette=transposed)
     assert np.abs(got - wrong[np.arange(len(cap)), which]).max() > 100 * tol
 
 
@@ -140,8 +150,11 @@ def test_unskinned_path_places_rest_pieces_with_the_instance_transform(
 def test_phong_quad_tessellation_matches_numpy(
     renderer: Renderer, mixed_scene: SceneArrays, alpha: float, max_level: float, lod_half: float
 ) -> None:
-    tess = TessSettings(max_level=max_level, alpha=alpha, lod_half=lod_half)
-    cap = renderer.capture(camera_at(mixed_scene, 6.0), tess, frame=2)
+    cam = camera_at(mixed_scene, 6.0)
+    # full detail at the nearest patch, then the level halves every lod_half metres
+    near = float(patch_distances(renderer, mixed_scene, cam, frame=2).min())
+    tess = TessSettings(max_level=max_level, alpha=alpha, lod_near=near, lod_half=lod_half)
+    cap = renderer.capture(cam, tess, frame=2)
     uv = cap["coord"][:, :2].astype(np.float64)
     assert ((uv > 0.05) & (uv < 0.95)).all(axis=1).sum() > 1000  # many interior points
     corners, normals = skinned_corners(mixed_scene, cap, frame=2)
@@ -157,14 +170,18 @@ def test_phong_quad_tessellation_matches_numpy(
 def test_levels_fall_off_with_distance_like_the_formula(
     renderer: Renderer, mixed_scene: SceneArrays
 ) -> None:
-    tess = TessSettings(max_level=12.0, lod_near=3.0, lod_half=1.5)
     cam = camera_at(mixed_scene, 4.0)
+    # the nearest tenth of the patches at the cap, the farthest past four halvings (below the
+    # floor of 1): the levels cover both clamps and the falloff between them
+    d = patch_distances(renderer, mixed_scene, cam)
+    near = float(np.quantile(d, 0.1))
+    tess = TessSettings(max_level=12.0, lod_near=near, lod_half=float(d.max() - near) / 4)
     cap = renderer.capture(cam, tess)
     corners, _ = skinned_corners(mixed_scene, cap, frame=0)
     centre = corners.mean(axis=1)
     want = tess.level(np.linalg.norm(centre - cam.eye, axis=1))
     np.testing.assert_allclose(cap["coord"][:, 2], want, rtol=1e-4)
-    assert want.min() < 3 and want.max() == 12.0
+    assert want.max() == 12.0 and want.min() == 1.0 and ((want > 1) & (want < 3)).any()
 
 
 # -- no cracks -----------------------------------------------------------------------------
@@ -244,8 +261,11 @@ def test_no_cracks_on_shared_rims(
     frame: int,
 ) -> None:
     scale = diagonal(mixed_scene)
-    tess = TessSettings(max_level=max_level, alpha=0.75, lod_half=lod_half)
-    cap = renderer.capture(camera_at(mixed_scene, distance), tess, frame=frame)
+    cam = camera_at(mixed_scene, distance)
+    # full detail at the nearest patch, then the level halves every lod_half metres
+    near = float(patch_distances(renderer, mixed_scene, cam, frame=frame).min())
+    tess = TessSettings(max_level=max_level, alpha=0.75, lod_near=near, lod_half=lod_half)
+    cap = renderer.capture(cam, tess, frame=frame)
     child, parent = rim_sides(mixed_scene, cap)
     joints = np.count_nonzero(mixed_scene.parent >= 0)
     assert len(np.unique(child["key"])) == joints == len(np.unique(parent["key"]))
@@ -318,9 +338,10 @@ def test_draw_calls_and_primitives(renderer: Renderer, mixed_scene: SceneArrays)
 def test_frustum_culling_drops_only_patches_out_of_view(
     renderer: Renderer, mixed_scene: SceneArrays
 ) -> None:
-    lo, hi = scene_bounds(mixed_scene)
-    # close to one tree, looking past it: much of the forest is out of view
-    target = lo + np.array([0.3, 0.5, 0.3]) * (hi - lo)
+    # close to one tree, looking past it: much of the forest is out of view (the target is
+    # on the tree, not a fixed point of the forest's box, which may be empty space)
+    tree = scene_points(mixed_scene, tree=0)
+    target = 0.5 * (tree.min(axis=0) + tree.max(axis=0))
     cam = Camera(eye=target + np.array([1.2, 0.4, 1.6]), target=target, near=0.05, far=50.0)
     tess = TessSettings(max_level=4.0, alpha=1.0)
     full = renderer.capture(cam, tess, cull=False)

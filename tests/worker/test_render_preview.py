@@ -226,6 +226,9 @@ def test_scene_breaking_the_contract_gets_one_line(gl_session: Any, tmp_path: Pa
         (["--width", "0"], "error: width: must be in [1, 8192], got 0"),
         (["--tess-max", "100"], "error: tess_max: must be in [1, 64], got 100.0"),
         (["--frame", "5"], "error: frame: the scene has 2 palette sample(s)"),
+        # checked though no clip uses it: a given option is never ignored
+        (["--fps", "nan"], "error: fps: must be in (0, 120], got nan"),
+        (["--alpha", "inf"], "error: alpha: must be in [0, 1], got inf"),
     ],
 )
 def test_bad_options_get_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -33,9 +33,12 @@ def luminance(img: NDArray[np.uint8]) -> NDArray[np.float64]:
 
 
 def crown_and_camera(scene: SceneArrays) -> tuple[NDArray[np.float64], Camera]:
-    crown = scene.foliage_at(0).mean(axis=0)
-    # where the sun's ray through the crown's centre meets the ground
-    shadow = crown - SUN * (crown[1] / SUN[1])
+    clouds = scene.foliage_at(0)
+    crown = clouds.mean(axis=0)
+    # where the sun's ray through the leaf cloud nearest the crown's centre meets the ground
+    # (not through the centre itself: an open crown, like the almond's vase, is hollow there)
+    inner = clouds[np.argmin(np.linalg.norm(clouds - crown, axis=1))]
+    shadow = inner - SUN * (inner[1] / SUN[1])
     target = 0.5 * (shadow + np.array([crown[0], 0.0, crown[2]]))
     target[1] = 0.0
     # from the shadow's side, high up: the crown stands behind its shadow, not over it
@@ -154,3 +157,34 @@ def test_staged_cli(tmp_path: Path, one_tree: SceneArrays) -> None:
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     assert out.stat().st_size > 0
+
+
+def test_distant_leaf_clouds_cover_as_in_the_bare_mode(
+    gl43: Any, tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    # A willow seen from afar: its clouds are a few pixels each, so a filtered impostor atlas
+    # would be read at coarse mip levels, where averaging the leaves' depth with the empty
+    # texels' -1 marker went negative and sparse clouds were discarded (the gallery's stands
+    # lost most of their leaves). The staged frame must show as many leaf pixels as the bare.
+    forest = generate_forest(load_preset("willow"), 3, ForestOptions(trees=1, area=(1.0, 1.0)))
+    scene = read_scene(write_scene(forest, tmp_path_factory.mktemp("willow") / "tree.usdc"))
+    crown = scene.foliage_at(0)
+    centre = 0.5 * (crown.min(axis=0) + crown.max(axis=0))
+    reach = float(np.linalg.norm(crown.max(axis=0) - crown.min(axis=0)))
+    eye = centre + np.array([1.0, 0.6, 1.0]) * 2.2 * reach
+    cam = Camera(eye, centre, 30.0, SIZE[0] / SIZE[1], 0.1, 10.0 * reach)
+    # no ground, sky or shadows: what the leaves change is the leaves themselves
+    bare = Staging(ground=False, sky=False)
+    filtered = Staging(ground=False, sky=False, tone_map=True)
+    covered = []
+    for staging in (bare, filtered):
+        images = []
+        for leaves in (False, True):
+            r = render(gl43, scene, cam, staging, leaves=leaves)
+            try:
+                images.append(r.read_color()[..., :3].astype(np.int32))
+            finally:
+                r.release()
+        covered.append(int((np.abs(images[1] - images[0]).max(axis=2) > 8).sum()))
+    assert covered[0] > 300, covered  # the clouds are in view
+    assert covered[1] > 0.8 * covered[0], covered

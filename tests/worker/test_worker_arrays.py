@@ -118,7 +118,7 @@ def test_scene_bounds_hold_every_skinned_vertex(mixed_scene: SceneArrays) -> Non
     s = mixed_scene
     for t, piece in enumerate(s.pieces):
         inst = np.nonzero(s.proto_indices == t)[0]
-        pos, _ = skin(s.palettes[2], s.bone_offset[inst], piece)
+        pos, _ = skin(s.palette(2), s.bone_offset[inst], piece)
         assert (pos >= lo - 1e-9).all() and (pos <= hi + 1e-9).all()
 
 
@@ -128,7 +128,7 @@ def _broken(scene: SceneArrays, **changes: Any) -> SceneArrays:
 
 def test_bone_offset_past_the_palette_names_the_attribute(mixed_scene: SceneArrays) -> None:
     off = mixed_scene.bone_offset.copy()
-    off[3] = mixed_scene.palettes.shape[1]
+    off[3] = mixed_scene.n_bones
     with pytest.raises(SceneError) as err:
         check_scene(_broken(mixed_scene, bone_offset=off))
     assert err.value.path == "/World/Forest/Pieces.primvars:forest:boneOffset"
@@ -160,12 +160,12 @@ def test_joint_index_outside_the_skeleton_names_the_prototype(mixed_scene: Scene
     )
 
 
-def test_non_finite_palette_is_refused(mixed_scene: SceneArrays) -> None:
-    pal = mixed_scene.palettes.copy()
-    pal[1, 4, 0, 0] = np.nan
+def test_non_finite_rotations_are_refused(mixed_scene: SceneArrays) -> None:
+    rot = mixed_scene.joint_rotations.copy()
+    rot[1, 4, 0] = np.nan
     with pytest.raises(SceneError, match="non-finite") as err:
-        check_scene(_broken(mixed_scene, palettes=pal))
-    assert err.value.path.endswith(".forest:bonePalette")
+        check_scene(_broken(mixed_scene, joint_rotations=rot))
+    assert err.value.path.endswith(".forest:jointRotations")
 
 
 def test_buffers_beyond_the_driver_limit_name_the_attribute(mixed_scene: SceneArrays) -> None:
@@ -174,7 +174,7 @@ def test_buffers_beyond_the_driver_limit_name_the_attribute(mixed_scene: SceneAr
 
     with pytest.raises(LimitError) as err:
         SceneBuffers(SmallDriver(), mixed_scene)  # type: ignore[arg-type]
-    assert err.value.path == "/World/Forest/Pieces.forest:bonePalette"
+    assert err.value.path == "/World/Forest/Pieces.forest:boneParents"
     assert "more than this driver's storage block limit of 0.000977 MiB" in err.value.message
 
 
