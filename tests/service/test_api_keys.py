@@ -129,6 +129,15 @@ def _call(
     return asyncio.run(run())
 
 
+def _post(app: FastAPI, path: str, body: object, keys: list[str]) -> list[httpx.Response]:
+    async def run() -> list[httpx.Response]:
+        transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 1234))
+        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+            return [await c.post(path, json=body, headers={"X-API-Key": k}) for k in keys]
+
+    return asyncio.run(run())
+
+
 def test_tenants_apart_admin_sees_all_and_revocation_holds(db_url: str, tmp_path: Path) -> None:
     app, s = _app(db_url, tmp_path, api_key_cache_s=0, api_keys="boot-key=ops:admin")
     keys, jobs = KeyStore(db_url), JobStore(db_url)
@@ -138,7 +147,9 @@ def test_tenants_apart_admin_sees_all_and_revocation_holds(db_url: str, tmp_path
     a_job, _ = jobs.create("forest", {"seed": 1}, 3, tenant="alpha")
     b_job, _ = jobs.create("forest", {"seed": 2}, 3, tenant="beta")
     claim = jobs.claim(b_job.id, "w", 60)
-    assert claim is not None and jobs.finish(claim, "completed", artifacts=["scene.usda"])
+    assert claim is not None and jobs.finish(
+        claim, "completed", artifacts=["scene.usda"], result={"scene": "scene.usda"}
+    )
     (s.artifacts / b_job.id).mkdir()
     (s.artifacts / b_job.id / "scene.usda").write_text("#usda 1.0\n")
     b = f"/v1/jobs/{b_job.id}"
@@ -163,6 +174,12 @@ def test_tenants_apart_admin_sees_all_and_revocation_holds(db_url: str, tmp_path
     assert {j["id"] for j in r[7].json()["items"]} == {a_job.id, b_job.id}  # bootstrap admin
     assert r[8].status_code == 200 and r[8].text == "#usda 1.0\n"
     assert r[9].status_code == 200 and r[9].json()["state"] == "canceled"
+
+    render = {"forest_job": b_job.id, "width": 64, "height": 48}
+    refused, taken = _post(app, "/v1/renders", render, [alpha, admin])
+    assert refused.status_code == 422 and "no such forest job" in refused.text
+    assert taken.status_code == 202, taken.text  # an admin renders any tenant's forest
+    assert jobs.get(taken.json()["id"], "root") is not None  # owned by the admin's tenant
 
     keys.revoke(alpha.split("_")[1])
     after = _call(app, [("GET", "/v1/jobs", alpha), ("GET", "/v1/jobs", beta)])
