@@ -65,21 +65,31 @@ def check_rims(f: Forest, palette: np.ndarray, label: str) -> None:
     sizes = tree_sizes(f, pos)
     assert (sizes > 0).all()
     g = f.graph
-    for c in np.nonzero(g.parent >= 0)[0]:
-        p = g.parent[c]
-        pc, pp = f.pieces[g.piece[c]], f.pieces[g.piece[p]]
-        leaf = pp.leaf_rims[g.parent_rim[c]]
-        a, an = pos[c][pc.root_rim], nrm[c][pc.root_rim]
-        b, bn = pos[p][leaf], nrm[p][leaf]
-        tol = TEST_RIM_POSITION_REL * sizes[g.tree[c]]
-        dist = np.linalg.norm(a[:, None] - b[None], axis=-1)
-        # as sets: every vertex of either rim has a partner on the other within tol
-        assert dist.min(axis=1).max() <= tol, (label, int(c), dist.min(axis=1).max(), tol)
-        assert dist.min(axis=0).max() <= tol, (label, int(c))
-        match = dist.argmin(axis=1)
-        # the partner is the one the twist predicts: T(child) = T(parent) @ B @ Twist(k)
-        assert np.array_equal(match, (np.arange(rim.SIDES) - g.twist[c]) % rim.SIDES), label
-        assert np.abs(an - bn[match]).max() <= TEST_RIM_NORMAL_ABS, (label, int(c))
+    child = np.nonzero(g.parent >= 0)[0]
+    parent = g.parent[child]
+    # every child's root rim and its parent's leaf rim, stacked: (children, SIDES, 3)
+    a = np.stack([pos[c][f.pieces[g.piece[c]].root_rim] for c in child])
+    an = np.stack([nrm[c][f.pieces[g.piece[c]].root_rim] for c in child])
+    leaf = [
+        f.pieces[g.piece[p]].leaf_rims[r] for p, r in zip(parent, g.parent_rim[child], strict=True)
+    ]
+    b = np.stack([pos[p][v] for p, v in zip(parent, leaf, strict=True)])
+    bn = np.stack([nrm[p][v] for p, v in zip(parent, leaf, strict=True)])
+    tol = TEST_RIM_POSITION_REL * sizes[g.tree[child]]
+    dist = np.linalg.norm(a[:, :, None] - b[:, None], axis=-1)  # (children, SIDES, SIDES)
+    # as sets: every vertex of either rim has a partner on the other within tol
+    far = dist.min(axis=2).max(axis=1)
+    worst = int(np.argmax(far - tol))
+    assert (far <= tol).all(), (label, int(child[worst]), far[worst], tol[worst])
+    assert (dist.min(axis=1).max(axis=1) <= tol).all(), label
+    match = dist.argmin(axis=2)
+    # the partner is the one the twist predicts: T(child) = T(parent) @ B @ Twist(k)
+    want = (np.arange(rim.SIDES) - g.twist[child][:, None]) % rim.SIDES
+    wrong = np.nonzero((match != want).any(axis=1))[0]
+    assert not len(wrong), (label, child[wrong[:5]])
+    partner = np.take_along_axis(bn, match[..., None], axis=1)
+    normal_err = np.abs(an - partner).max(axis=(1, 2))
+    assert (normal_err <= TEST_RIM_NORMAL_ABS).all(), (label, child[np.argmax(normal_err)])
 
 
 def weld(points: np.ndarray, tol: float) -> np.ndarray:
@@ -127,16 +137,20 @@ def check_welded_boundary(f: Forest, palette: np.ndarray, label: str) -> None:
         for i, r in tree_tips:
             expected |= loop_edges(label_of[start[i] + f.pieces[g.piece[i]].leaf_rims[r]])
         assert len(expected) == rim.SIDES * (1 + len(tree_tips)), label
-        rows = trimesh.grouping.group_rows(mesh.edges_sorted, require_count=1)
-        boundary = {(int(a), int(b)) for a, b in mesh.edges_sorted[rows]}
+        # each undirected edge as one integer: a 1-D unique, far faster than rows (axis=0)
+        n = np.int64(len(pts))
+        edge = mesh.edges_sorted.astype(np.int64)
+        edge_key, counts = np.unique(edge[:, 0] * n + edge[:, 1], return_counts=True)
+        once = edge_key[counts == 1]
+        boundary = set(zip((once // n).tolist(), (once % n).tolist(), strict=True))
         assert boundary == expected, (label, t, len(boundary), len(expected))
-        _, counts = np.unique(mesh.edges_sorted, axis=0, return_counts=True)
         assert counts.max() <= 2, label  # no fins where three surfaces meet
         assert mesh.is_winding_consistent, label
 
 
+# few examples: each checks every rim of two mature trees (thousands) in four palettes
 @pytest.mark.parametrize("name", PRESETS)
-@settings(max_examples=20, deadline=None)
+@settings(max_examples=8, deadline=None)
 @given(seed=SEEDS, t0=TIMES, t1=TIMES)
 def test_rims_coincide_at_rest_posed_and_in_wind(
     name: str, seed: int, t0: float, t1: float
@@ -148,7 +162,7 @@ def test_rims_coincide_at_rest_posed_and_in_wind(
 
 
 @pytest.mark.parametrize("name", PRESETS)
-@settings(max_examples=10, deadline=None)
+@settings(max_examples=4, deadline=None)
 @given(seed=SEEDS, t0=TIMES, t1=TIMES)
 def test_welded_tree_is_open_only_at_trunk_and_tips(
     name: str, seed: int, t0: float, t1: float
