@@ -56,18 +56,28 @@ def test_made_up_methods_do_not_grow_metrics(server: Server) -> None:
 
 
 def test_chunked_body_over_the_cap_is_413(server: Server) -> None:
-    def body() -> Iterator[bytes]:  # a generator: httpx sends it chunked, no Content-Length
-        yield b'{"preset": "oak", "seed": 1, "pad": "'
+    # well-formed up to the cap, so no parser can refuse it first (a body that is not
+    # multipart at all is 400 or 413 depending on how its chunks arrive)
+    json_head, json_tail = b'{"preset": "oak", "seed": 1, "pad": "', b'"}'
+    part_head = (
+        b"--b0undary\r\n"
+        b'Content-Disposition: form-data; name="scene"; filename="scene.usda"\r\n'
+        b"Content-Type: application/octet-stream\r\n\r\n#usda 1.0\n"
+    )
+    part_tail = b"\r\n--b0undary--\r\n"
+
+    def body(head: bytes, tail: bytes) -> Iterator[bytes]:
+        yield head  # a generator: httpx sends it chunked, no Content-Length
         for _ in range(10):
             yield b"x" * 500
-        yield b'"}'
+        yield tail
 
-    for path, ctype in (
-        ("/v1/forests", "application/json"),
-        ("/v1/renders/upload", "multipart/form-data; boundary=b0undary"),
+    for path, ctype, head, tail in (
+        ("/v1/forests", "application/json", json_head, json_tail),
+        ("/v1/renders/upload", "multipart/form-data; boundary=b0undary", part_head, part_tail),
     ):
-        r = httpx.post(f"{server.url}{path}", content=body(), headers={"content-type": ctype},
-                       timeout=30)
+        r = httpx.post(f"{server.url}{path}", content=body(head, tail),
+                       headers={"content-type": ctype}, timeout=30)
         assert r.status_code == 413, (path, r.text)
         assert r.json()["detail"][0] == {
             "loc": ["body"], "msg": f"body over {MAX_BODY} bytes", "type": "too_large"
