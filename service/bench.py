@@ -1,6 +1,7 @@
-"""``forest bench service``: latency and throughput of the embedded server (``forest serve``
-in a subprocess on a temporary data folder): ``POST /v1/trees`` at several client
-concurrencies, and forest-job throughput (trees/s) with 1 and 2 workers."""
+"""``forest bench service``: latency and throughput of ``forest serve`` in a subprocess on a
+temporary data folder: ``POST /v1/trees`` at several client concurrencies, and forest-job
+throughput (trees/s) with 1 and 2 workers, on the embedded SQLite job store and broker or on
+a real job store and broker given by URL."""
 
 from __future__ import annotations
 
@@ -27,10 +28,16 @@ def _free_port() -> int:
 
 
 @contextmanager
-def embedded_server(data: Path, workers: int) -> Iterator[str]:
+def embedded_server(
+    data: Path, workers: int, backends: dict[str, str] | None = None
+) -> Iterator[str]:
+    """``forest serve`` with ``workers`` job workers; ``backends`` holds FOREST_DATABASE_URL
+    and FOREST_BROKER_URL when not the embedded ones."""
     port = _free_port()
     env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
     env["FOREST_DATA_DIR"] = str(data)
+    env["FOREST_RATE_LIMIT"] = ""  # measures the server, not its per-key limiter (429s)
+    env.update(backends or {})
     log = open(data.parent / f"{data.name}.log", "ab")  # noqa: SIM115
     proc = subprocess.Popen(
         [sys.executable, "-m", "forest.cli", "serve", "--port", str(port),
@@ -101,16 +108,20 @@ def tree_latency(
 
 def job_throughput(url: str, body: dict[str, object], jobs: int) -> dict[str, float]:
     with httpx.Client(base_url=url, timeout=60) as c:
+
+        def count(state: str) -> int:  # one cheap count: polling must not eat the workers' CPU
+            return int(c.get("/v1/jobs", params={"state": state, "limit": 1}).json()["total"])
+
+        # a job store of its own may hold earlier runs' jobs: count from what is there
+        done0, bad0 = count("completed"), count("failed")
         start = time.perf_counter()
         ids = [
             c.post("/v1/forests", json=body | {"seed": 1000 + i}).json()["id"] for i in range(jobs)
         ]
-        while True:  # one cheap count per poll: polling must not eat the workers' CPU
-            done = c.get("/v1/jobs", params={"state": "completed", "limit": 1}).json()["total"]
-            bad = c.get("/v1/jobs", params={"state": "failed", "limit": 1}).json()["total"]
-            if bad:
-                raise RuntimeError(f"{bad} job(s) failed")
-            if done >= len(ids):
+        while True:
+            if count("failed") > bad0:
+                raise RuntimeError(f"{count('failed') - bad0} job(s) failed")
+            if count("completed") - done0 >= len(ids):
                 break
             time.sleep(0.1)
         wall = time.perf_counter() - start
@@ -126,7 +137,18 @@ def run_service_bench(
     jobs: int,
     trees: int,
     echo: Callable[[str], None] = print,
+    database_url: str | None = None,
+    broker_url: str | None = None,
 ) -> None:
+    backends = {}
+    if database_url:
+        backends["FOREST_DATABASE_URL"] = database_url
+    if broker_url:
+        backends["FOREST_BROKER_URL"] = broker_url
+        if os.environ.get("FOREST_QUEUE_PREFIX"):  # a broker shared with other farms
+            backends["FOREST_QUEUE_PREFIX"] = os.environ["FOREST_QUEUE_PREFIX"]
+    broker = (broker_url or "sqla+sqlite").split(":", 1)[0]
+    store = (database_url or "sqlite").split(":", 1)[0].split("+", 1)[0]
     with tempfile.TemporaryDirectory(prefix="forest-bench-") as tmp:
         echo(f"POST /v1/trees (preset {preset}, usdc), {requests} requests per level, "
              "embedded server")
@@ -135,10 +157,11 @@ def run_service_bench(
             for c in concurrency:
                 r = tree_latency(url, {"preset": preset, "format": "usdc"}, c, max(requests, c))
                 echo(f"{c:>8} {r['p50_ms']:>9.1f} {r['p99_ms']:>9.1f} {r['rps']:>8.1f}")
-        echo(f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), SQLite broker")
+        echo(f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), "
+             f"job store {store}, broker {broker}")
         echo(f"{'workers':>8} {'seconds':>9} {'jobs/s':>8} {'trees/s':>9}")
         for w in workers:
-            with embedded_server(Path(tmp) / f"jobs{w}", w) as url:
+            with embedded_server(Path(tmp) / f"jobs{w}", w, backends) as url:
                 body: dict[str, object] = {"preset": preset, "trees": trees, "format": "usdc"}
                 r = job_throughput(url, body, jobs)
                 echo(f"{w:>8} {r['seconds']:>9.2f} {r['jobs_per_s']:>8.2f} "

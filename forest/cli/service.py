@@ -93,12 +93,34 @@ def worker_cmd(queues: str, name: str | None, loglevel: str, list_kinds: bool) -
 @click.option("--workers", default="1,2", show_default=True, help="Worker counts for jobs.")
 @click.option("--jobs", type=click.IntRange(1, 10_000), default=16, show_default=True)
 @click.option("--trees", type=click.IntRange(1, 10_000), default=200, show_default=True)
+@click.option(
+    "--database",
+    "database_url",
+    default=None,
+    help="Job store URL for the job runs (default: the embedded SQLite file), e.g. "
+    "postgresql+psycopg://postgres@127.0.0.1/forest_bench.",
+)
+@click.option(
+    "--broker",
+    "broker_url",
+    default=None,
+    help="Broker URL for the job runs (default: the embedded SQLite broker), e.g. "
+    "amqp://guest:guest@127.0.0.1:5672// or redis://127.0.0.1:6379/0.",
+)
 @input_errors
 def bench_service(
-    preset: str, concurrency: str, requests: int, workers: str, jobs: int, trees: int
+    preset: str,
+    concurrency: str,
+    requests: int,
+    workers: str,
+    jobs: int,
+    trees: int,
+    database_url: str | None,
+    broker_url: str | None,
 ) -> None:
     """Latency (p50, p99) and req/s of POST /v1/trees at several client counts, and
-    forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server."""
+    forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server or on the
+    job store and broker given."""
     from service.bench import run_service_bench
 
     run_service_bench(
@@ -109,4 +131,6 @@ def bench_service(
         jobs,
         trees,
         echo=click.echo,
+        database_url=database_url,
+        broker_url=broker_url,
     )
