@@ -363,6 +363,7 @@ def _joins(sa: str, sb: str) -> bool:
     return sa != sb and (pair in _OPPOSITE or pair in _QUARTER_CW or pair in _QUARTER_CCW)
 
 
+@cache  # the orientation search asks the same (quad, turn, edge) again at every budget
 def _side_of(quad: tuple[int, ...], turn: int, a: int, b: int) -> str:
     c = quad[turn:] + quad[:turn]  # corners turned; plain tuples: np.roll per call was most
     # of the library's build time
@@ -389,16 +390,16 @@ def _orient_quads(quads: NDArray[np.int32], rim_vertices: NDArray[np.int64]) -> 
     for _ in range(2):
         near |= {n for q in list(near) for n, _, _ in nbrs[q]}
     free = [q for q in sorted(near) if not on_rim[q]]
-    turn = np.zeros(len(quads), np.int64)
-    done = np.ones(len(quads), bool)
-    done[free] = False
+    # plain lists: the search reads single elements, which numpy boxes one call at a time
+    turn = [0] * len(quads)
+    done = [True] * len(quads)
+    for q in free:
+        done[q] = False
     corners = [tuple(int(v) for v in quad) for quad in quads]
 
     def fits(q: int) -> bool:
         return all(
-            _joins(
-                _side_of(corners[q], int(turn[q]), a, b), _side_of(corners[n], int(turn[n]), a, b)
-            )
+            _joins(_side_of(corners[q], turn[q], a, b), _side_of(corners[n], turn[n], a, b))
             for n, a, b in nbrs[q]
             if done[n]
         )
@@ -418,7 +419,7 @@ def _orient_quads(quads: NDArray[np.int32], rim_vertices: NDArray[np.int64]) -> 
 
     for budget in range(len(free) + 1):  # fewest turns first
         if search(0, budget):
-            rows = (np.arange(4)[None] + turn[:, None]) % 4
+            rows = (np.arange(4)[None] + np.array(turn)[:, None]) % 4
             return np.take_along_axis(quads, rows.astype(np.intp), axis=1)
     raise AssertionError("no tile orientation joins every edge")  # pragma: no cover
 
