@@ -158,10 +158,10 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
 def shipped_tile_folder(manifest: TileSetManifest, name: str = "default") -> Path | None:
     """The package's tile set ``name`` (``forest.bark.tilesets``) when it has the scene's
     tile classes (None: a scene of other classes, which the shipped tiles do not fit). An
-    unknown name, or a shipped set missing from this installation, is a
-    :class:`TileSetError` naming the set (never its folder): placeholder bark in its stead
-    would hide a broken install."""
-    from forest.bark.tilesets import SETS, set_dir
+    unknown name, or a shipped set missing from this installation, is
+    an error naming the set (never its folder): placeholder bark in its stead would hide
+    a broken install."""
+    from forest.bark.tilesets import SETS, installed_set_dir
 
     if name not in SETS:
         raise TileSetError(
@@ -172,12 +172,7 @@ def shipped_tile_folder(manifest: TileSetManifest, name: str = "default") -> Pat
     ]
     if not same:
         return None
-    folder = set_dir(name)
-    if not folder.is_dir():
-        raise TileSetError(
-            f"the shipped bark tile set {name!r} is missing from this installation", path="bark"
-        )
-    return folder
+    return installed_set_dir(name)
 
 
 def tile_images(

@@ -17,7 +17,7 @@ import pygltflib as gl
 from numpy.typing import NDArray
 
 from forest.bark.images import read_pixels, write_png
-from forest.bark.tilesets import set_dir
+from forest.bark.tilesets import installed_set_dir
 from forest.errors import ForestError
 from forest.geometry.transforms import F64
 from forest.gltf.buffer import Blob
@@ -42,12 +42,7 @@ def tile_folder(bark: str, tiles: Path | None) -> Path:
     the installation lacks it)."""
     if tiles is not None:
         return tiles
-    folder = set_dir(bark)
-    if not folder.is_dir():
-        raise ForestError(
-            f"the shipped bark tile set {bark!r} is missing from this installation", path="bark"
-        )
-    return folder
+    return installed_set_dir(bark)
 
 
 def read_slices(folder: Path, needed: int) -> NDArray[np.uint8]:

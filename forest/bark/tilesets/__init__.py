@@ -47,6 +47,19 @@ def set_dir(name: str) -> Path:
     return Path(__file__).parent / name
 
 
+def installed_set_dir(name: str) -> Path:
+    """:func:`set_dir`, checked to exist: an error naming the set, never its folder (a
+    placeholder in its stead would hide a broken install)."""
+    from forest.errors import ForestError
+
+    folder = set_dir(name)
+    if not folder.is_dir():
+        raise ForestError(
+            f"the shipped bark tile set {name!r} is missing from this installation", path="bark"
+        )
+    return folder
+
+
 def default_dir() -> Path:
     """The folder of the shipped default tile set."""
     return set_dir(DEFAULT_SET)
