@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -33,8 +34,10 @@ from forest.growth.skeleton import (
 )
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
-from schemas.jobs import ForestRequest, TreeRequest
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+
+if TYPE_CHECKING:
+    from schemas.jobs import TreeRequest
 
 Progress = Callable[[str, int, int], None]
 MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
@@ -87,6 +90,8 @@ class ForestOptions:
 
 def options_from_request(req: TreeRequest) -> ForestOptions:
     """The generation options of an API request (a ForestRequest adds trees, area, placement)."""
+    from schemas.jobs import ForestRequest  # the service's schemas: not on the CLI's path
+
     options = ForestOptions(
         frames=req.frames, fps=req.fps, segments=req.segments, wind=Wind(strength_deg=req.wind_deg)
     )

@@ -8,7 +8,7 @@ import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
-from pxr import Sdf, Usd, UsdUtils
+from pxr import Sdf, Usd
 
 from forest.atomic import make_private_folder, move_into_place, remove_private_folder
 from forest.errors import OutputError
@@ -81,6 +81,8 @@ def _package_usdz(layer: Sdf.Layer, usdc: Path, path: Path) -> None:
     asset paths (bark tiles) mean relative to the scene's folder, not to the private one: they
     are anchored there first, so the packager finds and embeds the same files it would have
     found beside ``path`` (and renames them inside the package, so no absolute path leaks)."""
+    from pxr import UsdUtils  # usdz packaging only: a twentieth of a second to import
+
     scene_folder = path.parent.resolve()
 
     def anchored(asset: str) -> str:

@@ -15,9 +15,6 @@ import fast_simplification
 import numpy as np
 from numpy.typing import NDArray
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
 
 from forest.geometry.pieces import MAX_INFLUENCES
 from forest.geometry.transforms import (
@@ -29,6 +26,7 @@ from forest.geometry.transforms import (
     transform_points,
     transform_vectors,
 )
+from forest.geometry.weld import close_pairs, weld_labels
 from forest.growth.foliage import FoliageAnchors, anchor_positions, cloud_models
 from forest.growth.generate import Forest
 from forest.growth.skeleton import rest_pose
@@ -105,16 +103,12 @@ def tree_mesh(
     all_pts = np.concatenate(pts)
     # coincident vertices (within WELD_TOL, any grid would split some pairs) form groups;
     # each group keeps its first vertex, so the order is stable and deterministic
-    pairs = cKDTree(all_pts).query_pairs(WELD_TOL, output_type="ndarray")
     n_pts = len(all_pts)
-    graph = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(n_pts, n_pts))
-    _, label = connected_components(graph, directed=False)
-    first = np.full(label.max() + 1, n_pts)
-    np.minimum.at(first, label, np.arange(n_pts))
+    first = weld_labels(n_pts, close_pairs(all_pts, WELD_TOL))
     keep = np.unique(first)
     rank = np.zeros(n_pts, np.int64)
     rank[keep] = np.arange(len(keep))
-    remap = rank[first[label]]
+    remap = rank[first]
     normals = np.zeros((len(keep), 3))
     np.add.at(normals, remap, np.concatenate(nrm))
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
@@ -210,12 +204,17 @@ def _proxy(
     jw: F64,
 ) -> UsdGeom.Mesh:
     """Decimated triangle mesh with vertex normals; each vertex takes the skin of the
-    nearest full-mesh vertex."""
+    nearest of the full-mesh vertices that the decimation collapsed into it (the nearest
+    vertex overall may lie on a neighbouring branch and swing with that one instead)."""
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
-    p2, f2 = fast_simplification.simplify(pts.astype(np.float32), tris, 1.0 - PROXY_KEEP)
+    pts32 = pts.astype(np.float32)
+    *_, collapses = fast_simplification.simplify(
+        pts32, tris, 1.0 - PROXY_KEEP, return_collapses=True
+    )
+    p2, f2, to_proxy = fast_simplification.replay_simplification(pts32, tris, collapses)
     p2 = np.asarray(p2, np.float64)
     f2 = np.asarray(f2, np.int32)
-    near = cKDTree(pts).query(p2)[1]
+    near = nearest_source(pts, p2, np.asarray(to_proxy, np.intp))
     face_n = np.cross(p2[f2[:, 1]] - p2[f2[:, 0]], p2[f2[:, 2]] - p2[f2[:, 0]])
     normals = np.zeros_like(p2)
     for c in range(3):
@@ -238,6 +237,23 @@ def _indexed_st(prim: Usd.Prim, st: F64, interp: str) -> None:
     pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, interp)
     pv.Set(Vt.Vec2fArray.FromNumpy(values))
     pv.SetIndices(Vt.IntArray.FromNumpy(index.ravel().astype(np.int32)))
+
+
+def nearest_source(pts: F64, p2: F64, to_proxy: NDArray[np.intp]) -> NDArray[np.intp]:
+    """Per decimated vertex of ``p2``, the nearest of the full-mesh vertices ``pts`` mapped to
+    it by ``to_proxy`` (``-1``: dropped, a vertex in no triangle); a decimated vertex with
+    none (which the decimation does not make) takes the nearest mapped vertex's overall."""
+    src = np.flatnonzero(to_proxy >= 0)
+    dst = to_proxy[src]
+    dist = np.einsum("ij,ij->i", pts[src] - p2[dst], pts[src] - p2[dst])
+    order = np.lexsort((src, dist, dst))  # by proxy vertex, then distance: the first wins
+    first = np.ones(len(order), bool)
+    first[1:] = dst[order[1:]] != dst[order[:-1]]
+    near = np.full(len(p2), -1, np.intp)
+    near[dst[order[first]]] = src[order[first]]
+    for j in np.flatnonzero(near < 0):
+        near[j] = src[np.argmin(np.einsum("ij,ij->i", pts[src] - p2[j], pts[src] - p2[j]))]
+    return near
 
 
 def write_skinned_trees(

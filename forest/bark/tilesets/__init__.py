@@ -19,13 +19,15 @@ from __future__ import annotations
 import functools
 import tempfile
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from forest.bark.barkgen import SPECIES, bark_example, species_example
-from forest.bark.images import read_texture_array, write_png
-from forest.bark.tileset import ClassSpec, TileSet, make_tileset
 from schemas.tileset import CLASS_EDGES, DEFAULT_MANIFEST, TileSetManifest
+
+if TYPE_CHECKING:  # the image and quilting modules load OpenImageIO: only when building
+    from forest.bark.tileset import ClassSpec, TileSet
 
 DEFAULT_SET = "default"
 SETS: tuple[str, ...] = (DEFAULT_SET, *SPECIES)
@@ -68,6 +70,8 @@ def default_dir() -> Path:
 def manifest_classes(manifest: TileSetManifest = DEFAULT_MANIFEST) -> tuple[ClassSpec, ...]:
     """The classes to build for ``manifest`` (names, ids, counts; its edges, else the
     paper's colouring), in slice order."""
+    from forest.bark.tileset import ClassSpec
+
     ordered = sorted(manifest.classes, key=lambda c: c.first)
     return tuple(
         ClassSpec(c.name, c.id, c.count, c.edges or CLASS_EDGES.get(c.id, _BARK_EDGES))
@@ -84,6 +88,9 @@ def example(name: str, seed: int, size: int = EXAMPLE_SIZE) -> np.ndarray:
 
 def make_set(name: str, folder: Path) -> TileSet:
     """Build shipped set ``name`` into ``folder`` (examples made on the fly)."""
+    from forest.bark.images import write_png
+    from forest.bark.tileset import make_tileset
+
     prefix = "procedural-bark" if name == DEFAULT_SET else f"procedural-{name}"
     with tempfile.TemporaryDirectory() as tmp:
         paths = []
@@ -105,6 +112,8 @@ def make_default(folder: Path) -> TileSet:
 def mean_colour(name: str) -> tuple[float, float, float]:
     """Linear RGB (0 to 1) mean of shipped set ``name``'s tiles: the flat bark colour for
     viewers that do not read the tiles."""
+    from forest.bark.images import read_texture_array
+
     tiles = read_texture_array(set_dir(name) / "bark_array.tif")[..., :3]
     lin = (tiles / 255.0 + 0.055) / 1.055
     lin = np.where(tiles <= 10, tiles / (255.0 * 12.92), lin**2.4)
