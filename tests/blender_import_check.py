@@ -297,6 +297,31 @@ def tile_images(expected: int) -> tuple[dict[str, Any], list[str]]:
     return report, failures
 
 
+def material_colours() -> dict[str, dict[str, Any]]:
+    """Per material on a mesh (by its USD name): the Principled BSDF's Base Color as Blender
+    renders it, and whether a node feeds it (an image); Blender's default, 0.8 grey, is what
+    an input whose USD network it could not convert becomes."""
+    out: dict[str, dict[str, Any]] = {}
+    for ob in bpy.context.scene.objects:
+        if ob.type != "MESH":
+            continue
+        for slot in ob.material_slots:
+            mat = slot.material
+            if mat is None or not mat.use_nodes:
+                continue
+            bsdf = next(
+                (n for n in mat.node_tree.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"), None
+            )
+            if bsdf is None:
+                continue
+            sock = bsdf.inputs["Base Color"]
+            out[base_name(mat.name)] = {
+                "base_color": [round(float(c), 6) for c in sock.default_value[:3]],
+                "linked": sock.is_linked,
+            }
+    return out
+
+
 def check(args: argparse.Namespace) -> dict[str, Any]:
     failures: list[str] = []
     report: dict[str, Any] = {"blender": bpy.app.version_string, "scene": str(args.scene)}
@@ -505,6 +530,7 @@ def check(args: argparse.Namespace) -> dict[str, Any]:
         images, image_failures = tile_images(args.tile_images)
         report.update(images)
         failures += image_failures
+    report["materials"] = material_colours()
     report["trees"] = trees
     report["failures"] = failures
     report["ok"] = not failures

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdSkel
 
-from forest.bark.tilesets import default_dir
+from forest.bark.tilesets import default_dir, mean_colour
 from forest.growth.foliage import cloud_models
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -217,6 +217,23 @@ def test_blender_skinned_within_one_percent_of_height(blender_run: Run | str) ->
         assert tree["skin_error_of_size"] is not None, name
         assert tree["skin_error"] <= tree["skin_tolerance"], (name, tree)
         assert tree["leaves_error_of_branch_radius"] <= 1.0, (name, tree)
+
+
+def test_blender_renders_leaves_and_bark_in_their_colours(blender_run: Run | str) -> None:
+    """Blender's materials carry the species' colours, not its default grey-white (which
+    every leaf rendered in while the leaf colour came only through a primvar reader)."""
+    forest, _, report, _ = ran(blender_run)
+    mats = report["materials"]
+    leaf = mats["Leaf"]
+    want = forest.foliage_anchors().color.astype(np.float64).mean(axis=0)
+    np.testing.assert_allclose(leaf["base_color"], want, atol=1e-5)
+    assert not leaf["linked"]
+    assert leaf["base_color"][1] > max(leaf["base_color"][0], leaf["base_color"][2])  # green
+    bark = mats["Bark"]
+    if "udim_tiles" in report:
+        assert bark["linked"]  # the tile images
+    else:
+        np.testing.assert_allclose(bark["base_color"], mean_colour(forest.grammar.bark), atol=1e-5)
 
 
 def test_blender_loads_every_udim_tile(blender_run: Run | str) -> None:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import posixpath
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -378,27 +379,57 @@ def _instances_extent(boxes: F64, m: F64) -> Vt.Vec3fArray:
     return Vt.Vec3fArray.FromNumpy(out.astype(np.float32))
 
 
-def leaf_material(stage: Usd.Stage) -> UsdShade.Material:
-    """UsdPreviewSurface leaves whose diffuse colour reads the ``displayColor`` primvar (the
-    foliage instancer's per-instance colour; leaf green where none reaches the mesh). The
-    leaf textures are made by the renderer from code, so no scene points at a texture file."""
+@dataclass(frozen=True)
+class LeafMaterials:
+    """The leaves' two materials. ``flat``, bound for all purposes, is one colour: what every
+    DCC shows (Blender 4.2 and Maya's importers turn a ``UsdPrimvarReader_float3`` into
+    nothing, which rendered the leaves white). ``tinted``, bound for the ``preview`` purpose,
+    reads ``displayColor`` per cloud: what Hydra Storm (usdview, Houdini's viewport) shows."""
+
+    flat: UsdShade.Material
+    tinted: UsdShade.Material
+
+    def bind(self, prim: Usd.Prim) -> None:
+        api = UsdShade.MaterialBindingAPI.Apply(prim)
+        api.Bind(self.flat)
+        api.Bind(self.tinted, materialPurpose=UsdShade.Tokens.preview)
+
+
+def leaf_material(stage: Usd.Stage, colors: NDArray[np.floating] | None = None) -> LeafMaterials:
+    """UsdPreviewSurface leaves: the flat one in the mean of the clouds' linear RGB ``colors``
+    (leaf green where there are none), the tinted one reading the ``displayColor`` primvar
+    (the instancer's per-instance colour, the skinned leaves' per-face one) with that mean as
+    its fallback. The leaf textures are made by the renderer from code, so no scene points at
+    a texture file."""
+    mean = (
+        tuple(float(c) for c in np.asarray(colors, np.float64).mean(axis=0))
+        if colors is not None and len(colors)
+        else LEAF_GREEN
+    )
     UsdGeom.Scope.Define(stage, LOOKS)
-    mat = UsdShade.Material.Define(stage, f"{LOOKS}/Leaf")
-    pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/Leaf/Surface")
-    pbr.CreateIdAttr("UsdPreviewSurface")
-    pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
-    color = UsdShade.Shader.Define(stage, f"{LOOKS}/Leaf/DisplayColor")
+
+    def surface(name: str) -> tuple[UsdShade.Material, UsdShade.Shader]:
+        mat = UsdShade.Material.Define(stage, f"{LOOKS}/{name}")
+        pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/Surface")
+        pbr.CreateIdAttr("UsdPreviewSurface")
+        pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
+        mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+        return mat, pbr
+
+    flat, pbr = surface("Leaf")
+    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*mean))
+    tinted, pbr = surface("LeafTinted")
+    color = UsdShade.Shader.Define(stage, f"{LOOKS}/LeafTinted/DisplayColor")
     color.CreateIdAttr("UsdPrimvarReader_float3")
     color.CreateInput("varname", Sdf.ValueTypeNames.String).Set("displayColor")
-    color.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(*LEAF_GREEN))
+    color.CreateInput("fallback", Sdf.ValueTypeNames.Float3).Set(Gf.Vec3f(*mean))
     out = color.CreateOutput("result", Sdf.ValueTypeNames.Float3)
     pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(out)
-    mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
-    return mat
+    return LeafMaterials(flat, tinted)
 
 
 def write_leaf_cloud(
-    stage: Usd.Stage, path: str, cloud: LeafCloud, material: UsdShade.Material
+    stage: Usd.Stage, path: str, cloud: LeafCloud, material: LeafMaterials
 ) -> UsdGeom.Mesh:
     """A leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter), its leaf family
     in ``forest:leafFamily`` (which texture its st index). No displayColor of its own, so the
@@ -414,7 +445,7 @@ def write_leaf_cloud(
         Vt.Vec2fArray.FromNumpy(cloud.st.astype(np.float32)),
     )
     _attr(mesh.GetPrim(), "forest:leafFamily", Sdf.ValueTypeNames.Token, cloud.family)
-    UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
+    material.bind(mesh.GetPrim())
     return mesh
 
 
@@ -437,7 +468,7 @@ def write_foliage(
     inst = UsdGeom.PointInstancer.Define(stage, FOLIAGE)
     prim = inst.GetPrim()
     UsdGeom.Scope.Define(stage, FOLIAGE_PROTOTYPES)
-    material = leaf_material(stage)
+    material = leaf_material(stage, anchors.color)
     models = cloud_models(anchors.family)
     meshes = [
         write_leaf_cloud(stage, f"{FOLIAGE_CLOUD}{m}", cloud, material)

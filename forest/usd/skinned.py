@@ -278,6 +278,7 @@ def write_skinned_trees(
         Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times
     ]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
+    leaf_materials = None if anchors is None else leaf_material(stage, anchors.color)
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/Tree_{k:05d}"
@@ -319,14 +320,14 @@ def write_skinned_trees(
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
         leaves = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree)
-        if leaves is not None:
+        if leaves is not None and leaf_materials is not None:
             lp, ln, lq, lst, lj, lc = leaves
             lm = _mesh(stage, f"{path}/Leaves", lp, ln, lq, UsdGeom.Tokens.default_)
             lm.CreateDoubleSidedAttr(True)
             _indexed_st(lm.GetPrim(), lst, UsdGeom.Tokens.vertex)
             lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
             _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
-            UsdShade.MaterialBindingAPI.Apply(lm.GetPrim()).Bind(leaf_material(stage))
+            leaf_materials.bind(lm.GetPrim())
         # the skeleton's joints, then the whole tree: one extent per frame, as they move
         for boundable in (skel, root):
             attr = boundable.CreateExtentAttr()

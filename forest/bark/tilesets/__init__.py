@@ -115,7 +115,10 @@ def mean_colour(name: str) -> tuple[float, float, float]:
     from forest.bark.images import read_texture_array
 
     tiles = read_texture_array(set_dir(name) / "bark_array.tif")[..., :3]
-    lin = (tiles / 255.0 + 0.055) / 1.055
-    lin = np.where(tiles <= 10, tiles / (255.0 * 12.92), lin**2.4)
-    r, g, b = (float(v) for v in lin.reshape(-1, 3).mean(axis=0))
+    # sRGB decoded through a table of the 256 byte values: the same numbers as decoding each
+    # texel, a tenth of the time (every small scene's write waits on this)
+    v = np.arange(256) / 255.0
+    decode = np.where(v <= 10 / 255.0, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+    lin = decode[tiles]
+    r, g, b = (float(c) for c in lin.reshape(-1, 3).mean(axis=0))
     return (r, g, b)
