@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from pxr import Sdf, Usd, UsdGeom
+from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
 
 from forest.geometry.pieces import HUB
 from forest.growth.foliage import (
@@ -264,3 +264,37 @@ def test_old_points_foliage_still_reads(tmp_path: Path, windy_scene: Path) -> No
 
 def _int_array() -> Any:
     return Sdf.ValueTypeNames.IntArray
+
+
+@pytest.mark.parametrize("preset", ["pine", "spruce", "poplar", "oak", "almond", "willow"])
+def test_skinned_leaves_stay_on_their_clouds(preset: str, tmp_path: Path) -> None:
+    """USD's own skinning (what every DCC draws) puts each cloud's leaves around its posed
+    centre, no farther than the cloud's size: a pine's leader is far thinner at rest than
+    posed, and leaves laid out at posed size around the rest centre were skinned to
+    kilometres (Blender drew them there)."""
+    f = generate_forest(load_preset(preset), 4, ForestOptions(trees=1))
+    stage = Usd.Stage.Open(str(write_scene(f, tmp_path / "tree.usdc", skinned=True)))
+    root = UsdSkel.Root(stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000"))
+    cache = UsdSkel.Cache()
+    cache.Populate(root, Usd.PrimDefaultPredicate)
+    (binding,) = cache.ComputeSkelBindings(root, Usd.PrimDefaultPredicate)
+    query = cache.GetSkelQuery(binding.GetSkeleton())
+    tc = Usd.TimeCode(0)
+    (leaves,) = [t for t in binding.GetSkinningTargets() if t.GetPrim().GetName() == "Leaves"]
+    points = Vt.Vec3fArray(UsdGeom.Mesh(leaves.GetPrim()).GetPointsAttr().Get(tc))
+    assert leaves.ComputeSkinnedPoints(query.ComputeSkinningTransforms(tc), points, tc)
+    to_world = np.array(
+        UsdGeom.Xformable(binding.GetSkeleton()).ComputeLocalToWorldTransform(tc)
+    )
+    world = (np.c_[np.array(points, np.float64), np.ones(len(points))] @ to_world)[:, :3]
+    a = f.foliage_anchors()
+    models = cloud_models(a.family)
+    counts = np.array([len(m.positions) for m in models])[a.model]
+    centre = np.repeat(a.positions(f.palette()), counts, axis=0)
+    reach = np.repeat(a.size * np.array([m.radius for m in models])[a.model], counts)
+    dist = np.linalg.norm(world - centre, axis=1)
+    assert len(world) == counts.sum()
+    assert (dist <= reach * 1.001 + 1e-4).all(), f"{dist.max():.3g} m from a cloud centre"
+    # and the clouds keep their size: the farthest leaf of each cloud reaches its edge
+    far = np.maximum.reduceat(dist / reach, np.r_[0, np.cumsum(counts)[:-1]])
+    assert far.min() > 0.5

@@ -113,7 +113,7 @@ def test_reader_returns_generator_arrays(windy_forest: Forest, tmp_path: Path, s
         np.testing.assert_array_equal(theirs_p.building, ours_p.building)
 
 
-def _our_skinned_points(f: Forest, inst: slice, time: float) -> np.ndarray:
+def _our_skinned_points(f: Forest, inst: slice, time: float | None) -> np.ndarray:
     pal = f.palette(time)
     out = []
     for i in range(inst.start, inst.stop):
@@ -126,7 +126,11 @@ def _our_skinned_points(f: Forest, inst: slice, time: float) -> np.ndarray:
 
 def assert_usd_skinning_matches_ours(stage: Usd.Stage, f: Forest, frames: tuple[int, ...]) -> None:
     """USD's own skinning of every tree's welded Bark equals ours at ``frames``: every vertex
-    of ours is one of USD's, and back, within 1e-5 of the tree's size."""
+    of ours is one of USD's, and back, within 1e-4 of the tree's size. Not closer: USD skins
+    from the bind pose (the tree as it stands), ours from the prototypes, and linear blend
+    skinning from two bind poses differs at a blended vertex by the wind's turn times the
+    distance between where its joints put it when standing (up to 4e-5 of the size: half a
+    millimetre on an 11 m willow); at a still frame the two are equal to float32."""
     for k, (inst, _) in enumerate(tree_slices(f)):
         root = stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}")
         cache = UsdSkel.Cache()
@@ -143,8 +147,8 @@ def assert_usd_skinning_matches_ours(stage: Usd.Stage, f: Forest, frames: tuple[
             usd = np.asarray(points, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
             ours = _our_skinned_points(f, inst, frame / f.options.fps)
             size = np.ptp(ours, axis=0).max()
-            assert cKDTree(usd).query(ours)[0].max() < 1e-5 * size
-            assert cKDTree(ours).query(usd)[0].max() < 1e-5 * size
+            assert cKDTree(usd).query(ours)[0].max() < 1e-4 * size
+            assert cKDTree(ours).query(usd)[0].max() < 1e-4 * size
 
 
 def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path, windy_forest: Forest) -> None:
@@ -157,6 +161,36 @@ def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path, windy_fore
             np.abs(_our_skinned_points(f, inst, 0.0) - _our_skinned_points(f, inst, 3 / 24)).max()
             > 1e-4 * size
         )
+
+
+@pytest.mark.parametrize("preset", ["pine", "spruce"])
+def test_skinned_tree_is_bound_as_it_stands(preset: str, tmp_path: Path) -> None:
+    """The skinned form's bind pose is the standing tree: a still frame's joints do not move
+    or scale (every animation scale is 1), the Bark's points are ours to float32 precision
+    along a whole pine or spruce leader (bound in the generator's rest layout, whose top is
+    microns across, they were centimetres off), and the bind pose a DCC shows at rest is the
+    tree's own shape and height."""
+    f = generate_forest(load_preset(preset), 5, ForestOptions(trees=1))
+    stage = Usd.Stage.Open(str(write_scene(f, tmp_path / "tree.usdc", skinned=True)))
+    root = stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000")
+    anim = UsdSkel.Animation(root.GetPrimAtPath("Skeleton/Wind"))
+    np.testing.assert_array_equal(np.asarray(anim.GetScalesAttr().Get(0)), 1.0)
+    mesh = UsdGeom.Mesh(root.GetChild("Bark"))
+    world = np.asarray(UsdGeom.Xformable(root).ComputeLocalToWorldTransform(0)).T
+    rest = np.asarray(mesh.GetPointsAttr().Get(), np.float64) @ world[:3, :3].T + world[:3, 3]
+    (inst, _), = tree_slices(f)
+    ours = _our_skinned_points(f, inst, None)
+    size = np.ptp(ours, axis=0).max()
+    assert cKDTree(rest).query(ours)[0].max() < 2e-6 * size
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
+    skel = cache.GetSkelQuery(UsdSkel.Skeleton(root.GetChild("Skeleton")))
+    points = mesh.GetPointsAttr().Get(0)
+    assert cache.GetSkinningQuery(root.GetChild("Bark")).ComputeSkinnedPoints(
+        skel.ComputeSkinningTransforms(0), points, 0
+    )
+    skinned = np.asarray(points, np.float64) @ world[:3, :3].T + world[:3, 3]
+    assert np.abs(skinned - rest).max() < 2e-6 * size
 
 
 def test_proxy_is_decimated_and_bound(skinned_scene: Path) -> None:

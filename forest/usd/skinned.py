@@ -29,7 +29,6 @@ from forest.geometry.transforms import (
 from forest.geometry.weld import close_pairs, weld_labels
 from forest.growth.foliage import FoliageAnchors, anchor_positions, cloud_models
 from forest.growth.generate import Forest
-from forest.growth.skeleton import rest_pose
 from forest.usd.scene import FOREST, _time_code, leaf_material, row_major, tile_udim_st
 
 TREES = f"{FOREST}/Trees"
@@ -75,17 +74,23 @@ WELD_TOL = 1e-6  # metres: rims coincide at rest to rounding, far below any vert
 def tree_mesh(
     forest: Forest, inst: slice, bones: slice, to_tree: F64, weld: bool = False
 ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
-    """One tree's pieces in tree space at rest: points, normals, quads, joint indices (into
+    """One tree's pieces in tree space as the tree stands (posed, no wind: the skinned
+    forms' bind pose, see :func:`joint_frames`): points, normals, quads, joint indices (into
     the tree's bones), joint weights and ``(q, 4, 2)`` faceVarying UDIM st. With ``weld``,
-    rims of joined pieces (which coincide at rest and are skinned alike) share vertices (the
+    rims of joined pieces (which coincide posed and are skinned alike) share vertices (the
     first piece's skin) with averaged normals: no crease at a seam."""
+    still = forest.palette()
     pts, nrm, quads, jidx, jw, st = [], [], [], [], [], []
     base = 0
     for i in range(inst.start, inst.stop):
         p = forest.pieces[forest.graph.piece[i]]
-        m = to_tree @ forest.transforms[i]
-        pts.append(transform_points(m, p.positions))
-        nrm.append(transform_vectors(m, p.normals))
+        # linear blend of the piece's palette entries, then into tree space
+        blend = to_tree @ np.einsum(
+            "vk,vkij->vij", p.joint_weights, still[forest.bones.offset[i] + p.joint_indices]
+        )
+        pts.append(np.einsum("vij,vj->vi", blend[:, :3, :3], p.positions) + blend[:, :3, 3])
+        n = np.einsum("vji,vj->vi", np.linalg.inv(blend[:, :3, :3]), p.normals)
+        nrm.append(n / np.linalg.norm(n, axis=1, keepdims=True))
         quads.append(p.quads + base)
         jidx.append(p.joint_indices + (forest.bones.offset[i] - bones.start))
         jw.append(p.joint_weights)
@@ -125,16 +130,15 @@ def tree_mesh(
 def leaves_mesh(
     forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64
 ) -> tuple[F64, F64, NDArray[np.int32], F64, NDArray[np.int32], NDArray[np.float32]] | None:
-    """One tree's leaf clouds as one mesh in tree space at rest (each cloud model turned by
-    its yaw, scaled by its size, at its rest centre): points, normals, quads, vertex st, the
-    tree-local joint of each vertex (its cloud's hub bone; rigid, weight 1) and per-face
-    colour. None when the tree bears no clouds."""
+    """One tree's leaf clouds as one mesh in tree space as the tree stands (each cloud model
+    turned by its yaw, scaled by its size, at its posed centre): points, normals, quads,
+    vertex st, the tree-local joint of each vertex (its cloud's hub bone; rigid, weight 1)
+    and per-face colour. None when the tree bears no clouds."""
     sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
     if not len(sel):
         return None
     models = cloud_models(anchors.family)
-    rest_pal = forest.rest_palette()
-    centre = anchor_positions(rest_pal, anchors.bone[sel], anchors.rest[sel])
+    centre = anchor_positions(forest.palette(), anchors.bone[sel], anchors.rest[sel])
     pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
     base = 0
     for k, a in enumerate(sel):  # per cloud: a few hundred per tree, skinned form only
@@ -373,18 +377,26 @@ class JointFrames:
 
 
 def joint_frames(forest: Forest) -> JointFrames:
-    """The forest's joints without scale in their frames.
+    """The forest's joints without scale in their frames, bound as the tree stands.
 
-    Joint frames are stored without scale (DCC bones cannot hold one): with s_j the rest
+    The bind pose is the posed tree without wind, so the meshes are written at their true
+    size and a still frame's joint transforms are the identity. The generator's own rest
+    layout (topological transforms) would not do: along a long axis each step is thinner
+    at rest than posed, so a pine's or spruce's top is microns across there, float32 points
+    lost centimetres, and the joints' scales grew to thousands up the leader.
+
+    Joint frames are stored without scale (DCC bones cannot hold one): with s_j the bound
     scale of joint j in tree space, each local becomes S(s_parent) @ L @ S(1 / s_j), i.e.
-    the translation times s_parent and the scale divided by the rest local scale."""
-    b = forest.bones
-    rest = _rest_locals(forest)
+    the translation times s_parent and the scale divided by the bound local scale (1 for
+    every frame: wind turns joints, it does not scale them)."""
+    b, g = forest.bones, forest.graph
+    rest = forest.local_bones(None)
+    tree_root = b.offset[g.parent < 0]
+    rest[tree_root] = np.eye(4)
     binds = _bind_transforms(forest)
     bind_scale = _scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
     parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
-    tree_root = b.offset[forest.graph.parent < 0]
     parent_scale[tree_root] = 1.0
     return JointFrames(binds, rest, _scale(rest), parent_scale, tree_root)
 
@@ -395,14 +407,9 @@ def _scale(m: F64) -> F64:
 
 
 def _bind_transforms(forest: Forest) -> F64:
-    """``(b, 4, 4)`` rest joint frames in their tree's space (the skeleton's space)."""
+    """``(b, 4, 4)`` joint frames of the posed, windless forest in their tree's space (the
+    skeleton's space): each palette entry (prototype space -> world) times the joint's rest
+    frame in its prototype."""
     b, g = forest.bones, forest.graph
     to_tree = invert_similarity(forest.tree_transforms)[g.tree[b.instance]]
-    return to_tree @ forest.transforms[b.instance] @ b.rest[g.piece[b.instance], b.joint]
-
-
-def _rest_locals(forest: Forest) -> F64:
-    """``(b, 4, 4)`` rest local transforms (no pose, no wind) with tree roots at identity."""
-    local = forest.poser(rest_pose(forest.graph, forest.pieces)).local_transforms()
-    local[forest.bones.offset[forest.graph.parent < 0]] = np.eye(4)
-    return local
+    return to_tree @ forest.palette() @ b.rest[g.piece[b.instance], b.joint]
