@@ -19,6 +19,7 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdSkel
 
+from forest.bark.images import read_pixels
 from forest.bark.tilesets import default_dir, mean_colour
 from forest.growth.foliage import cloud_models
 from forest.growth.generate import Forest, ForestOptions, generate_forest
@@ -29,6 +30,7 @@ from forest.usd.skinned import tree_slices
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
 CHECK = ROOT / "tests" / "blender_import_check.py"
+RENDER = ROOT / "tests" / "blender_render.py"
 SETUP = "bash tests/setup_blender_venv.sh"
 TREES, FRAMES = 2, 6
 
@@ -234,6 +236,26 @@ def test_blender_renders_leaves_and_bark_in_their_colours(blender_run: Run | str
         assert bark["linked"]  # the tile images
     else:
         np.testing.assert_allclose(bark["base_color"], mean_colour(forest.grammar.bark), atol=1e-5)
+
+
+def test_blender_renders_green_leaves(tmp_path: Path) -> None:
+    """A Cycles render of the imported tree (what an artist sees after File > Import): leaf
+    green covers part of the picture (the leaves rendered white while their colour came only
+    through a primvar reader, and a pine's flew off to kilometres)."""
+    if not BLENDER_PY.exists():
+        pytest.fail(f"{BLENDER_PY.relative_to(ROOT)} does not exist: run `{SETUP}`", pytrace=False)
+    for preset in ("almond", "pine"):
+        forest = generate_forest(load_preset(preset), 3, ForestOptions(trees=1))
+        scene = write_scene(forest, tmp_path / f"{preset}.usdc")
+        out = tmp_path / f"{preset}.png"
+        proc = subprocess.run(
+            [str(BLENDER_PY), str(RENDER), str(scene), str(out), "--size", "96", "--samples", "4"],
+            capture_output=True, text=True, timeout=300, cwd=tmp_path,
+        )  # fmt: skip
+        assert proc.returncode == 0 and out.exists(), proc.stdout[-2000:] + proc.stderr[-2000:]
+        rgb = read_pixels(out)[..., :3].astype(np.float64)
+        green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > 1.15 * rgb[..., 2])
+        assert green.mean() > 0.005, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
 
 
 def test_blender_loads_every_udim_tile(blender_run: Run | str) -> None:
