@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
+from pxr import Usd, UsdGeom, UsdSkel, Vt
 
 from forest.geometry.pieces import PieceArrays
 from forest.growth.generate import Forest
@@ -67,3 +68,18 @@ def skin_forest(forest: Forest, palette: F64) -> tuple[list[F64], list[F64]]:
 
 def bbox_diagonal(points: F64) -> float:
     return float(np.linalg.norm(points.max(axis=0) - points.min(axis=0)))
+
+
+def usd_skinned_points(root: Usd.Prim, mesh: str, frame: float) -> F64:
+    """``(v, 3)`` world points of the mesh ``mesh`` under the SkelRoot ``root`` at ``frame``
+    as USD's own skinning (UsdSkel, what every DCC follows) puts them."""
+    cache = UsdSkel.Cache()
+    cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
+    skel = UsdSkel.Skeleton(root.GetChild("Skeleton"))
+    query = cache.GetSkelQuery(skel)
+    tc = Usd.TimeCode(frame)
+    points = Vt.Vec3fArray(UsdGeom.Mesh(root.GetChild(mesh)).GetPointsAttr().Get(tc))
+    skin = cache.GetSkinningQuery(root.GetChild(mesh))
+    assert skin.ComputeSkinnedPoints(query.ComputeSkinningTransforms(tc), points, tc)
+    m = np.asarray(UsdGeom.Xformable(skel).ComputeLocalToWorldTransform(tc)).T
+    return np.asarray(points, np.float64) @ m[:3, :3].T + m[:3, 3]

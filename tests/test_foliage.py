@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from pxr import Sdf, Usd, UsdGeom, UsdSkel, Vt
+from pxr import Sdf, Usd, UsdGeom
 
 from forest.geometry.pieces import HUB
 from forest.growth.foliage import (
@@ -29,6 +29,7 @@ from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import FOLIAGE, FOLIAGE_CLOUD, write_scene
 from schemas.grammar import Leaves
+from tests.helpers_skin import usd_skinned_points
 from tests.test_usd import validation_errors
 
 
@@ -274,19 +275,7 @@ def test_skinned_leaves_stay_on_their_clouds(preset: str, tmp_path: Path) -> Non
     kilometres (Blender drew them there)."""
     f = generate_forest(load_preset(preset), 4, ForestOptions(trees=1))
     stage = Usd.Stage.Open(str(write_scene(f, tmp_path / "tree.usdc", skinned=True)))
-    root = UsdSkel.Root(stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000"))
-    cache = UsdSkel.Cache()
-    cache.Populate(root, Usd.PrimDefaultPredicate)
-    (binding,) = cache.ComputeSkelBindings(root, Usd.PrimDefaultPredicate)
-    query = cache.GetSkelQuery(binding.GetSkeleton())
-    tc = Usd.TimeCode(0)
-    (leaves,) = [t for t in binding.GetSkinningTargets() if t.GetPrim().GetName() == "Leaves"]
-    points = Vt.Vec3fArray(UsdGeom.Mesh(leaves.GetPrim()).GetPointsAttr().Get(tc))
-    assert leaves.ComputeSkinnedPoints(query.ComputeSkinningTransforms(tc), points, tc)
-    to_world = np.array(
-        UsdGeom.Xformable(binding.GetSkeleton()).ComputeLocalToWorldTransform(tc)
-    )
-    world = (np.c_[np.array(points, np.float64), np.ones(len(points))] @ to_world)[:, :3]
+    world = usd_skinned_points(stage.GetPrimAtPath("/World/Forest/Trees/Tree_00000"), "Leaves", 0)
     a = f.foliage_anchors()
     models = cloud_models(a.family)
     counts = np.array([len(m.positions) for m in models])[a.model]

@@ -20,6 +20,7 @@ from forest.growth.presets import load_preset, preset_names
 from forest.usd.read import read_scene, select_engine
 from forest.usd.scene import PIECES, write_scene
 from forest.usd.skinned import tree_slices
+from tests.helpers_skin import usd_skinned_points
 from tests.test_rig import assert_rebuilt_palette
 
 
@@ -133,18 +134,8 @@ def assert_usd_skinning_matches_ours(stage: Usd.Stage, f: Forest, frames: tuple[
     millimetre on an 11 m willow); at a still frame the two are equal to float32."""
     for k, (inst, _) in enumerate(tree_slices(f)):
         root = stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}")
-        cache = UsdSkel.Cache()
-        cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
-        skel = cache.GetSkelQuery(UsdSkel.Skeleton(root.GetChild("Skeleton")))
-        mesh = root.GetChild("Bark")
-        skin = cache.GetSkinningQuery(mesh)
-        world = UsdGeom.Xformable(root).ComputeLocalToWorldTransform(Usd.TimeCode.Default())
-        m = np.asarray(world).T
         for frame in frames:
-            tc = Usd.TimeCode(frame)
-            points = UsdGeom.Mesh(mesh).GetPointsAttr().Get(tc)
-            assert skin.ComputeSkinnedPoints(skel.ComputeSkinningTransforms(tc), points, tc)
-            usd = np.asarray(points, dtype=np.float64) @ m[:3, :3].T + m[:3, 3]
+            usd = usd_skinned_points(root, "Bark", frame)
             ours = _our_skinned_points(f, inst, frame / f.options.fps)
             size = np.ptp(ours, axis=0).max()
             assert cKDTree(usd).query(ours)[0].max() < 1e-4 * size
@@ -182,14 +173,7 @@ def test_skinned_tree_is_bound_as_it_stands(preset: str, tmp_path: Path) -> None
     ours = _our_skinned_points(f, inst, None)
     size = np.ptp(ours, axis=0).max()
     assert cKDTree(rest).query(ours)[0].max() < 2e-6 * size
-    cache = UsdSkel.Cache()
-    cache.Populate(UsdSkel.Root(root), Usd.PrimDefaultPredicate)
-    skel = cache.GetSkelQuery(UsdSkel.Skeleton(root.GetChild("Skeleton")))
-    points = mesh.GetPointsAttr().Get(0)
-    assert cache.GetSkinningQuery(root.GetChild("Bark")).ComputeSkinnedPoints(
-        skel.ComputeSkinningTransforms(0), points, 0
-    )
-    skinned = np.asarray(points, np.float64) @ world[:3, :3].T + world[:3, 3]
+    skinned = usd_skinned_points(root, "Bark", 0)
     assert np.abs(skinned - rest).max() < 2e-6 * size
 
 

@@ -63,8 +63,8 @@ def test_tree_mesh_welds_every_rim(preset: str) -> None:
     as one group, as a KD-tree's pairs and connected components joined them too)."""
     f = generate_forest(load_preset(preset), 2, ForestOptions(trees=1))
     (inst, bones), = tree_slices(f)
-    raw = tree_mesh(f, inst, bones, np.eye(4))
-    pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), weld=True)
+    raw = tree_mesh(f, inst, bones, np.eye(4), f.palette())
+    pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), f.palette(), weld=True)
     assert len(pts) < len(raw[0])
     assert len(close_pairs(pts, WELD_TOL)) == 0
     np.testing.assert_allclose(pts[quads], raw[0][raw[2]], rtol=0, atol=1e-4)
@@ -73,7 +73,7 @@ def test_tree_mesh_welds_every_rim(preset: str) -> None:
 def test_proxy_vertices_take_skin_from_what_collapsed_into_them() -> None:
     f = generate_forest(load_preset("oak"), 2, ForestOptions(trees=1))
     (inst, bones), = tree_slices(f)
-    pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), weld=True)
+    pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), f.palette(), weld=True)
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     pts32 = pts.astype(np.float32)
     *_, coll = fast_simplification.simplify(pts32, tris, 1.0 - PROXY_KEEP, return_collapses=True)

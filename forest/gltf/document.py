@@ -19,6 +19,7 @@ import pygltflib as gl
 
 from forest.atomic import replaced_when_written
 from forest.errors import LimitError, OutputError
+from forest.geometry.transforms import F64
 from forest.gltf.bark import add_bark_material, atlas_uv, make_atlas, read_slices, tile_folder
 from forest.gltf.buffer import Blob
 from forest.gltf.instancing import add_instanced_scene
@@ -58,13 +59,15 @@ def _bark_primitive(
     material: int,
     n_slices: int,
     tile_size: int,
+    still: F64,
 ) -> gl.Primitive:
-    """The tree's bark in tree space at rest, one vertex per quad corner (each quad has its
-    own tile UVs), two triangles per quad."""
+    """The tree's bark in tree space as it stands (skinned with ``still``, the skins' bind
+    pose), one vertex per quad corner (each quad has its own tile UVs), two triangles per
+    quad."""
     from forest.geometry.transforms import invert_similarity
 
     to_tree = invert_similarity(forest.tree_transforms[tree])
-    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree)
+    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still)
     corner = quads.ravel()
     w = jw[corner]
     w = w / w.sum(axis=1, keepdims=True)
@@ -125,7 +128,9 @@ def forest_gltf(
     for k, (inst, bones) in enumerate(slices_):
         skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones)
         skins.append((skin, bones))
-        prim = _bark_primitive(blob, forest, inst, bones, k, bark, len(slices), slices.shape[1])
+        prim = _bark_primitive(
+            blob, forest, inst, bones, k, bark, len(slices), slices.shape[1], frames.still
+        )
         gltf.meshes.append(gl.Mesh(name=f"Bark_{k:05d}", primitives=[prim]))
         gltf.nodes.append(
             gl.Node(name=f"Tree_{k:05d}_Bark", mesh=len(gltf.meshes) - 1, skin=skin.skin)

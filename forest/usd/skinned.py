@@ -72,30 +72,33 @@ WELD_TOL = 1e-6  # metres: rims coincide at rest to rounding, far below any vert
 
 
 def tree_mesh(
-    forest: Forest, inst: slice, bones: slice, to_tree: F64, weld: bool = False
+    forest: Forest, inst: slice, bones: slice, to_tree: F64, still: F64, weld: bool = False
 ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
-    """One tree's pieces in tree space as the tree stands (posed, no wind: the skinned
-    forms' bind pose, see :func:`joint_frames`): points, normals, quads, joint indices (into
-    the tree's bones), joint weights and ``(q, 4, 2)`` faceVarying UDIM st. With ``weld``,
-    rims of joined pieces (which coincide posed and are skinned alike) share vertices (the
-    first piece's skin) with averaged normals: no crease at a seam."""
-    still = forest.palette()
-    pts, nrm, quads, jidx, jw, st = [], [], [], [], [], []
+    """One tree's pieces in tree space as the tree stands (skinned with ``still``, the posed,
+    windless palette: the skinned forms' bind pose, :attr:`JointFrames.still`): points,
+    normals, quads, joint indices (into the tree's bones), joint weights and ``(q, 4, 2)``
+    faceVarying UDIM st. With ``weld``, rims of joined pieces (which coincide posed and are
+    skinned alike) share vertices (the first piece's skin) with averaged normals: no crease
+    at a seam."""
+    model, model_n, quads, bone, jw, st = [], [], [], [], [], []
     base = 0
     for i in range(inst.start, inst.stop):
         p = forest.pieces[forest.graph.piece[i]]
-        # linear blend of the piece's palette entries, then into tree space
-        blend = to_tree @ np.einsum(
-            "vk,vkij->vij", p.joint_weights, still[forest.bones.offset[i] + p.joint_indices]
-        )
-        pts.append(np.einsum("vij,vj->vi", blend[:, :3, :3], p.positions) + blend[:, :3, 3])
-        n = np.einsum("vji,vj->vi", np.linalg.inv(blend[:, :3, :3]), p.normals)
-        nrm.append(n / np.linalg.norm(n, axis=1, keepdims=True))
+        model.append(p.positions)
+        model_n.append(p.normals)
         quads.append(p.quads + base)
-        jidx.append(p.joint_indices + (forest.bones.offset[i] - bones.start))
+        bone.append(p.joint_indices + forest.bones.offset[i])
         jw.append(p.joint_weights)
         st.append(tile_udim_st(forest.tile_indices[i, : len(p.quads)]))
         base += len(p.positions)
+    weights, bone_all = np.concatenate(jw), np.concatenate(bone)
+    # every vertex's linear blend of its palette entries, into tree space, in one pass
+    blend = to_tree @ np.einsum("vk,vkij->vij", weights, still[bone_all])
+    lin = blend[:, :3, :3]
+    pts = [np.einsum("vij,vj->vi", lin, np.concatenate(model)) + blend[:, :3, 3]]
+    n = np.einsum("vji,vj->vi", np.linalg.inv(lin), np.concatenate(model_n))
+    nrm = [n / np.linalg.norm(n, axis=1, keepdims=True)]
+    jidx, jw = [bone_all - bones.start], [weights]
     if not weld:
         return (
             np.concatenate(pts),
@@ -128,17 +131,18 @@ def tree_mesh(
 
 
 def leaves_mesh(
-    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64
+    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64, still: F64
 ) -> tuple[F64, F64, NDArray[np.int32], F64, NDArray[np.int32], NDArray[np.float32]] | None:
     """One tree's leaf clouds as one mesh in tree space as the tree stands (each cloud model
-    turned by its yaw, scaled by its size, at its posed centre): points, normals, quads,
+    turned by its yaw, scaled by its size, at its centre on ``still``, the posed, windless
+    palette): points, normals, quads,
     vertex st, the tree-local joint of each vertex (its cloud's hub bone; rigid, weight 1)
     and per-face colour. None when the tree bears no clouds."""
     sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
     if not len(sel):
         return None
     models = cloud_models(anchors.family)
-    centre = anchor_positions(forest.palette(), anchors.bone[sel], anchors.rest[sel])
+    centre = anchor_positions(still, anchors.bone[sel], anchors.rest[sel])
     pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
     base = 0
     for k, a in enumerate(sel):  # per cloud: a few hundred per tree, skinned form only
@@ -316,14 +320,18 @@ def write_skinned_trees(
         UsdSkel.BindingAPI.Apply(skel.GetPrim()).CreateAnimationSourceRel().SetTargets(
             [anim.GetPath()]
         )
-        pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, weld=True)
+        pts, nrm, quads, jidx, jw, st = tree_mesh(
+            forest, inst, bones, to_tree, frames_of.still, weld=True
+        )
         mesh = _mesh(stage, f"{path}/Bark", pts, nrm, quads, UsdGeom.Tokens.render)
         _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
         _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
-        leaves = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree)
+        leaves = None if anchors is None else leaves_mesh(
+            forest, anchors, inst, bones, to_tree, frames_of.still
+        )
         if leaves is not None and leaf_materials is not None:
             lp, ln, lq, lst, lj, lc = leaves
             lm = _mesh(stage, f"{path}/Leaves", lp, ln, lq, UsdGeom.Tokens.default_)
@@ -352,10 +360,14 @@ class JointFrames:
     """A forest's joints as DCC bones (no scale in their frames), shared by every skinned
     export (USD here, glTF in :mod:`forest.gltf`).
 
-    binds : (b, 4, 4) unscaled rest joint frames in their tree's space
-    rest : (b, 4, 4) rest local transforms (tree roots at identity), scaled as the generator's
-    rest_scale, parent_scale : (b,) rest scale of each joint and of its parent, tree space
+    binds : (b, 4, 4) unscaled joint frames of the bind pose (the tree as it stands: posed,
+        no wind) in their tree's space
+    rest : (b, 4, 4) the bind pose's local transforms (tree roots at identity), scaled as the
+        generator's
+    rest_scale, parent_scale : (b,) bound scale of each joint and of its parent, tree space
     tree_root : (t,) int the bone of each tree's root
+    still : (b, 4, 4) the posed, windless palette (prototype space -> world) the bind pose
+        and the meshes written in it come from
     """
 
     binds: F64
@@ -363,6 +375,7 @@ class JointFrames:
     rest_scale: F64
     parent_scale: F64
     tree_root: NDArray[np.int32]
+    still: F64
 
     def unscaled(self, local: F64) -> JointTQS:
         """Local transforms ``(b, 4, 4)`` -> translations (b, 3) float32, xyzw rotations
@@ -390,15 +403,16 @@ def joint_frames(forest: Forest) -> JointFrames:
     the translation times s_parent and the scale divided by the bound local scale (1 for
     every frame: wind turns joints, it does not scale them)."""
     b, g = forest.bones, forest.graph
+    still = forest.palette()
     rest = forest.local_bones(None)
     tree_root = b.offset[g.parent < 0]
     rest[tree_root] = np.eye(4)
-    binds = _bind_transforms(forest)
+    binds = _bind_transforms(forest, still)
     bind_scale = _scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
     parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
     parent_scale[tree_root] = 1.0
-    return JointFrames(binds, rest, _scale(rest), parent_scale, tree_root)
+    return JointFrames(binds, rest, _scale(rest), parent_scale, tree_root, still)
 
 
 def _scale(m: F64) -> F64:
@@ -406,10 +420,10 @@ def _scale(m: F64) -> F64:
     return np.cbrt(np.linalg.det(m[:, :3, :3]))
 
 
-def _bind_transforms(forest: Forest) -> F64:
+def _bind_transforms(forest: Forest, still: F64) -> F64:
     """``(b, 4, 4)`` joint frames of the posed, windless forest in their tree's space (the
-    skeleton's space): each palette entry (prototype space -> world) times the joint's rest
-    frame in its prototype."""
+    skeleton's space): each entry of ``still`` (prototype space -> world) times the joint's
+    rest frame in its prototype."""
     b, g = forest.bones, forest.graph
     to_tree = invert_similarity(forest.tree_transforms)[g.tree[b.instance]]
-    return to_tree @ forest.palette() @ b.rest[g.piece[b.instance], b.joint]
+    return to_tree @ still @ b.rest[g.piece[b.instance], b.joint]
