@@ -49,6 +49,7 @@ from forest.usd.read import SceneArrays
 from forest.usd.scene import FOLIAGE
 from worker import shaders
 from worker.camera import Camera, box_corners
+from worker.gl_context import elapsed_ms
 
 if TYPE_CHECKING:
     import moderngl
@@ -361,7 +362,7 @@ class FoliageRenderer:
         return PassStats(
             draw_calls=len(self.models),
             primitives=int(q.primitives),
-            gpu_ms=q.elapsed / 1e6 if self._timer else None,
+            gpu_ms=elapsed_ms(q) if self._timer else None,
         )
 
     def draw(
@@ -423,7 +424,7 @@ class FoliageRenderer:
         return PassStats(
             draw_calls=calls,
             primitives=int(q.primitives),
-            gpu_ms=q.elapsed / 1e6 if self._timer else None,
+            gpu_ms=elapsed_ms(q) if self._timer else None,
         )
 
     def frame(

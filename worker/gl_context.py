@@ -116,6 +116,17 @@ def check_capabilities(ctx: moderngl.Context, require: int = REQUIRED_VERSION) -
             )
 
 
+# moderngl reads GL_TIME_ELAPSED as a 32-bit result, which drivers saturate at 2**32 - 1 ns
+# (NVIDIA's does): a pass of 4.29 s or more has no GPU time, rather than a wrong one
+TIMER_SATURATED_NS = 2**32 - 1
+
+
+def elapsed_ms(query: moderngl.Query) -> float | None:
+    """The GPU time of a timed query in ms, or None where the 32-bit timer saturated."""
+    ns = int(query.elapsed)
+    return None if ns >= TIMER_SATURATED_NS else ns / 1e6
+
+
 def gl_info(ctx: moderngl.Context) -> GLInfo:
     info: dict[str, Any] = ctx.info
     return GLInfo(

@@ -17,7 +17,7 @@ from schemas.metrics import TessellationSettings
 from worker import shaders
 from worker.camera import GROUND_SPAN, Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
-from worker.gl_context import gl_info
+from worker.gl_context import elapsed_ms, gl_info
 from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
 from worker.staging import StageRenderer, Staging, SunCamera, sun_camera
 from worker.textures import TileImages, tile_images, upload
@@ -305,8 +305,8 @@ class Renderer:
             with self.query:
                 calls += self._draw_all(prog, vaos, per_instance)
             primitives += int(self.query.primitives)
-            if gpu_ms is not None:
-                gpu_ms += self.query.elapsed / 1e6
+            branch_ms = elapsed_ms(self.query)
+            gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
         leaves = None
         if self.foliage is not None and pass1 is not None:
             leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo)
@@ -382,7 +382,7 @@ class Renderer:
                 calls = self._draw_all(prog, vaos, per_instance=False)
             primitives = int(self.query.primitives)
             if gpu_ms is not None:
-                gpu_ms = self.query.elapsed / 1e6
+                gpu_ms = elapsed_ms(self.query)
         if self.foliage is not None and pass1 is not None:
             leaves = self.foliage.frame(light, SUN, SKY, 0.0, pass1, fbo)
             calls += leaves.draw_calls

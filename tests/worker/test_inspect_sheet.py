@@ -60,7 +60,10 @@ def test_contact_sheet_png(mixed_scene_path: Path, tmp_path: Path) -> None:
         capture_output=True,
         text=True,
         timeout=300,
-        env={**os.environ, "PYTHONPATH": str(ROOT)},
+        env={
+            **os.environ,
+            "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        },
     )
     if res.returncode != 0 and "offscreen window" in res.stderr + res.stdout:
         if os.environ.get("FOREST_REQUIRE_GL") == "1":

@@ -56,3 +56,14 @@ def test_bench_render_bad_options(args: list[str], message: str) -> None:
 
 def test_parse_counts() -> None:
     assert parse_counts("1, 10,50", "trees") == [1, 10, 50]
+
+
+def test_saturated_gpu_timer_reports_no_gpu_time() -> None:
+    """moderngl's 32-bit GL_TIME_ELAPSED saturates at 2**32 - 1 ns on NVIDIA (a 1,000-oak
+    frame at level 4 read 4294.97 ms): such a pass has no GPU time, not a wrong one."""
+    from types import SimpleNamespace
+
+    from worker.gl_context import TIMER_SATURATED_NS, elapsed_ms
+
+    assert elapsed_ms(SimpleNamespace(elapsed=5_000_000)) == 5.0  # type: ignore[arg-type]
+    assert elapsed_ms(SimpleNamespace(elapsed=TIMER_SATURATED_NS)) is None  # type: ignore[arg-type]

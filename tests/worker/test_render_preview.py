@@ -239,7 +239,11 @@ def test_bad_options_get_one_line(tmp_path: Path, args: list[str], message: str)
 
 def test_missing_egl_names_the_packages(tmp_path: Path) -> None:
     """A real run where glcontext cannot load libEGL: the user is told what to install."""
-    env = {**os.environ, "PYTHONPATH": str(ROOT), "GLCONTEXT_LINUX_LIBEGL": "libEGL-missing.so"}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]),
+        "GLCONTEXT_LINUX_LIBEGL": "libEGL-missing.so",
+    }
     res = subprocess.run(
         [sys.executable, "-m", "forest.cli", "render", str(GOLDEN_SCENE), "-o", "p.png"],
         cwd=tmp_path,
