@@ -158,3 +158,17 @@ def test_manifest_without_a_needed_class() -> None:
     with pytest.raises(ForestError) as exc:
         generate_forest(load_preset("alternating"), 1, ForestOptions(trees=1), manifest=manifest)
     assert exc.value.path == "tileset.classes"
+
+
+@pytest.mark.parametrize("threads", [2, 3])
+def test_threads_draw_the_same_indices_and_leave_the_same_stream(threads: int) -> None:
+    """Chunks drawn side by side from jumped-ahead copies of the stream equal one thread's
+    draw, a partial last chunk included, and the generator ends in the same state."""
+    pieces = piece_library(1)
+    piece = np.random.default_rng(0).integers(0, len(pieces), 4 * 8192 + 7).astype(np.int32)
+    one, many = np.random.default_rng(9), np.random.default_rng(9)
+    a = draw_tile_indices(piece, pieces, DEFAULT_MANIFEST, one)
+    b = draw_tile_indices(piece, pieces, DEFAULT_MANIFEST, many, threads=threads)
+    np.testing.assert_array_equal(a, b)
+    assert one.bit_generator.state == many.bit_generator.state
+    assert one.integers(1 << 62) == many.integers(1 << 62)

@@ -3,6 +3,7 @@ among the tiles of its class, so no two instances look alike."""
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +52,7 @@ def draw_tile_indices(
     pieces: tuple[PieceArrays, ...],
     manifest: TileSetManifest,
     rng: np.random.Generator,
+    threads: int = 1,
 ) -> NDArray[np.int16]:
     """``(n, q_max)`` int16 slice per instance and quad, ``-1`` past the piece's last quad
     (16 bits: half the bytes of the forest's largest array after the palette; a texture
@@ -61,6 +63,11 @@ def draw_tile_indices(
     manifest allows), and it is far cheaper than bounded integer draws. Padding maps to -1 by
     a tile count of 0 and a first slice of -1, so rows are drawn in instance order, in chunks
     whose temporaries stay in cache, and the output is written once, front to back.
+
+    With ``threads`` > 1 the chunks are drawn side by side, each from a copy of the stream
+    advanced to where a single thread would be at that chunk (PCG64 jumps ahead in
+    ``O(log n)``): the same indices on any number of threads. ``rng`` ends advanced past every
+    draw either way.
     """
     first, count, n_quads = class_tables(pieces, manifest)
     if int((first + count).max(initial=0)) > np.iinfo(np.int16).max:
@@ -72,18 +79,43 @@ def draw_tile_indices(
     base = np.where(pad, -1, first).astype(np.int32)
     n_count = count.astype(np.uint32)  # 0 on padding already
     out = np.empty((len(piece), q_max), np.int16)
-    rows = min(_TILE_CHUNK, len(piece))
-    tile = np.empty((rows, q_max), np.uint32)
-    for at in range(0, len(piece), _TILE_CHUNK):
-        kinds = piece[at : at + _TILE_CHUNK]
-        k = len(kinds) * q_max
-        raw = rng.bit_generator.random_raw(-(-k // 4)).view(np.uint16)[:k]
-        t = tile[: len(kinds)]
-        np.multiply(raw.reshape(len(kinds), q_max), np.take(n_count, kinds, axis=0), out=t)
-        t >>= 16
-        signed = t.view(np.int32)
-        signed += np.take(base, kinds, axis=0)
-        out[at : at + len(kinds)] = signed
+    starts = range(0, len(piece), _TILE_CHUNK)
+    # 64-bit draws per whole chunk: four uint16 each (a chunk is a multiple of 4 rows)
+    words = _TILE_CHUNK * q_max // 4
+    bit_gen = rng.bit_generator
+    state = bit_gen.state
+    threads = max(1, min(threads, len(starts)))
+
+    def draw(part: int) -> None:
+        if threads == 1:
+            gen = bit_gen
+        else:
+            gen = type(bit_gen)()
+            gen.state = state
+            gen.advance(part * words)  # type: ignore[attr-defined]
+        tile = np.empty((min(_TILE_CHUNK, len(piece)), q_max), np.uint32)
+        for at in starts[part::threads]:
+            if threads > 1 and at != starts[part]:
+                gen.advance((threads - 1) * words)  # type: ignore[attr-defined]
+            kinds = piece[at : at + _TILE_CHUNK]
+            k = len(kinds) * q_max
+            raw = gen.random_raw(-(-k // 4)).view(np.uint16)[:k]
+            t = tile[: len(kinds)]
+            np.multiply(raw.reshape(len(kinds), q_max), np.take(n_count, kinds, axis=0), out=t)
+            t >>= 16
+            signed = t.view(np.int32)
+            signed += np.take(base, kinds, axis=0)
+            out[at : at + len(kinds)] = signed
+
+    if threads == 1 or not hasattr(bit_gen, "advance"):
+        threads = 1
+        draw(0)
+    else:
+        with ThreadPoolExecutor(threads, thread_name_prefix="forest-tiles") as pool:
+            for done in [pool.submit(draw, i) for i in range(threads)]:
+                done.result()
+        bit_gen.state = state
+        bit_gen.advance(-(-len(piece) * q_max // 4))
     return out
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import TYPE_CHECKING
@@ -20,7 +21,7 @@ from forest.growth.expand import PieceGraph
 from forest.growth.foliage import FoliageAnchors, Season, foliage_anchors
 from forest.growth.grammar import CompiledGrammar, compile_grammar
 from forest.growth.keyed import GROW, tree_keys
-from forest.growth.parallel import expand_in_groups
+from forest.growth.parallel import block_threads, expand_in_groups
 from forest.growth.scatter import Placement, place_trees
 from forest.growth.skeleton import (
     Bones,
@@ -244,28 +245,38 @@ def generate_forest(
     note("grow", 1, 5)
     tree_radius = np.cbrt(np.linalg.det(trees[:, :3, :3]))
     graph = expand_in_groups(cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius)
-    note("assemble", 2, 5)
-    transforms = topological_transforms(graph, trees, pieces)
-    note("bones", 3, 5)
-    bones = build_bones(graph, pieces)
-    matrices = len(bones) * max(options.frames, 1)
+    n_bones = int(np.take(np.array([p.n_joints for p in pieces]), graph.piece).sum())
+    matrices = n_bones * max(options.frames, 1)
     if matrices > settings.max_palette_matrices:
         raise LimitError(
-            f"{len(bones)} bones x {max(options.frames, 1)} frame(s) = {matrices} palette "
+            f"{n_bones} bones x {max(options.frames, 1)} frame(s) = {matrices} palette "
             f"matrices, over the cap of {settings.max_palette_matrices}; use fewer frames or "
             "trees",
             path="max_palette_matrices",
             limit=settings.max_palette_matrices,
         )
-    pose = draw_pose(graph, pieces, cg)
-    still = None
-    if cg.alt_tropism.any():
-        pose, still = apply_tropisms(
-            graph, bones, pieces, trees, transforms, pose, cg.alt_tropism
+    # the bark tiles and the pose draws depend on the piece graph alone: they run on their
+    # own threads beside the assembly, and the tiles on beside the posing, whose passes leave
+    # a core idle much of the time (the same arrays on any number of threads); the pool ends
+    # with the call, as in forest.growth.parallel
+    with ThreadPoolExecutor(2, thread_name_prefix="forest-side") as side:
+        tiles_drawn = side.submit(
+            draw_tile_indices, graph.piece, pieces, manifest, rng_tiles, threads=block_threads()
         )
-        still.setflags(write=False)
-    note("tiles", 4, 5)
-    tiles = draw_tile_indices(graph.piece, pieces, manifest, rng_tiles)
+        pose_drawn = side.submit(draw_pose, graph, pieces, cg)
+        note("assemble", 2, 5)
+        transforms = topological_transforms(graph, trees, pieces)
+        note("bones", 3, 5)
+        bones = build_bones(graph, pieces)
+        pose = pose_drawn.result()
+        still = None
+        if cg.alt_tropism.any():
+            pose, still = apply_tropisms(
+                graph, bones, pieces, trees, transforms, pose, cg.alt_tropism
+            )
+            still.setflags(write=False)
+        note("tiles", 4, 5)
+        tiles = tiles_drawn.result()
     note("done", 5, 5)
     return Forest(
         grammar=grammar,
