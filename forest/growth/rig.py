@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.geometry import affine
-from forest.geometry.pieces import MAX_JOINTS, PieceArrays, skinning_rest_inverse
-from forest.geometry.transforms import F64, decompose_similarity, similarity_scale
+from forest.geometry import affine, rim
+from forest.geometry.pieces import HUB, MAX_JOINTS, TIP0, PieceArrays, skinning_rest_inverse
+from forest.geometry.transforms import F64, decompose_similarity
 
 if TYPE_CHECKING:
     from forest.growth.generate import Forest
@@ -184,15 +184,22 @@ def rest_table(pieces: tuple[PieceArrays, ...]) -> F64:
 
 def forest_rig(forest: Forest) -> BoneRig:
     """The rig of a generated forest (its still pose: wind changes no translation, scale or
-    root rotation)."""
+    root rotation), read straight from the poser's structure-of-arrays locals: no ``(b, 4, 4)``
+    stack of local matrices and no determinant per bone by LU."""
     bones = forest.bones
-    local = forest.local_bones()
-    # rotations are kept at the roots only: decomposing those rows alone gives the same
-    # values as decomposing every bone, without a quaternion per bone in between
-    _, root_rotation, _ = decompose_similarity(local[bones.offset])
-    translation = np.ascontiguousarray(local[:, :3, 3])
-    scale = similarity_scale(local)
-    del local
+    loc = forest.poser().locals_for(np.arange(len(forest.graph)))
+    translation = np.empty((len(bones), 3))
+    scale = np.empty(len(bones))
+    tips = bones.offset[loc.pos] + TIP0 + loc.r
+    for rows, local in ((bones.offset, loc.root), (bones.offset + HUB, loc.hub), (tips, loc.tips)):
+        translation[rows] = local[affine.TRANS].T
+        scale[rows] = np.cbrt(affine.det_linear(local[affine.LIN]))
+    # rotations are kept at the roots only (hubs and terminals turn with the pose and wind):
+    # a child's root is one of the six rim twists, a tree's root its model transform
+    g = forest.graph
+    root_rotation = decompose_similarity(rim.twists())[1][g.twist]
+    top = np.flatnonzero(g.parent < 0)
+    root_rotation[top] = decompose_similarity(forest.tree_transforms[g.tree[top]])[1]
     return BoneRig(
         parent=bones.parent,
         translation=translation,
