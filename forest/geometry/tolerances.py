@@ -5,9 +5,11 @@
 TEST_RIM_POSITION_REL = 1e-5
 TEST_RIM_NORMAL_ABS = 1e-4
 # Normals captured from the GPU come from float32 skinning matrices whose scales span three
-# orders of magnitude in a pipe-model tree (trunk to twig): 1.1e-4 seen on llvmpipe; 2e-4 rad
-# is 0.01 degrees, far below what shading shows.
-TEST_RIM_NORMAL_GPU_ABS = 2e-4
+# orders of magnitude in a pipe-model tree (trunk to twig): 1.1e-4 seen on llvmpipe at rest and
+# 2.65e-4 in wind (birch, seed 160, frame 1, level 3: its twigs are the thinnest of the
+# presets); 5e-4 rad is 0.03 degrees, far below what shading shows. Rim positions meet to
+# 1.6e-7 of the tree's size in the same captures.
+TEST_RIM_NORMAL_GPU_ABS = 5e-4
 
 # UsdGeom.PointInstancer stores positions/orientations/scales as float32: its reconstruction of
 # a float64 transform agrees to about 1e-7 of the transform's magnitude; 1e-6 is the contract.

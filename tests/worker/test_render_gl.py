@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from numpy.typing import NDArray
 from pxr import Usd
@@ -367,6 +367,7 @@ def test_frustum_culling_drops_only_patches_out_of_view(
 
 
 @settings(max_examples=8, deadline=None)
+@example(preset="birch", seed=160, level=3.0, frame=1)  # the largest normal mismatch seen
 @given(
     preset=st.sampled_from(["alternating", "uniform", "almond", "hazel", "birch"]),
     seed=st.integers(0, 2**32 - 1),
