@@ -4,12 +4,11 @@
 # positions and 1e-4 for normals leave room for float32 storage in USD (about 6e-8 relative).
 TEST_RIM_POSITION_REL = 1e-5
 TEST_RIM_NORMAL_ABS = 1e-4
-# Normals captured from the GPU at shared rims: at the rims' corners both sides agree to 2.4e-7
-# (the same bone), but at vertices the tessellator adds along a rim they differ by up to 1.1e-4
-# at rest and 5.9e-4 in wind on llvmpipe (birch, seed 160, frame 1, level 4; the error is not
-# monotonic in the level), while positions there meet to 1.6e-7 of the tree's size. 1e-3 rad
-# is 0.06 degrees: a bound on what shading could show, far below it.
-TEST_RIM_NORMAL_GPU_ABS = 1e-3
+# Normals captured from the GPU come from float32 skinning matrices whose scales span three
+# orders of magnitude in a pipe-model tree (trunk to twig): 1.1e-4 seen on llvmpipe; 2e-4 rad
+# is 0.01 degrees, far below what shading shows. (Each point is compared with its partner
+# across the rim, not merely the nearest point: see tests/worker/test_render_gl.largest_gap.)
+TEST_RIM_NORMAL_GPU_ABS = 2e-4
 
 # UsdGeom.PointInstancer stores positions/orientations/scales as float32: its reconstruction of
 # a float64 transform agrees to about 1e-7 of the transform's magnitude; 1e-6 is the contract.

@@ -233,15 +233,26 @@ def rim_sides(scene: SceneArrays, cap: NDArray[np.void]) -> tuple[dict[str, F64]
 
 def largest_gap(a: dict[str, F64], b: dict[str, F64], scale: float) -> tuple[float, float, float]:
     """Largest distance from a point of one side to the nearest point of the other side at
-    the same joint (both ways), with the normal and edge-level differences of those pairs."""
+    the same joint (both ways), with the normal and edge-level differences of those pairs.
+
+    The normal is compared with the best of the other side's points at that place (within
+    the position tolerance of the nearest): with fractional spacing the tessellator may put a
+    vertex microns from a rim corner, and the corner, a hair nearer, has another normal (a
+    birch twig at level 4 paired so showed 5.9e-4 rad where its true partner agrees to 3e-8)."""
     sep = 1e3 * scale  # keys far apart in a fourth coordinate: no match across joints
+    same_place = TEST_RIM_POSITION_REL * scale
     ta = cKDTree(np.c_[a["pos"], a["key"] * sep])
     tb = cKDTree(np.c_[b["pos"], b["key"] * sep])
     gap, normal, level = 0.0, 0.0, 0.0
     for src, tree, dst in ((a, tb, b), (b, ta, a)):
-        d, j = tree.query(np.c_[src["pos"], src["key"] * sep])
-        gap = max(gap, float(d.max()))
-        normal = max(normal, float(np.abs(src["normal"] - dst["normal"][j]).max()))
+        k = min(4, tree.n)
+        d, j = tree.query(np.c_[src["pos"], src["key"] * sep], k=k)
+        d, j = d.reshape(len(d), k), j.reshape(len(j), k)
+        gap = max(gap, float(d[:, 0].max()))
+        diff = np.abs(src["normal"][:, None] - dst["normal"][j]).max(axis=2)
+        there = d <= d[:, :1] + same_place
+        normal = max(normal, float(np.where(there, diff, np.inf).min(axis=1).max()))
+        j = j[:, 0]
         inner = ~src["corner"] & ~dst["corner"][j]
         if inner.any():  # at level 1 a rim has corners only
             level = max(level, float(np.abs(src["level"] - dst["level"][j])[inner].max()))
@@ -366,9 +377,9 @@ def test_frustum_culling_drops_only_patches_out_of_view(
     assert (np.abs(image[..., :3].astype(int) - sky).max(axis=-1) > 30).mean() > 0.05
 
 
-# derandomized: the same eight trees every run, so CI is not a lottery over seeds
-@settings(max_examples=8, deadline=None, derandomize=True, database=None)
-@example(preset="birch", seed=160, level=4.0, frame=1)  # the largest normal mismatch seen
+@settings(max_examples=8, deadline=None)
+# a vertex microns from a rim corner: paired with the corner it showed 5.9e-4 rad
+@example(preset="birch", seed=160, level=4.0, frame=1)
 @given(
     preset=st.sampled_from(["alternating", "uniform", "almond", "hazel", "birch"]),
     seed=st.integers(0, 2**32 - 1),
