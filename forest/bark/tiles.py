@@ -84,7 +84,9 @@ def draw_tile_indices(
     words = _TILE_CHUNK * q_max // 4
     bit_gen = rng.bit_generator
     state = bit_gen.state
-    threads = max(1, min(threads, len(starts)))
+    # jumping ahead needs a bit generator with advance (PCG64, default_rng's); others draw
+    # on one thread
+    threads = max(1, min(threads, len(starts))) if hasattr(bit_gen, "advance") else 1
 
     def draw(part: int) -> None:
         if threads == 1:
@@ -107,15 +109,14 @@ def draw_tile_indices(
             signed += np.take(base, kinds, axis=0)
             out[at : at + len(kinds)] = signed
 
-    if threads == 1 or not hasattr(bit_gen, "advance"):
-        threads = 1
+    if threads == 1:
         draw(0)
     else:
         with ThreadPoolExecutor(threads, thread_name_prefix="forest-tiles") as pool:
             for done in [pool.submit(draw, i) for i in range(threads)]:
                 done.result()
         bit_gen.state = state
-        bit_gen.advance(-(-len(piece) * q_max // 4))
+        bit_gen.advance(-(-len(piece) * q_max // 4))  # type: ignore[attr-defined]
     return out
 
 

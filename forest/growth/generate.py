@@ -31,6 +31,7 @@ from forest.growth.skeleton import (
     apply_tropisms,
     build_bones,
     draw_pose,
+    joints_per_instance,
     rest_palette,
 )
 from forest.settings import ForestSettings, get_settings
@@ -245,7 +246,7 @@ def generate_forest(
     note("grow", 1, 5)
     tree_radius = np.cbrt(np.linalg.det(trees[:, :3, :3]))
     graph = expand_in_groups(cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius)
-    n_bones = int(np.take(np.array([p.n_joints for p in pieces]), graph.piece).sum())
+    n_bones = int(joints_per_instance(graph, pieces).sum(dtype=np.int64))
     matrices = n_bones * max(options.frames, 1)
     if matrices > settings.max_palette_matrices:
         raise LimitError(

@@ -107,8 +107,13 @@ class Bones:
         return len(self.instance)
 
 
+def joints_per_instance(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> I32:
+    """``(n,)`` bones of each instance (its piece's joints): the palette has their sum."""
+    return np.take(np.array([p.n_joints for p in pieces], np.int32), graph.piece)
+
+
 def build_bones(graph: PieceGraph, pieces: tuple[PieceArrays, ...]) -> Bones:
-    n_joints = np.take(np.array([p.n_joints for p in pieces], np.int32), graph.piece)
+    n_joints = joints_per_instance(graph, pieces)
     offset = np.zeros(len(graph), np.int32)
     np.cumsum(n_joints[:-1], out=offset[1:])
     instance = np.repeat(np.arange(len(graph), dtype=np.int32), n_joints)
