@@ -24,7 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.geometry import affine, rim
-from forest.geometry.pieces import HUB, MAX_JOINTS, TIP0, PieceArrays, skinning_rest_inverse
+from forest.geometry.pieces import MAX_JOINTS, PieceArrays, skinning_rest_inverse
 from forest.geometry.transforms import F64, decompose_similarity
 
 if TYPE_CHECKING:
@@ -184,16 +184,10 @@ def rest_table(pieces: tuple[PieceArrays, ...]) -> F64:
 
 def forest_rig(forest: Forest) -> BoneRig:
     """The rig of a generated forest (its still pose: wind changes no translation, scale or
-    root rotation), read straight from the poser's structure-of-arrays locals: no ``(b, 4, 4)``
-    stack of local matrices and no determinant per bone by LU."""
+    root rotation): the poser's translations and scales without its rotations, and no
+    ``(b, 4, 4)`` stack of local matrices."""
     bones = forest.bones
-    loc = forest.poser().locals_for(np.arange(len(forest.graph)))
-    translation = np.empty((len(bones), 3))
-    scale = np.empty(len(bones))
-    tips = bones.offset[loc.pos] + TIP0 + loc.r
-    for rows, local in ((bones.offset, loc.root), (bones.offset + HUB, loc.hub), (tips, loc.tips)):
-        translation[rows] = local[affine.TRANS].T
-        scale[rows] = np.cbrt(affine.det_linear(local[affine.LIN]))
+    translation, scale = forest.poser().rig_offsets()
     # rotations are kept at the roots only (hubs and terminals turn with the pose and wind):
     # a child's root is one of the six rim twists, a tree's root its model transform
     g = forest.graph

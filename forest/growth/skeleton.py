@@ -491,14 +491,23 @@ class Poser:
             fld.along, idx, axis=1
         )
 
-    def _rotations(self, idx: NDArray[np.intp], wind: Wind | None, time: float) -> _Rotations:
-        """Pose rotations of the instances ``idx`` and of their terminals (see _Rotations)."""
-        pose, tab = self.pose, _piece_tables(self.pieces)
-        rims = tab.rims[self.graph.piece[idx]]
+    def _terminals(
+        self, idx: NDArray[np.intp]
+    ) -> tuple[
+        NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp], NDArray[np.intp]
+    ]:
+        """``rims, tipstart, pos, r, flat`` of the instances ``idx`` (see _Rotations)."""
+        rims = _piece_tables(self.pieces).rims[self.graph.piece[idx]]
         tipstart = np.cumsum(rims) - rims
         pos = np.repeat(np.arange(len(idx)), rims)
         r = np.arange(len(pos)) - tipstart[pos]
         flat = idx[pos] * MAX_LEAF_RIMS + r  # into the (n, R) pose arrays
+        return rims, tipstart, pos, r, flat
+
+    def _rotations(self, idx: NDArray[np.intp], wind: Wind | None, time: float) -> _Rotations:
+        """Pose rotations of the instances ``idx`` and of their terminals (see _Rotations)."""
+        pose = self.pose
+        rims, tipstart, pos, r, flat = self._terminals(idx)
         hub = affine.horizontal_rotation(pose.bend_azimuth[idx], pose.bend_angle[idx])
         tip = affine.horizontal_rotation(
             np.take(pose.spread_azimuth, flat), np.take(pose.spread_angle, flat)
@@ -534,6 +543,32 @@ class Poser:
         )
         tips[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col]
         return _Locals(root, hub, tips, rot.pos, rot.r)
+
+    def rig_offsets(self) -> tuple[F64, F64]:
+        """``(b, 3)`` translations and ``(b,)`` uniform scales of every bone's local transform
+        (:meth:`locals_for` without its rotations, which a rig stores apart): wind turns bones
+        but moves and scales none, so these hold in every frame. Hubs turn without scaling;
+        a terminal scales by its pose's ``tip_scale`` (its rest rotation has unit determinant);
+        a root is a rim twist or its tree's model transform."""
+        g, pose, tab, bones = self.graph, self.pose, _piece_tables(self.pieces), self.bones
+        idx = np.arange(len(g))
+        _, _, pos, r, flat = self._terminals(idx)
+        off = bones.offset
+        tips = off[pos] + TIP0 + r
+        translation = np.empty((len(bones), 3))
+        scale = np.ones(len(bones))
+        translation[off] = tab.twists[affine.TRANS][:, g.twist].T
+        scale[off] = np.cbrt(affine.det_linear(tab.twists[affine.LIN]))[g.twist]
+        top = np.flatnonzero(g.parent < 0)
+        model = affine.from_matrices(self.tree_transforms[g.tree[top]])
+        translation[off[top]] = model[affine.TRANS].T
+        scale[off[top]] = np.cbrt(affine.det_linear(model[affine.LIN]))
+        piece = g.piece
+        translation[off + HUB] = (pose.length * tab.hub_t[:, piece]).T
+        col = piece[pos] * MAX_LEAF_RIMS + r
+        translation[tips] = (pose.length[pos] * tab.tip_t[:, col]).T
+        scale[tips] = np.take(pose.tip_scale, flat)
+        return translation, scale
 
     def local_transforms(self, wind: Wind | None = None, time: float = 0.0) -> F64:
         """``(b, 4, 4)`` local transforms of every bone (what a SkelAnimation stores)."""
