@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from forest.geometry import affine, rim
 from forest.geometry.pieces import MAX_JOINTS, PieceArrays, skinning_rest_inverse
-from forest.geometry.transforms import F64, decompose_similarity
+from forest.geometry.transforms import BLOCK, F64, decompose_similarity
 
 if TYPE_CHECKING:
     from forest.growth.generate import Forest
@@ -205,11 +205,22 @@ def forest_rig(forest: Forest) -> BoneRig:
     )
 
 
-def joint_rotations(forest: Forest, time: float | None = None) -> F64:
+def joint_rotations(forest: Forest, time: float | None = None, dtype: type = np.float64) -> F64:
     """``(a, 4)`` the turning bones' local rotations (unit xyzw) at ``time`` (None: the still
-    pose), one frame as a scene stores it (the rows of :attr:`BoneRig.animated`)."""
+    pose), one frame as a scene stores it (the rows of :attr:`BoneRig.animated`), in
+    ``dtype``. Made a block of instances at a time, so the temporaries stay small whatever
+    the forest's size and only the result is new memory."""
     wind = None if time is None else forest.options.wind
-    return linear_quaternions(forest.poser().joint_rotations(wind, time or 0.0))
+    poser, n = forest.poser(), forest.n_instances
+    out = np.empty((len(forest.bones) - n, 4), dtype)
+    row = 0
+    for start in range(0, n, BLOCK):
+        q = linear_quaternions(
+            poser.joint_rotations(wind, time or 0.0, start, min(n, start + BLOCK))
+        )
+        out[row : row + len(q)] = q
+        row += len(q)
+    return out
 
 
 def linear_quaternions(lin: F64) -> F64:

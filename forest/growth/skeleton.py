@@ -580,17 +580,26 @@ class Poser:
         out[off[loc.pos] + TIP0 + loc.r] = affine.to_matrices(loc.tips)
         return out
 
-    def joint_rotations(self, wind: Wind | None = None, time: float = 0.0) -> F64:
+    def joint_rotations(
+        self, wind: Wind | None = None, time: float = 0.0, start: int = 0, stop: int | None = None
+    ) -> F64:
         """``(9, b - n)`` the local rotations of the bones that turn (every hub and terminal;
         an instance's root never does), in palette order without the roots: what compact
         wind stores per frame (:mod:`forest.growth.rig`). Rotations only: a terminal's local
-        linear part is this times its scale."""
+        linear part is this times its scale. With ``start``/``stop``, the columns of the
+        instances ``start:stop`` alone (their bones are contiguous), so a writer can go a
+        block at a time."""
+        n = len(self.graph)
+        stop = n if stop is None else stop
         tab = _piece_tables(self.pieces)
-        rot = self._rotations(np.arange(len(self.graph)), wind, time)
-        col = self.graph.piece[rot.pos] * MAX_LEAF_RIMS + rot.r
-        out = np.empty((9, len(self.bones) - len(self.graph)))
+        idx = np.arange(start, stop)
+        rot = self._rotations(idx, wind, time)
+        col = self.graph.piece[idx[rot.pos]] * MAX_LEAF_RIMS + rot.r
         # bone b of instance i is column b - (i + 1) once the roots are taken out
-        first = self.bones.offset - np.arange(len(self.graph))
+        ends = np.append(self.bones.offset, len(self.bones))
+        base = ends[start] - start
+        out = np.empty((9, ends[stop] - stop - base))
+        first = self.bones.offset[idx] - idx - base
         out[:, first] = rot.hub
         out[:, first[rot.pos] + 1 + rot.r] = affine.compose_linear(
             rot.tip, np.take(tab.tip_r, col, axis=1)

@@ -289,7 +289,7 @@ def write_instancer(
     for i, time in enumerate(times):
         palette = _row_palette(forest, time)
         code = _time_code(time, forest.options.fps)
-        rotations = joint_rotations(forest, time).astype(np.float32)
+        rotations = joint_rotations(forest, time, np.float32)
         quats = Vt.QuatfArray.FromNumpy(rotations)
         _attr(prim, JOINT_ROTATIONS, Sdf.ValueTypeNames.QuatfArray, quats, code)
         t, q, s = fit_posed(moments, g.piece, forest.bones.offset, np.swapaxes(palette, -1, -2))
