@@ -205,14 +205,16 @@ def forest_rig(forest: Forest) -> BoneRig:
     )
 
 
-def joint_rotations(forest: Forest, time: float | None = None, dtype: type = np.float64) -> F64:
+def joint_rotations(
+    forest: Forest, time: float | None = None, dtype: type[np.floating] = np.float64
+) -> NDArray[np.floating]:
     """``(a, 4)`` the turning bones' local rotations (unit xyzw) at ``time`` (None: the still
     pose), one frame as a scene stores it (the rows of :attr:`BoneRig.animated`), in
     ``dtype``. Made a block of instances at a time, so the temporaries stay small whatever
     the forest's size and only the result is new memory."""
     wind = None if time is None else forest.options.wind
     poser, n = forest.poser(), forest.n_instances
-    out = np.empty((len(forest.bones) - n, 4), dtype)
+    out: NDArray[np.floating] = np.empty((len(forest.bones) - n, 4), dtype)
     row = 0
     for start in range(0, n, BLOCK):
         q = linear_quaternions(
