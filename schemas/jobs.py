@@ -140,6 +140,10 @@ class RenderRequest(FiniteModel):
     """The view frames this tree of the scene alone (a close-up), not the forest."""
     staged: bool = False
     """Ground, sky, sun shadows, 4x MSAA and a filmic tone map (the bare mode otherwise)."""
+    lod_pixels: Annotated[float, Field(ge=0, le=64, allow_inf_nan=False)] | None = 0.5
+    """Pieces thinner on screen than this many pixels are not drawn (a distant tree's
+    twigs, under its leaves); 0 draws every piece in view, null also those out of view
+    (whole instances are tested on the GPU before the draws: worker.instance_cull)."""
     clip: Literal["mp4", "webm", "gif"] | None = None
     """Also encode the frames as ``clip.<format>`` (an artifact with its media type); with
     ``frames`` 1 the clip is the scene's whole wind loop, which loops seamlessly."""

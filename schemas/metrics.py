@@ -75,6 +75,9 @@ class FrameMetrics(StrictModel):
     draw_calls: Count
     """Every draw call of the frame, foliage passes included."""
     instances: Count
+    drawn_instances: Count | None = None
+    """Instances the cull pass kept for the view (in it and, with ``lod_pixels``, at
+    least that thick on screen); null when no cull pass ran."""
     foliage: FoliageFrameMetrics | None = None
     """The foliage passes alone; null when no foliage was drawn."""
 
@@ -98,6 +101,9 @@ class RenderMetrics(StrictModel):
     """One draw call per piece type (instanced) or one per piece instance (the naive way)."""
     frustum_culling: bool
     """Whether patches wholly outside the view were dropped before tessellation."""
+    lod_pixels: NonNegative | None = None
+    """Pieces thinner on screen than this were not drawn (whole instances out of view were
+    dropped first); null: every instance went through the pipeline."""
     piece_types: Count
     instances: Count
     quads: Count

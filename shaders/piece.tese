@@ -32,7 +32,7 @@ struct Instance {
     int bone_offset;
     int tile_offset;
     int id;
-    int pad;
+    int piece_type;
 };
 layout(std430, binding = 0) readonly buffer Instances { Instance instances[]; };
 // Every instance's tile indices, one int per quad, instance after instance.

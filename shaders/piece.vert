@@ -15,13 +15,18 @@ struct Instance {
     int bone_offset;  // first palette entry of the instance's bones
     int tile_offset;  // first entry of the instance's tile indices (one per quad)
     int id;           // instance index in the scene (PointInstancer order)
-    int pad;
+    int piece_type;   // index of the piece's prototype (read by shaders/cull.comp)
 };
 layout(std430, binding = 0) readonly buffer Instances { Instance instances[]; };
 // The forest's bone palette: skinning matrices mapping prototype space straight to world.
 layout(std430, binding = 1) readonly buffer Palette { mat4 bones[]; };
 
+// With u_culled, the instances kept by the cull pass (worker.instance_cull): a draw's
+// instance k is instances[visible[u_base_instance + k]].
+layout(std430, binding = 7) readonly buffer Visible { int visible[]; };
+
 uniform int u_base_instance;
+uniform bool u_culled;
 uniform bool u_skinning;  // false: place the rest piece with its topological transform
 
 out Vertex {
@@ -32,7 +37,8 @@ out Vertex {
 } vs_out;
 
 void main() {
-    int slot = u_base_instance + gl_InstanceID;
+    int slot = u_culled ? visible[u_base_instance + gl_InstanceID]
+                        : u_base_instance + gl_InstanceID;
     Instance inst = instances[slot];
     mat4 m;
     if (u_skinning) {

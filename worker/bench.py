@@ -2,7 +2,10 @@
 (one draw call per piece type) side by side with the naive way (one draw call per piece
 instance), at fixed tessellation levels (1 and 10 by default, as the paper measured), in the
 bare mode (no ground, shadows or MSAA: the paper's set-up); the staged mode (mode ``staged``:
-ground, the sun's shadow pass, 4x MSAA, the tone map) instanced beside it.
+ground, the sun's shadow pass, 4x MSAA, the tone map) instanced beside it. Modes ``lod`` and
+``staged_lod`` are the same with the per-instance cull pass (worker.instance_cull: instances
+out of view, and pieces thinner on screen than DEFAULT_LOD_PIXELS, are not drawn), as ``forest
+render`` draws by default; ``drawn`` is the instances it kept.
 
 Each forest is generated, written as ``.usdc`` and read back, so the renderer sees exactly
 what a worker gets. The level is the same on every edge (no distance falloff), so triangles
@@ -33,6 +36,7 @@ from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from worker.foliage import FOLIAGE_MODES
 from worker.gl_context import create_context, gl_info, raise_gl_error
+from worker.instance_cull import DEFAULT_LOD_PIXELS
 from worker.render_job import preview_view
 from worker.renderer import Renderer, TessSettings
 from worker.staging import STAGED
@@ -42,6 +46,8 @@ if TYPE_CHECKING:
     import moderngl
 
 Echo = Callable[[str], None]
+# the modes with the cull pass, and the mode each is compared with
+LOD_BASE = {"lod": "instanced", "staged_lod": "staged"}
 SPACING = 6.0  # metres between trees: the area grows with the tree count
 # the paper's Figure 16 (DirectX 11, no animation), milliseconds per frame
 PAPER = {
@@ -57,12 +63,12 @@ class BenchRow:
     trees: int
     pieces: int
     level: float
-    mode: str  # "instanced", "per_instance" (bare: the paper's set-up) or "staged"
+    mode: str  # "instanced", "per_instance" (bare: the paper's set-up), "staged", "lod"...
     draw_calls: int
     triangles: int
     cpu_ms: float
     gpu_ms: float | None
-
+    drawn: int | None = None  # instances kept by the cull pass (lod modes)
 
 
 def _bench_scene(grammar: Grammar, n: int, path: Path) -> tuple[SceneArrays, TileImages]:
@@ -72,6 +78,7 @@ def _bench_scene(grammar: Grammar, n: int, path: Path) -> tuple[SceneArrays, Til
     forest = generate_forest(grammar, 1, ForestOptions(trees=n, area=(side, side)))
     scene = read_scene(write_scene(forest, path, skinned=False))  # read back only
     return scene, procedural_tiles(scene.manifest, scene.manifest.n_slices)
+
 
 def run_render_bench(
     trees: Sequence[int],
@@ -100,7 +107,7 @@ def run_render_bench(
     rows: list[BenchRow] = []
     header = (
         f"{'trees':>6} {'pieces':>7} {'level':>5} {'mode':>12} {'draws':>6} "
-        f"{'triangles':>11} {'frame ms':>9} {'gpu ms':>8}"
+        f"{'triangles':>11} {'frame ms':>9} {'gpu ms':>8} {'drawn':>8}"
     )
     echo(header)
     try:
@@ -118,13 +125,15 @@ def run_render_bench(
                     for level in levels:
                         tess = TessSettings(max_level=level, lod_half=0.0)
                         modes = ["instanced", "per_instance"] if naive else ["instanced"]
-                        for mode in modes + (["staged"] if staged else []):
-                            r = staged_renderer if mode == "staged" else renderer
+                        modes.append("lod")
+                        for mode in modes + (["staged", "staged_lod"] if staged else []):
+                            r = staged_renderer if mode.startswith("staged") else renderer
                             assert r is not None
                             per_instance = mode == "per_instance"
-                            r.draw(camera, tess, per_instance=per_instance)  # warm-up
+                            lod = DEFAULT_LOD_PIXELS if mode in LOD_BASE else None
+                            r.draw(camera, tess, per_instance=per_instance, lod_pixels=lod)
                             stats = [
-                                r.draw(camera, tess, per_instance=per_instance)
+                                r.draw(camera, tess, per_instance=per_instance, lod_pixels=lod)
                                 for _ in range(frames)
                             ]
                             gpu = [s.gpu_ms for s in stats if s.gpu_ms is not None]
@@ -137,12 +146,15 @@ def run_render_bench(
                                 triangles=stats[0].primitives,
                                 cpu_ms=statistics.median(s.cpu_ms for s in stats),
                                 gpu_ms=statistics.median(gpu) if len(gpu) == len(stats) else None,
+                                drawn=stats[0].drawn_instances,
                             )
                             rows.append(row)
                             g = f"{row.gpu_ms:8.2f}" if row.gpu_ms is not None else f"{'-':>8}"
+                            d = f"{row.drawn:>8}" if row.drawn is not None else f"{'-':>8}"
                             echo(
                                 f"{n:>6} {row.pieces:>7} {level:>5g} {row.mode:>12} "
-                                f"{row.draw_calls:>6} {row.triangles:>11} {row.cpu_ms:>9.2f} {g}"
+                                f"{row.draw_calls:>6} {row.triangles:>11} {row.cpu_ms:>9.2f} "
+                                f"{g} {d}"
                             )
                     raise_gl_error(ctx, f"the {n}-tree forest")
                 finally:
@@ -253,6 +265,13 @@ def _summary(rows: list[BenchRow], echo: Echo) -> None:
                 f"{r.trees} trees, level {r.level:g}: instanced is {naive.cpu_ms / r.cpu_ms:.2f}x "
                 f"the speed of one draw call per piece ({r.draw_calls} vs {naive.draw_calls} calls)"
             )
+    for r in rows:
+        plain = by.get((r.trees, r.level, LOD_BASE.get(r.mode, "")))
+        if plain is not None and r.cpu_ms > 0 and r.drawn is not None:
+            echo(
+                f"{r.trees} trees, level {r.level:g}, {plain.mode}: the cull pass draws "
+                f"{r.drawn} of {r.pieces} pieces, {plain.cpu_ms / r.cpu_ms:.2f}x the speed"
+            )
 
 
 def plot_rows(rows: list[BenchRow], path: Path, renderer: str) -> Path:
@@ -265,9 +284,13 @@ def plot_rows(rows: list[BenchRow], path: Path, renderer: str) -> Path:
     series = sorted({(r.mode, r.level) for r in rows})
     for mode, level in series:
         pts = sorted((r.trees, r.cpu_ms) for r in rows if (r.mode, r.level) == (mode, level))
-        name = {"instanced": "instanced", "per_instance": "draw per piece"}.get(mode, mode)
+        name = {
+            "instanced": "instanced",
+            "per_instance": "draw per piece",
+            "lod": f"instanced, cull + {DEFAULT_LOD_PIXELS:g} px LOD",
+        }.get(mode, mode)
         label = f"{name}, level {level:g}"
-        style = {"instanced": "-o", "per_instance": "--s"}.get(mode, ":^")
+        style = {"instanced": "-o", "per_instance": "--s", "lod": "-.d"}.get(mode, ":^")
         ax.plot(*zip(*pts, strict=True), style, label=label)
     for (gpu, values), style in zip(PAPER.items(), (":", "-."), strict=True):
         pts = sorted(values.items())

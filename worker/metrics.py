@@ -41,6 +41,7 @@ def render_metrics(
     per_instance: bool = False,
     cull: bool = True,
     warmup_frames: int = 0,
+    lod_pixels: float | None = None,
 ) -> RenderMetrics:
     scene = renderer.scene
     n_quads = renderer.buffers.n_quads
@@ -53,6 +54,7 @@ def render_metrics(
         height=renderer.size[1],
         mode="per_instance" if per_instance else "instanced",
         frustum_culling=cull,
+        lod_pixels=lod_pixels,
         piece_types=len(scene.pieces),
         instances=scene.n_instances,
         quads=int(np.asarray(n_quads)[scene.proto_indices].sum()),
@@ -70,6 +72,7 @@ def render_metrics(
                 primitives=f.primitives,
                 draw_calls=f.draw_calls,
                 instances=f.instances,
+                drawn_instances=f.drawn_instances,
                 foliage=_foliage_frame(f.foliage),
             )
             for f in frames

@@ -24,6 +24,7 @@ from worker.camera import Camera, CameraSpec, place_camera
 from worker.clip import DEFAULT_FPS, ORBIT_FRAMES, check_clip, orbit_camera_eyes, write_clip
 from worker.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points
 from worker.gl_context import create_context, raise_gl_error
+from worker.instance_cull import DEFAULT_LOD_PIXELS
 from worker.metrics import render_metrics, write_metrics
 from worker.renderer import Renderer, TessSettings, auto_lod
 from worker.scene_buffers import check_scene, scene_points
@@ -33,6 +34,7 @@ from worker.textures import shipped_tile_folder, tile_images
 MAX_SIZE = 8192
 MAX_TESS = 64.0  # GL_MAX_TESS_GEN_LEVEL is at least 64 on every GL 4 driver
 MAX_FRAMES = 10_000
+MAX_LOD_PIXELS = 64.0
 
 
 @dataclass(frozen=True)
@@ -55,6 +57,9 @@ class RenderRequest:
     (or ``tiles``, the tiles its package carries)."""
     per_instance: bool = False
     cull: bool = True
+    # pieces thinner on screen than this many pixels are skipped (worker.instance_cull); 0:
+    # whole instances out of view only; None (or cull False, or per_instance): no cull pass
+    lod_pixels: float | None = DEFAULT_LOD_PIXELS
     foliage: FoliageMode | None = "impostor"  # None: no foliage
     impostor_size: int = IMPOSTOR_SIZE
     camera: CameraSpec = field(default_factory=CameraSpec)
@@ -75,6 +80,13 @@ class RenderRequest:
             raise ForestError(f"must be in [0, 1], got {self.alpha}", path="alpha")
         if self.lod_half is not None and not (self.lod_half >= 0 and np.isfinite(self.lod_half)):
             raise ForestError(f"must be >= 0 metres, got {self.lod_half}", path="lod_half")
+        if self.lod_pixels is not None and not (
+            np.isfinite(self.lod_pixels) and 0 <= self.lod_pixels <= MAX_LOD_PIXELS
+        ):
+            raise ForestError(
+                f"must be in [0, {MAX_LOD_PIXELS:g}] pixels, got {self.lod_pixels}",
+                path="lod_pixels",
+            )
         if self.frame < 0:
             raise ForestError(f"must be >= 0, got {self.frame}", path="frame")
         if not 1 <= self.frames <= MAX_FRAMES:
@@ -172,9 +184,7 @@ def scene_fps(scene: SceneArrays) -> float:
     return float(fps) if isinstance(fps, int | float) and 0 < fps <= 120 else DEFAULT_FPS
 
 
-def render_file(
-    req: RenderRequest, on_stage: Callable[[str], None] | None = None
-) -> RenderMetrics:
+def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = None) -> RenderMetrics:
     """Render ``req``; ``on_stage`` hears ``read`` before the scene is read and ``render``
     after (a supervisor tells a reader crash from a renderer crash by it)."""
     req.check()
@@ -227,13 +237,16 @@ def render_file(
                 Camera(eye, camera.target, camera.fov_y, camera.aspect, camera.near, camera.far)
                 for eye in orbit_camera_eyes(camera.eye, camera.target, n_draw)
             ]
+        lod = req.lod_pixels if req.cull and not req.per_instance else None
         for _ in range(req.warmup):
-            renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull)
+            renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull, lod_pixels=lod)
         stats = []
         clip_frames = []
         for k in range(n_draw):
             stats.append(
-                renderer.draw(cameras[k], tess, req.frame + k, req.per_instance, cull=req.cull)
+                renderer.draw(
+                    cameras[k], tess, req.frame + k, req.per_instance, cull=req.cull, lod_pixels=lod
+                )
             )
             if k == 0:
                 preview = renderer.read_color()
@@ -247,6 +260,7 @@ def render_file(
             per_instance=req.per_instance,
             cull=req.cull,
             warmup_frames=req.warmup,
+            lod_pixels=lod,
         ).model_copy(update={"warnings": warnings})
         # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]

@@ -18,6 +18,7 @@ from worker import shaders
 from worker.camera import GROUND_SPAN, Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import elapsed_ms, gl_info
+from worker.instance_cull import InstanceCuller
 from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
 from worker.staging import StageRenderer, Staging, SunCamera, sun_camera
 from worker.textures import TileImages, tile_images, upload
@@ -103,6 +104,7 @@ class FrameStats:
     draw_calls: int
     instances: int
     foliage: FoliageStats | None = None
+    drawn_instances: int | None = None  # kept by the cull pass (main view), with lod_pixels
 
 
 class Renderer:
@@ -181,6 +183,19 @@ class Renderer:
                 self._staged_objects.append(self.draw_fbo)
             self._staged_objects += [self.post_fbo, self.hdr]
         self._bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        # the cull passes of the main view and of the sun's, each with its own lists (made on
+        # first use: a renderer that never culls pays nothing)
+        self._cullers: dict[str, InstanceCuller] = {}
+
+    def _cull(
+        self, which: str, camera: Camera, height: int, alpha: float, min_pixels: float
+    ) -> InstanceCuller:
+        if which not in self._cullers:
+            self._cullers[which] = InstanceCuller(self.ctx, self.buffers)
+        culler = self._cullers[which]
+        culler.run(camera, height, alpha, min_pixels)
+        self.buffers.bind()  # the pass bound its own buffers: the draws' bindings again
+        return culler
 
     # -- programs -----------------------------------------------------------------------------
 
@@ -230,11 +245,20 @@ class Renderer:
         _uniform(prog, "u_frustum").write(camera.frustum_planes().astype("f4").tobytes())
 
     def _draw_all(
-        self, prog: moderngl.Program, vaos: list[moderngl.VertexArray], per_instance: bool
+        self,
+        prog: moderngl.Program,
+        vaos: list[moderngl.VertexArray],
+        per_instance: bool,
+        culler: InstanceCuller | None = None,
     ) -> int:
-        """Issue the draw calls; returns how many."""
+        """Issue the draw calls; returns how many. With ``culler``, one indirect draw per
+        piece type of the instances its last pass kept."""
         mgl = self._moderngl
         base = _uniform(prog, "u_base_instance")
+        if "u_culled" in prog:
+            _uniform(prog, "u_culled").value = culler is not None
+        if culler is not None:
+            return culler.draw(vaos, base)
         layout, calls = self.buffers.layout, 0
         for t, vao in enumerate(vaos):
             n, first = int(layout.count[t]), int(layout.first[t])
@@ -264,11 +288,17 @@ class Renderer:
         cull: bool = True,
         branches: bool = True,
         force_impostor: bool = False,
+        lod_pixels: float | None = None,
     ) -> FrameStats:
         """Draw palette frame ``frame`` and wait for it to finish. ``cull`` drops patches
-        wholly outside the view frustum in the tessellation control shader. Foliage: pass 1
-        (when the view direction changed, or ``force_impostor``), the branches, then pass 2.
-        ``branches=False`` draws the foliage alone."""
+        wholly outside the view frustum in the tessellation control shader. With
+        ``lod_pixels`` (not with ``per_instance``) a compute pass first drops whole instances
+        outside the view and, when it is above 0, pieces thinner on screen than that many
+        pixels (worker.instance_cull); the sun's pass culls likewise in its own view.
+        Foliage: pass 1 (when the view direction changed, or ``force_impostor``), the
+        branches, then pass 2. ``branches=False`` draws the foliage alone."""
+        if per_instance:
+            lod_pixels = None
         mgl, ctx = self._moderngl, self.ctx
         staged = self.stage is not None and self.stage.staging.shadows
         defines = ["ID_OUTPUT"] if self.id_texture else []
@@ -283,7 +313,9 @@ class Renderer:
         light = None
         if staged:
             light = self.sun_view(camera, frame)
-            calls, primitives, gpu_ms = self._shadow_pass(light, tess, skinning, branches)
+            calls, primitives, gpu_ms = self._shadow_pass(
+                light, tess, skinning, branches, lod_pixels
+            )
             force_impostor = True  # the shadow pass left the sun's picture in the atlas
         pass1 = None
         if self.foliage is not None:
@@ -301,9 +333,12 @@ class Renderer:
             self.stage.draw(camera, SUN, SKY, fog, light, ground_half)
         self.texture.use(0)
         self._uniforms(prog, camera, tess, skinning, cull, light, fog)
+        culler = None
+        if branches and lod_pixels is not None:
+            culler = self._cull("main", camera, self.size[1], tess.alpha, lod_pixels)
         if branches:
             with self.query:
-                calls += self._draw_all(prog, vaos, per_instance)
+                calls += self._draw_all(prog, vaos, per_instance, culler)
             primitives += int(self.query.primitives)
             branch_ms = elapsed_ms(self.query)
             gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
@@ -324,6 +359,7 @@ class Renderer:
             draw_calls=calls,
             instances=self.scene.n_instances,
             foliage=leaves,
+            drawn_instances=None if culler is None else int(culler.counts().sum()),
         )
 
     # -- the staged mode ------------------------------------------------------------------------
@@ -362,7 +398,12 @@ class Renderer:
         return sun_camera(camera, lo, hi, SUN)
 
     def _shadow_pass(
-        self, light: SunCamera, tess: TessSettings, skinning: bool, branches: bool
+        self,
+        light: SunCamera,
+        tess: TessSettings,
+        skinning: bool,
+        branches: bool,
+        lod_pixels: float | None = None,
     ) -> tuple[int, int, float | None]:
         """Branches and leaf-cloud billboards into the sun's depth map; returns draw calls,
         primitives and GPU ms of the pass."""
@@ -375,11 +416,14 @@ class Renderer:
         self.ctx.patch_vertices = 4
         # the sun's view needs no fine tessellation: a coarse silhouette casts the same shadow
         coarse = TessSettings(max_level=min(tess.max_level, 4.0), alpha=tess.alpha)
+        culler = None
+        if branches and lod_pixels is not None:
+            culler = self._cull("shadow", light, 0, coarse.alpha, lod_pixels)
         self._uniforms(prog, light, coarse, skinning, cull=True)
         calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
         if branches:
             with self.query:
-                calls = self._draw_all(prog, vaos, per_instance=False)
+                calls = self._draw_all(prog, vaos, per_instance=False, culler=culler)
             primitives = int(self.query.primitives)
             if gpu_ms is not None:
                 gpu_ms = elapsed_ms(self.query)
@@ -461,6 +505,9 @@ class Renderer:
                 vao.release()
             prog.release()
         self._variants.clear()
+        for culler in self._cullers.values():
+            culler.release()
+        self._cullers.clear()
         # moderngl rebinds the last used framebuffer after creating one: leave GL on the
         # default framebuffer, not on a deleted name (GL_INVALID_OPERATION later)
         self.ctx.detect_framebuffer(0).use()

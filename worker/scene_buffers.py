@@ -6,7 +6,7 @@ buffer             contents                                                     
 patches (per type) every quad as a patch of 4 vertices: position, normal, st,    attributes
                    joint indices, joint weights (prototype space)
 instances          one record per piece instance, sorted by piece type:         SSBO 0
-                   transform, bone offset, tile-index offset, scene index
+                   transform, bone offset, tile-index offset, scene index, type
 palette            the forest's bone palette at the current frame (mat4),       SSBO 1
                    rebuilt from the scene's rig on the GPU (worker.bone_kinematics)
 tiles              every instance's tile index per quad, instance after         SSBO 2
@@ -63,7 +63,7 @@ INSTANCE_DTYPE = np.dtype(
         ("bone_offset", "<i4"),
         ("tile_offset", "<i4"),
         ("id", "<i4"),
-        ("pad", "<i4"),
+        ("piece_type", "<i4"),
     ]
 )
 
@@ -117,6 +117,7 @@ class InstanceLayout:
         rec["bone_offset"] = scene.bone_offset[order]
         rec["tile_offset"] = tile_offset
         rec["id"] = order
+        rec["piece_type"] = scene.proto_indices[order]
         return cls(order=order, first=first, count=count, records=rec, tiles=tiles)
 
 
@@ -237,6 +238,10 @@ class SceneBuffers:
         if f != self.frame:
             self.kinematics.run(self.scene.joint_rotations[f])
             self.frame = f
+        self.bind()
+
+    def bind(self) -> None:
+        """Bind the draws' storage buffers (a compute pass in between rebinds some)."""
         self.instances.bind_to_storage_buffer(0)
         self.palette.bind_to_storage_buffer(1)
         self.tiles.bind_to_storage_buffer(2)

@@ -169,6 +169,7 @@ def run_render(ctx: JobContext) -> Outcome:
         frame=p["frame"],
         frames=p["frames"],
         staged=bool(p.get("staged", False)),
+        lod_pixels=p.get("lod_pixels", 0.5),
         tiles=tiles,
         scene_tiles=not uploaded,
         camera=CameraSpec(

@@ -98,7 +98,19 @@ def camera_options(fn: Any) -> Any:
 @click.option(
     "--per-instance", is_flag=True, help="One draw call per piece instance (for comparison)."
 )
-@click.option("--no-cull", is_flag=True, help="Keep patches outside the view (for comparison).")
+@click.option(
+    "--no-cull",
+    is_flag=True,
+    help="Send every instance and patch through the pipeline, out of view or not (comparison).",
+)
+@click.option(
+    "--lod-pixels",
+    type=click.FloatRange(0, 64),
+    default=0.5,
+    show_default=True,
+    help="Skip pieces thinner on screen than this many pixels (far twigs); 0 draws every "
+    "piece in view.",
+)
 @click.option("--no-foliage", is_flag=True, help="Leave the leaf clouds out.")
 @click.option(
     "--foliage-geometry",
@@ -111,9 +123,7 @@ def camera_options(fn: Any) -> Any:
     help="Also write the frames as a clip: .mp4, .webm, .gif or .webp. Without --frames, "
     "the scene's whole wind loop (it loops seamlessly).",
 )
-@click.option(
-    "--orbit", is_flag=True, help="Turn the camera once about its target over the clip."
-)
+@click.option("--orbit", is_flag=True, help="Turn the camera once about its target over the clip.")
 @click.option("--fps", type=float, help="The clip's frame rate (default: the scene's).")
 @camera_options
 @input_errors
@@ -131,6 +141,7 @@ def render(
     tiles_dir: Path | None,
     per_instance: bool,
     no_cull: bool,
+    lod_pixels: float = 0.5,
     no_foliage: bool = False,
     foliage_geometry: bool = False,
     view: str = "overview",
@@ -173,6 +184,7 @@ def render(
             tiles=tiles_dir,
             per_instance=per_instance,
             cull=not no_cull,
+            lod_pixels=lod_pixels,
             foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
             camera=spec,
             ground=ground,
@@ -289,7 +301,8 @@ def bench_render(
 ) -> None:
     """Frame time against tree count, instanced against one draw call per piece, at fixed
     tessellation levels (the paper's Figure 16 and its levels 1 and 10), in the bare mode;
-    the staged mode (ground, sun shadows, 4x MSAA, tone map) instanced beside it."""
+    the staged mode (ground, sun shadows, 4x MSAA, tone map) instanced beside it; each also
+    with the cull pass and sub-pixel LOD that `forest render` uses (modes lod, staged_lod)."""
     from worker.bench import run_render_bench
 
     try:

@@ -20,12 +20,18 @@ def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_pat
         [1, 2], levels=[1.0, 3.0], size=(32, 32), frames=1, plot=tmp_path / "b.png",
         echo=lines.append,
     )  # fmt: skip
-    assert len(rows) == 12  # 2 counts x 2 levels x 3 modes (instanced, per piece, staged)
+    # 2 counts x 2 levels x 5 modes (instanced, per piece, lod, staged, staged_lod)
+    assert len(rows) == 20
     for r in rows:
         # I and Y pieces; staged: the sun's shadow pass draws them again
-        want = {"per_instance": r.pieces, "instanced": 2, "staged": 4}[r.mode]
-        assert r.draw_calls == want, r
+        want = {"per_instance": r.pieces, "instanced": 2, "lod": 2, "staged": 4}
+        assert r.draw_calls == want.get(r.mode, 4), r
+        assert (r.drawn is not None) == r.mode.endswith("lod")
     by = {(r.trees, r.level, r.mode): r for r in rows}
+    for n in (1, 2):  # the framing camera sees every piece, and 32 pixels show their trunks
+        lod = by[(n, 1.0, "lod")]
+        assert lod.drawn is not None and 0 < lod.drawn <= lod.pieces
+        assert any("the cull pass draws" in line for line in lines)
     # the staged rows: the bare frame's triangles plus the shadow pass's (at most level 4)
     for n in (1, 2):
         bare, staged = by[(n, 3.0, "instanced")], by[(n, 3.0, "staged")]
