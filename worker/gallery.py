@@ -36,6 +36,7 @@ from worker.camera import (
 )
 from worker.foliage import foliage_points
 from worker.gl_context import create_context, raise_gl_error
+from worker.instance_cull import DEFAULT_LOD_PIXELS
 from worker.renderer import Renderer, auto_lod
 from worker.staging import STAGED
 from worker.textures import tile_images
@@ -226,7 +227,8 @@ def _render(
     try:
         pts = scene_surface_points(scene)
         tess = auto_lod(camera, pts.min(axis=0), pts.max(axis=0), TESS_MAX)
-        renderer.draw(camera, tess)
+        # sub-pixel twigs of a stand's far trees are skipped, as `forest render` does
+        renderer.draw(camera, tess, lod_pixels=DEFAULT_LOD_PIXELS)
         raise_gl_error(ctx, "rendering the gallery")
         return renderer.read_color()
     finally:
