@@ -22,6 +22,7 @@ from forest.gltf.buffer import Blob
 from forest.gltf.skin import Pose, TreeSkin, trs
 from forest.growth.foliage import FoliageAnchors, cloud_models, leaf_texture, yaw_quaternions
 from forest.growth.generate import Forest
+from forest.usd.skinned import dcc_joints
 
 ALPHA_CUTOFF = 0.5
 ROUGHNESS = 0.7
@@ -119,12 +120,13 @@ def add_tree_clouds(
         return
     colour = anchors.color[pick].astype(np.float64).mean(axis=0)
     meshes = library.tree_meshes(tree, colour, {int(m) for m in anchors.model[pick]})
-    joint = anchors.bone[pick] - bones.start
+    dcc = dcc_joints(forest)
+    joint = dcc.of_bone[anchors.bone[pick]] - bones.start
     # the joints' world frames at the first sample: the nodes' own TRS composed down the tree
     s = pose.s[0, bones]
     s = s[:, 0] if s.ndim == 2 else s  # a uniform scale stored as glTF's three
     local = compose_similarity(pose.t[0, bones], pose.q[0, bones], s)
-    parent = (forest.bones.parent[bones] - bones.start).astype(np.intp)
+    parent = (dcc.parent[bones] - bones.start).astype(np.intp)
     world = joint_worlds(forest.tree_transforms[tree], parent, local)[joint]
     sub = FoliageAnchors(
         instance=anchors.instance[pick], bone=anchors.bone[pick], rest=anchors.rest[pick],

@@ -34,7 +34,9 @@ class Pose:
 
 
 def sample_pose(forest: Forest, frames: JointFrames) -> Pose:
-    samples: list[JointTQS] = [frames.unscaled(forest.local_bones(t)) for t in forest.frame_times()]
+    samples: list[JointTQS] = [
+        frames.unscaled(frames.locals(forest, t)) for t in forest.frame_times()
+    ]
     t = np.stack([x[0] for x in samples]).astype(np.float32)
     q = np.stack([x[1] for x in samples]).astype(np.float64)
     q /= np.linalg.norm(q, axis=-1, keepdims=True)
@@ -98,7 +100,7 @@ def add_tree_skeleton(
     """The tree's node (tree transform) with its joint hierarchy under it, posed at the first
     sample, and its skin. Appends the tree node to the default scene."""
     names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones)]
-    parent = forest.bones.parent[bones] - bones.start
+    parent = frames.joints.parent[bones] - bones.start
     first = len(gltf.nodes)
     tree_node = gl.Node(name=f"Tree_{tree:05d}", **trs(forest.tree_transforms[tree]))
     gltf.nodes.append(tree_node)

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from weakref import WeakKeyDictionary
 
 import fast_simplification
 import numpy as np
@@ -36,27 +37,90 @@ PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
 Progress = Callable[[str, int, int], None]
 
 
+@dataclass(frozen=True, eq=False)
+class DccJoints:
+    """The forest's bones as the joints of its skinned forms (USD and glTF).
+
+    A piece that hangs on a parent's terminal has its root bone at a rim twist from that
+    terminal, the same in every frame (wind turns hubs and terminals, never a root), so the
+    root's skinning matrix is the terminal's: ``G_t L (J_t L)^-1 = G_t J_t^-1``. Such roots
+    are left out and their vertices bound to the terminal, a third of every tree's bones:
+    DCC importers are slow in the joint count (Blender's import time grows about with its
+    square: an oak of 9,794 bones took 11.7 s, a spruce of 17,069 took 47 s).
+
+    bone : (k,) the generator's bone of each joint (ascending: trees stay contiguous)
+    parent : (k,) parent joint, -1 at a tree's root
+    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's)
+    via : (k,) the left-out root between a joint and its parent terminal, else -1
+    """
+
+    bone: NDArray[np.intp]
+    parent: NDArray[np.intp]
+    of_bone: NDArray[np.intp]
+    via: NDArray[np.intp]
+
+    def __len__(self) -> int:
+        return len(self.bone)
+
+    def locals(self, local: F64) -> F64:
+        """The bones' local transforms ``(b, 4, 4)`` -> the joints' ``(k, 4, 4)``: a joint
+        under a left-out root takes that root's (constant) twist into its own."""
+        out = local[self.bone]
+        hung = self.via >= 0
+        out[hung] = local[self.via[hung]] @ out[hung]
+        return out
+
+
+_JOINTS: WeakKeyDictionary[Forest, DccJoints] = WeakKeyDictionary()
+
+
+def dcc_joints(forest: Forest) -> DccJoints:
+    """The forest's :class:`DccJoints` (made once per forest)."""
+    if forest not in _JOINTS:
+        b, g = forest.bones, forest.graph
+        left_out = np.zeros(len(b), bool)
+        left_out[b.offset[g.parent >= 0]] = True
+        bone = np.flatnonzero(~left_out)
+        index = np.full(len(b), -1, np.intp)
+        index[bone] = np.arange(len(bone))
+        up = b.parent[bone].astype(np.intp)
+        via = np.where((up >= 0) & left_out[np.maximum(up, 0)], up, -1)
+        up = np.where(via >= 0, b.parent[np.maximum(via, 0)], up)
+        of_bone = index.copy()
+        of_bone[left_out] = index[b.parent[left_out]]
+        _JOINTS[forest] = DccJoints(
+            bone=bone,
+            parent=np.where(up >= 0, index[np.maximum(up, 0)], -1),
+            of_bone=of_bone,
+            via=via,
+        )
+    return _JOINTS[forest]
+
+
 def tree_slices(forest: Forest) -> list[tuple[slice, slice]]:
-    """Per tree: its instance range and its bone range (both contiguous, tree-major)."""
+    """Per tree: its instance range and its range of :func:`dcc_joints` (both contiguous,
+    tree-major)."""
     tree = forest.graph.tree
     starts = np.searchsorted(tree, np.arange(forest.options.trees + 1))
-    b = forest.bones.offset
-    n_bones = len(forest.bones)
+    first = dcc_joints(forest).of_bone[forest.bones.offset]  # each instance's root's joint
+    n_joints = len(dcc_joints(forest))
+    n = len(first)
     out = []
     for i in range(forest.options.trees):
         a, z = int(starts[i]), int(starts[i + 1])
-        out.append((slice(a, z), slice(int(b[a]), int(b[z]) if z < len(b) else n_bones)))
+        out.append((slice(a, z), slice(int(first[a]), int(first[z]) if z < n else n_joints)))
     return out
 
 
-def joint_paths(forest: Forest, inst: slice, bones: slice) -> list[str]:
-    """UsdSkel joint paths (parent-first) of one tree's bones."""
-    names = forest.bones
-    parent = names.parent[bones] - bones.start
-    joint = names.joint[bones]
-    local_inst = names.instance[bones] - inst.start
+def joint_paths(forest: Forest, inst: slice, joints: slice) -> list[str]:
+    """UsdSkel joint paths (parent-first) of one tree's joints (:func:`dcc_joints`)."""
+    dcc = dcc_joints(forest)
+    parent = dcc.parent[joints] - joints.start
+    bone = dcc.bone[joints]
+    joint = forest.bones.joint[bone]
+    local_inst = forest.bones.instance[bone] - inst.start
     out: list[str] = []
-    for i in range(bones.stop - bones.start):
+    for i in range(joints.stop - joints.start):
         # every joint's own name is unique in the skeleton: Blender names bones and vertex
         # groups by it, and drops the weights of a repeated one
         leaf = f"p{local_inst[i]}"
@@ -76,7 +140,8 @@ def tree_mesh(
 ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
     """One tree's pieces in tree space as the tree stands (skinned with ``still``, the posed,
     windless palette: the skinned forms' bind pose, :attr:`JointFrames.still`): points,
-    normals, quads, joint indices (into the tree's bones), joint weights and ``(q, 4, 2)``
+    normals, quads, joint indices (into the tree's joints ``bones``, a range of
+    :func:`dcc_joints`), joint weights and ``(q, 4, 2)``
     faceVarying UDIM st. With ``weld``, rims of joined pieces (which coincide posed and are
     skinned alike) share vertices (the first piece's skin) with averaged normals: no crease
     at a seam."""
@@ -98,7 +163,7 @@ def tree_mesh(
     pts = [np.einsum("vij,vj->vi", lin, np.concatenate(model)) + blend[:, :3, 3]]
     n = np.einsum("vji,vj->vi", np.linalg.inv(lin), np.concatenate(model_n))
     nrm = [n / np.linalg.norm(n, axis=1, keepdims=True)]
-    jidx, jw = [bone_all - bones.start], [weights]
+    jidx, jw = [dcc_joints(forest).of_bone[bone_all] - bones.start], [weights]
     if not weld:
         return (
             np.concatenate(pts),
@@ -141,6 +206,7 @@ def leaves_mesh(
     sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
     if not len(sel):
         return None
+    of_bone = dcc_joints(forest).of_bone
     models = cloud_models(anchors.family)
     centre = anchor_positions(still, anchors.bone[sel], anchors.rest[sel])
     pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
@@ -153,7 +219,7 @@ def leaves_mesh(
         nrm.append(transform_vectors(to_tree, c.normals @ rot.T))
         quads.append(c.quads + base)
         st.append(c.st)
-        joint.append(np.full(len(c.positions), anchors.bone[a] - bones.start, np.int32))
+        joint.append(np.full(len(c.positions), of_bone[anchors.bone[a]] - bones.start, np.int32))
         colour.append(np.repeat(anchors.color[a][None], len(c.quads), axis=0))
         base += len(c.positions)
     n = np.concatenate(nrm)
@@ -281,10 +347,8 @@ def write_skinned_trees(
     frames_of = joint_frames(forest)
     binds = frames_of.binds
     # a still forest's pose is one sample at time 0: DCC importers read only samples
-    frames = [(t, frames_of.unscaled(forest.local_bones(t))) for t in times]
-    codes = [
-        Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times
-    ]
+    frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
+    codes = [Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
     leaf_materials = None if anchors is None else leaf_material(stage, anchors.color)
     slices = tree_slices(forest)
@@ -329,8 +393,10 @@ def write_skinned_trees(
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
-        leaves = None if anchors is None else leaves_mesh(
-            forest, anchors, inst, bones, to_tree, frames_of.still
+        leaves = (
+            None
+            if anchors is None
+            else leaves_mesh(forest, anchors, inst, bones, to_tree, frames_of.still)
         )
         if leaves is not None and leaf_materials is not None:
             lp, ln, lq, lst, lj, lc = leaves
@@ -357,29 +423,34 @@ JointTQS = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float16]]
 
 @dataclass(frozen=True, eq=False)
 class JointFrames:
-    """A forest's joints as DCC bones (no scale in their frames), shared by every skinned
-    export (USD here, glTF in :mod:`forest.gltf`).
+    """A forest's joints (:func:`dcc_joints`) as DCC bones (no scale in their frames), shared
+    by every skinned export (USD here, glTF in :mod:`forest.gltf`).
 
-    binds : (b, 4, 4) unscaled joint frames of the bind pose (the tree as it stands: posed,
+    binds : (k, 4, 4) unscaled joint frames of the bind pose (the tree as it stands: posed,
         no wind) in their tree's space
-    rest : (b, 4, 4) the bind pose's local transforms (tree roots at identity), scaled as the
+    rest : (k, 4, 4) the bind pose's local transforms (tree roots at identity), scaled as the
         generator's
-    rest_scale, parent_scale : (b,) bound scale of each joint and of its parent, tree space
-    tree_root : (t,) int the bone of each tree's root
-    still : (b, 4, 4) the posed, windless palette (prototype space -> world) the bind pose
-        and the meshes written in it come from
+    rest_scale, parent_scale : (k,) bound scale of each joint and of its parent, tree space
+    tree_root : (t,) int the joint of each tree's root
+    still : (b, 4, 4) the posed, windless palette of every bone (prototype space -> world)
+        the bind pose and the meshes written in it come from
     """
 
+    joints: DccJoints
     binds: F64
     rest: F64
     rest_scale: F64
     parent_scale: F64
-    tree_root: NDArray[np.int32]
+    tree_root: NDArray[np.intp]
     still: F64
 
+    def locals(self, forest: Forest, time: float | None) -> F64:
+        """``(k, 4, 4)`` the joints' local transforms at ``time`` (None: the still pose)."""
+        return self.joints.locals(forest.local_bones(time))
+
     def unscaled(self, local: F64) -> JointTQS:
-        """Local transforms ``(b, 4, 4)`` -> translations (b, 3) float32, xyzw rotations
-        (b, 4) float32 and scales (b, 3) float16 of the unscaled joints."""
+        """Local transforms ``(k, 4, 4)`` -> translations (k, 3) float32, xyzw rotations
+        (k, 4) float32 and scales (k, 3) float16 of the unscaled joints."""
         t, q, scale = decompose_similarity(local)
         t *= self.parent_scale[:, None]
         # the pose's own scale (the rounded radius scale) is all that is left: exact in half
@@ -403,16 +474,17 @@ def joint_frames(forest: Forest) -> JointFrames:
     the translation times s_parent and the scale divided by the bound local scale (1 for
     every frame: wind turns joints, it does not scale them)."""
     b, g = forest.bones, forest.graph
+    dcc = dcc_joints(forest)
     still = forest.palette()
-    rest = forest.local_bones(None)
-    tree_root = b.offset[g.parent < 0]
+    tree_root = dcc.of_bone[b.offset[g.parent < 0]]
+    rest = dcc.locals(forest.local_bones(None))
     rest[tree_root] = np.eye(4)
-    binds = _bind_transforms(forest, still)
+    binds = _bind_transforms(forest, still)[dcc.bone]
     bind_scale = _scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
-    parent_scale = np.where(b.parent >= 0, bind_scale[np.maximum(b.parent, 0)], 1.0)
+    parent_scale = np.where(dcc.parent >= 0, bind_scale[np.maximum(dcc.parent, 0)], 1.0)
     parent_scale[tree_root] = 1.0
-    return JointFrames(binds, rest, _scale(rest), parent_scale, tree_root, still)
+    return JointFrames(dcc, binds, rest, _scale(rest), parent_scale, tree_root, still)
 
 
 def _scale(m: F64) -> F64:
