@@ -19,8 +19,9 @@ from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset, preset_names
 from forest.usd.read import read_scene, select_engine
 from forest.usd.scene import PIECES, write_scene
-from forest.usd.skinned import tree_slices
+from forest.usd.skinned import dcc_joints, tree_slices
 from tests.helpers_skin import usd_skinned_points
+from tests.test_assembly import forward_kinematics
 from tests.test_rig import assert_rebuilt_palette
 
 
@@ -169,7 +170,7 @@ def test_skinned_tree_is_bound_as_it_stands(preset: str, tmp_path: Path) -> None
     mesh = UsdGeom.Mesh(root.GetChild("Bark"))
     world = np.asarray(UsdGeom.Xformable(root).ComputeLocalToWorldTransform(0)).T
     rest = np.asarray(mesh.GetPointsAttr().Get(), np.float64) @ world[:3, :3].T + world[:3, 3]
-    (inst, _), = tree_slices(f)
+    ((inst, _),) = tree_slices(f)
     ours = _our_skinned_points(f, inst, None)
     size = np.ptp(ours, axis=0).max()
     assert cKDTree(rest).query(ours)[0].max() < 2e-6 * size
@@ -268,3 +269,27 @@ def test_reader_names_what_is_wrong(tmp_path: Path, skinned_scene: Path) -> None
     stage.GetRootLayer().Export(str(broken))
     with pytest.raises(SceneError, match=r"/World/Forest/Pieces\.forest:jointRotations"):
         read_scene(broken)
+
+
+@pytest.mark.parametrize("preset", ["almond", "spruce"])
+def test_dcc_joints_leave_out_hung_roots_and_pose_every_kept_bone_alike(preset: str) -> None:
+    """The skinned forms' joints (DccJoints): every bone but the roots of pieces hung on a
+    parent's terminal, and forward kinematics of the joints' locals gives each kept bone's
+    global transform in every frame (so its skinning matrix is unchanged), while a left-out
+    root's global is its terminal's times a constant twist."""
+    f = generate_forest(load_preset(preset), 4, ForestOptions(trees=2, frames=3))
+    dcc = dcc_joints(f)
+    b, g = f.bones, f.graph
+    hung = b.offset[g.parent >= 0]
+    assert len(dcc) == len(b) - len(hung)
+    assert not np.isin(dcc.bone, hung).any()
+    np.testing.assert_array_equal(dcc.of_bone[hung], dcc.of_bone[b.parent[hung]])
+    assert (dcc.parent < np.arange(len(dcc))).all()  # parent-first
+    still = f.local_bones(None)[hung]
+    for time in (None, 0.0, 2 / 24):
+        local = f.local_bones(time)
+        want = forward_kinematics(b.parent, local)
+        got = forward_kinematics(dcc.parent, dcc.locals(local))
+        np.testing.assert_allclose(got, want[dcc.bone], rtol=0, atol=1e-9 * np.abs(want).max())
+        # a left-out root's own local (its twist from the terminal) is the same every frame
+        np.testing.assert_array_equal(local[hung], still)
