@@ -132,6 +132,11 @@ def test_render_writes_preview_and_metrics(gl_session: Any, tmp_path: Path) -> N
     assert all(f.instances == m.instances > 0 for f in m.frames)
     assert m.median.primitives >= 2 * m.quads
     assert m.tessellation.max_level == 4.0
+    # the cull pass ran (sub-pixel LOD at its default) and says what it kept
+    assert m.lod_pixels == 0.5
+    assert all(
+        f.drawn_instances is not None and 0 < f.drawn_instances <= m.instances for f in m.frames
+    )
     assert m.renderer and m.renderer in res.output
     assert m.textures  # the package's default tile set, or the procedural placeholder
 
@@ -146,6 +151,7 @@ def test_render_per_instance_draws_once_per_piece(gl_session: Any, tmp_path: Pat
     m = RenderMetrics.model_validate_json(met.read_text())
     assert m.mode == "per_instance"
     assert m.frames[0].draw_calls == m.instances + 1  # + the foliage billboards
+    assert m.lod_pixels is None and m.frames[0].drawn_instances is None  # no cull pass
 
 
 def write_tile_folder(folder: Path, colour: tuple[int, int, int], as_array: bool) -> None:
