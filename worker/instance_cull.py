@@ -83,8 +83,8 @@ def piece_bounds(pieces: tuple[PieceArrays, ...], first: NDArray[np.int64]) -> N
 def pixel_size(camera: Camera, height: int) -> tuple[bool, float]:
     """``(ortho, size)``: the sun's orthographic view has pixels of ``size`` metres at any
     distance; a perspective view ``size`` metres per pixel per metre of distance."""
-    if isinstance(camera, SunCamera):
-        return True, 2.0 * camera.half[1] / SHADOW_SIZE
+    if isinstance(camera, SunCamera):  # square map: the finer of its two pixel sizes
+        return True, 2.0 * min(camera.half) / SHADOW_SIZE
     return False, 2.0 * float(np.tan(np.radians(camera.fov_y) / 2)) / max(height, 1)
 
 
@@ -117,7 +117,8 @@ def visible_reference(
     keep = ((c @ planes[:, :3].T + planes[:, 3]) >= -r[:, None]).all(axis=1)
     if min_pixels > 0:
         ortho, size = pixel_size(camera, height)
-        px = size if ortho else np.maximum(np.linalg.norm(c - camera.eye, axis=1) - r, 0) * size
+        depth = (c - camera.eye) @ camera.forward - r
+        px = size if ortho else np.maximum(depth, 0) * size
         keep &= ~(2.0 * thick < min_pixels * px)
     return keep
 
@@ -155,6 +156,7 @@ class InstanceCuller:
         for name, value in (
             ("u_count", self.n),
             ("u_camera", tuple(camera.eye)),
+            ("u_forward", tuple(camera.forward)),
             ("u_alpha", alpha),
             ("u_ortho", ortho),
             ("u_pixel", size),
