@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The GPU checks on an NVIDIA machine (or any EGL driver): the render bench at 1 to 1,000
 # trees, bare and staged, each with and without the cull pass, with the foliage bench; the
-# same for 1 to 1,000 oaks; then the renderer's GL tests with GL required. Output (tables, plot, test log) goes to $OUT (default ./gpu-checks).
+# same for 1 to 1,000 oaks; then the renderer's GL tests with GL required. Output (tables,
+# plots, test log) goes to $OUT (default ./gpu-checks).
 # Run from the repository root with the package importable (installed, or PYTHONPATH=.).
 set -uo pipefail
 OUT=${OUT:-gpu-checks}
