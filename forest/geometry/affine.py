@@ -65,14 +65,6 @@ def apply_linear(a: F64, v: F64) -> F64:
     return np.einsum("ikn,kn->in", a.reshape(3, 3, n), v)
 
 
-def det_linear(a: F64) -> F64:
-    """Determinants ``(n,)`` of a linear batch ``(9, n)``, by cofactors along the first row."""
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = a
-    return r00 * (r11 * r22 - r12 * r21) - r01 * (r10 * r22 - r12 * r20) + r02 * (
-        r10 * r21 - r11 * r20
-    )
-
-
 def transpose_linear(a: F64) -> F64:
     """Transposes of a linear batch ``(9, n)`` (inverse rotations)."""
     return a[[0, 3, 6, 1, 4, 7, 2, 5, 8]]

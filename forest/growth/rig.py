@@ -23,9 +23,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.geometry import affine, rim
+from forest.geometry import affine
 from forest.geometry.pieces import MAX_JOINTS, PieceArrays, skinning_rest_inverse
-from forest.geometry.transforms import BLOCK, F64, decompose_similarity
+from forest.geometry.transforms import BLOCK, F64
 
 if TYPE_CHECKING:
     from forest.growth.generate import Forest
@@ -187,13 +187,8 @@ def forest_rig(forest: Forest) -> BoneRig:
     root rotation): the poser's translations and scales without its rotations, and no
     ``(b, 4, 4)`` stack of local matrices."""
     bones = forest.bones
-    translation, scale = forest.poser().rig_offsets()
-    # rotations are kept at the roots only (hubs and terminals turn with the pose and wind):
-    # a child's root is one of the six rim twists, a tree's root its model transform
-    g = forest.graph
-    root_rotation = decompose_similarity(rim.twists())[1][g.twist]
-    top = np.flatnonzero(g.parent < 0)
-    root_rotation[top] = decompose_similarity(forest.tree_transforms[g.tree[top]])[1]
+    # rotations are kept at the roots only (hubs and terminals turn with the pose and wind)
+    translation, scale, root_rotation = forest.poser().rig_parts()
     return BoneRig(
         parent=bones.parent,
         translation=translation,

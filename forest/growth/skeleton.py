@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from forest.geometry import affine, rim
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, TIP0, PieceArrays, skinning_rest_inverse
-from forest.geometry.transforms import F64, invert_similarity
+from forest.geometry.transforms import F64, decompose_similarity, invert_similarity
 from forest.growth import keyed
 from forest.growth.assembly import building_twist_table
 from forest.growth.expand import LevelBlock, PieceGraph, children_radius, rim_tables
@@ -544,31 +544,29 @@ class Poser:
         tips[affine.TRANS] = pose.length[inst] * tab.tip_t[:, col]
         return _Locals(root, hub, tips, rot.pos, rot.r)
 
-    def rig_offsets(self) -> tuple[F64, F64]:
-        """``(b, 3)`` translations and ``(b,)`` uniform scales of every bone's local transform
-        (:meth:`locals_for` without its rotations, which a rig stores apart): wind turns bones
-        but moves and scales none, so these hold in every frame. Hubs turn without scaling;
-        a terminal scales by its pose's ``tip_scale`` (its rest rotation has unit determinant);
-        a root is a rim twist or its tree's model transform."""
+    def rig_parts(self) -> tuple[F64, F64, F64]:
+        """What wind never changes of the bones' local transforms (:meth:`locals_for`
+        without the hubs' and terminals' rotations, which a rig stores apart): ``(b, 3)``
+        translations, ``(b,)`` uniform scales and ``(n, 4)`` xyzw rotations of the instances'
+        roots. Hubs turn without scaling; a terminal scales by its pose's ``tip_scale`` (its
+        rest rotation has unit determinant); a root is a rim twist or its tree's model
+        transform."""
         g, pose, tab, bones = self.graph, self.pose, _piece_tables(self.pieces), self.bones
-        idx = np.arange(len(g))
-        _, _, pos, r, flat = self._terminals(idx)
+        _, _, pos, r, flat = self._terminals(np.arange(len(g)))
         off = bones.offset
-        tips = off[pos] + TIP0 + r
         translation = np.empty((len(bones), 3))
         scale = np.ones(len(bones))
-        translation[off] = tab.twists[affine.TRANS][:, g.twist].T
-        scale[off] = np.cbrt(affine.det_linear(tab.twists[affine.LIN]))[g.twist]
+        root_t, root_q, root_s = (x[g.twist] for x in decompose_similarity(rim.twists()))
         top = np.flatnonzero(g.parent < 0)
-        model = affine.from_matrices(self.tree_transforms[g.tree[top]])
-        translation[off[top]] = model[affine.TRANS].T
-        scale[off[top]] = np.cbrt(affine.det_linear(model[affine.LIN]))
-        piece = g.piece
-        translation[off + HUB] = (pose.length * tab.hub_t[:, piece]).T
-        col = piece[pos] * MAX_LEAF_RIMS + r
-        translation[tips] = (pose.length[pos] * tab.tip_t[:, col]).T
+        root_t[top], root_q[top], root_s[top] = decompose_similarity(
+            self.tree_transforms[g.tree[top]]
+        )
+        translation[off], scale[off] = root_t, root_s
+        translation[off + HUB] = (pose.length * tab.hub_t[:, g.piece]).T
+        tips = off[pos] + TIP0 + r
+        translation[tips] = (pose.length[pos] * tab.tip_t[:, g.piece[pos] * MAX_LEAF_RIMS + r]).T
         scale[tips] = np.take(pose.tip_scale, flat)
-        return translation, scale
+        return translation, scale, root_q
 
     def local_transforms(self, wind: Wind | None = None, time: float = 0.0) -> F64:
         """``(b, 4, 4)`` local transforms of every bone (what a SkelAnimation stores)."""
