@@ -237,7 +237,7 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
                 Camera(eye, camera.target, camera.fov_y, camera.aspect, camera.near, camera.far)
                 for eye in orbit_camera_eyes(camera.eye, camera.target, n_draw)
             ]
-        lod = req.lod_pixels if req.cull and not req.per_instance else None
+        lod = req.lod_pixels  # Renderer.draw leaves it out where the cull pass cannot run
         for _ in range(req.warmup):
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull, lod_pixels=lod)
         stats = []
@@ -260,7 +260,7 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
             per_instance=req.per_instance,
             cull=req.cull,
             warmup_frames=req.warmup,
-            lod_pixels=lod,
+            lod_pixels=lod if stats[0].drawn_instances is not None else None,
         ).model_copy(update={"warnings": warnings})
         # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]

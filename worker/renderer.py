@@ -292,13 +292,13 @@ class Renderer:
     ) -> FrameStats:
         """Draw palette frame ``frame`` and wait for it to finish. ``cull`` drops patches
         wholly outside the view frustum in the tessellation control shader. With
-        ``lod_pixels`` (not with ``per_instance`` or unskinned) a compute pass first drops
-        whole instances
-        outside the view and, when it is above 0, pieces thinner on screen than that many
-        pixels (worker.instance_cull); the sun's pass culls likewise in its own view.
+        ``lod_pixels`` (not with ``per_instance``, unskinned or without ``cull``) a compute
+        pass first drops whole instances outside the view and, when it is above 0, pieces
+        thinner on screen than that many pixels (worker.instance_cull); the sun's pass culls
+        likewise in its own view.
         Foliage: pass 1 (when the view direction changed, or ``force_impostor``), the
         branches, then pass 2. ``branches=False`` draws the foliage alone."""
-        if per_instance or not skinning:  # the pass bounds the skinned pose, not the rest
+        if per_instance or not skinning or not cull:  # it bounds the skinned pose, not the rest
             lod_pixels = None
         mgl, ctx = self._moderngl, self.ctx
         staged = self.stage is not None and self.stage.staging.shadows

@@ -141,6 +141,7 @@ def run_render(ctx: JobContext) -> Outcome:
     before the reader runs, and its bark comes from its own package or the shipped set its
     material names, never from a folder its paths name."""
     from worker.camera import CameraSpec
+    from worker.instance_cull import DEFAULT_LOD_PIXELS
     from worker.metrics import write_metrics
     from worker.render_job import RenderRequest, render_file
     from worker.scene_guard import check_scene_file, package_tiles
@@ -169,7 +170,7 @@ def run_render(ctx: JobContext) -> Outcome:
         frame=p["frame"],
         frames=p["frames"],
         staged=bool(p.get("staged", False)),
-        lod_pixels=p.get("lod_pixels", 0.5),
+        lod_pixels=p.get("lod_pixels", DEFAULT_LOD_PIXELS),
         tiles=tiles,
         scene_tiles=not uploaded,
         camera=CameraSpec(

@@ -151,6 +151,8 @@ def test_staged_frame_culls_the_sun_pass_too(gl43: Any, stand: SceneArrays) -> N
         assert culled.primitives == plain.primitives
         assert culled.drawn_instances is not None
         assert culled.drawn_instances < stand.n_instances
+        # without frustum culling nothing is culled: no pass, and none reported
+        assert r.draw(cam, tess, cull=False, lod_pixels=0.0).drawn_instances is None
     finally:
         r.release()
 
