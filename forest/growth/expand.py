@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
-from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, piece_library
+from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, piece_library
 from forest.growth import keyed
 from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
@@ -187,7 +187,7 @@ def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
     return 0.2 + 0.8 * np.where(below <= 0.35, below / 0.35, (1.0 - below) / 0.65)
 
 
-KNOT = 0.15  # a shed branch's stub, relative to the branch that would have grown
+I_PIECE = PIECE_NAMES.index("I")
 
 
 class _Open:
@@ -279,6 +279,13 @@ def expand(
             turn = np.round(roll / 60.0) - np.round(f.roll / 60.0)
             twist = np.where(rolled, np.mod(turn, 6), twist).astype(np.int32)
         piece = np.take(cg.alt_piece, alt)
+        if crown:
+            # below the crown's base the trunk shed its branches long ago: it grows straight
+            # pieces there (a clear bole), not forks whose arms would end in horn-like stubs
+            leaves_at = f.h + np.take(hub_y_t, piece) * f.scale * f.len
+            shed = (f.order == 0) & (np.take(rims_t, piece) > 1)
+            shed &= leaves_at < crown.base * np.take(tree_h, f.tree)
+            piece = np.where(shed, I_PIECE, piece).astype(np.int32)
         ids = np.arange(count, count + m, dtype=np.int32)
         count += m
         per_tree += np.bincount(f.tree, minlength=n_trees)
@@ -304,10 +311,7 @@ def expand(
             # crown envelope: a first-order branch's share of the trunk by where it leaves
             rel = c_h / np.take(tree_h, f.tree)[:, None]
             t = (rel - crown.base) / (1.0 - crown.base)
-            bare = first_order & (rel < crown.base)
-            # below the crown a branch was shed long ago: a small knot ends its stub
-            w = np.where(first_order, w * np.where(bare, KNOT, crown_shape(crown.shape, t)), w)
-            pruned |= bare
+            w = np.where(first_order, w * crown_shape(crown.shape, t), w)
         if cg.pipe_exponent is not None:
             e = cg.pipe_exponent
             share = np.where(has_rim, w, 0.0) ** e
