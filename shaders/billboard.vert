@@ -6,6 +6,8 @@
 // pass-1 picture of the cloud's model at the cloud's heading exactly: its tile of the atlas
 // (column: heading, row: model, u_tiles of them). The centre is the cloud's bone applied to
 // its rest point (wind).
+// A cloud larger on screen than u_near_pixels is left out (its real leaf cards are drawn
+// instead, worker.foliage.near_clouds): its four vertices go outside the clip volume.
 // Defines accepted: CAPTURE (write every cloud's centre and diameter to a storage buffer).
 
 struct Cloud {
@@ -24,6 +26,10 @@ uniform mat4 u_view_projection;
 uniform vec3 u_right;
 uniform vec3 u_up;
 uniform ivec2 u_tiles;  // atlas columns (headings) and rows (models)
+uniform vec3 u_camera;
+uniform vec3 u_forward;
+uniform float u_focal;        // pixels per metre at one metre's depth; 0: no cloud left out
+uniform float u_near_pixels;  // on-screen size above which a cloud is left out
 
 out Billboard {
     vec3 position;       // world, on the billboard plane
@@ -38,6 +44,11 @@ void main() {
     vec3 centre = c.bone.x >= 0 ? (bones[c.bone.x] * vec4(c.rest_size.xyz, 1.0)).xyz
                                 : c.rest_size.xyz;
     float half_size = c.rest_size.w * c.turn.y;
+    float depth = dot(centre - u_camera, u_forward);
+    if (u_focal > 0.0 && 2.0 * half_size * u_focal > u_near_pixels * depth) {
+        gl_Position = vec4(2.0, 2.0, 2.0, 1.0);  // outside the clip volume: nothing drawn
+        return;
+    }
     vec3 p = centre + half_size * (corner.x * u_right + corner.y * u_up);
     vec2 tile = vec2(float(c.bone.y % u_tiles.x), float(c.bone.y / u_tiles.x));
     vs_out.position = p;

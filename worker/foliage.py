@@ -30,6 +30,11 @@ real geometry shows; a yaw between headings (a scene made elsewhere) shows the n
 The cost is YAW_STEPS pictures per model in pass 1 (a few thousand leaf triangles each time
 the view turns), against one picture before.
 
+Close to the camera (``near_clouds``: a cloud larger on screen than its picture) impostor
+mode draws the real leaf cards instead, as geometry mode does, so close-ups show smooth leaf
+edges rather than magnified texels; those few clouds are chosen on the CPU from their
+first-frame centres whenever the camera moves.
+
 ``geometry`` mode draws the leaf-cloud meshes themselves at every cloud, turned and tinted,
 one instanced draw call per model (the reference for tests, and the benchmark's baseline).
 """
@@ -64,6 +69,13 @@ LEAF_DTYPE = np.dtype([("position", "<f4", 3), ("normal", "<f4", 3), ("st", "<f4
 LEAF_FORMAT = "3f 3f 2f"
 LEAF_ATTRIBUTES = ("in_position", "in_normal", "in_st")
 IMPOSTOR_SIZE = 128  # texels per side of one picture (a model at a heading) in the atlas
+# a cloud whose bounding sphere would cover more screen pixels than this many of its picture's
+# texels is drawn as its real leaf cards: magnified, the nearest-sampled picture shows texel
+# steps along every leaf edge (close-ups). The billboard pass hides a cloud only past
+# NEAR_MARGIN times that, so wind moving a cloud between the two tests never leaves a hole
+# (a cloud in between shows both ways, the same leaves at the same place)
+NEAR_TEXELS = 1.0
+NEAR_MARGIN = 1.25
 CAPTURE_BINDING = 3
 # largest change of a camera rotation entry that keeps the pass-1 picture (about 1e-6 rad:
 # far below a texel; float noise of look_at for a camera moved along its view direction)
@@ -238,7 +250,6 @@ class FoliageRenderer:
         order = np.argsort(scene.foliage_model, kind="stable").astype(np.int32)
         counts = np.bincount(scene.foliage_model, minlength=len(self.models))
         self.model_counts = counts.astype(np.int64)
-        self.model_first = (np.cumsum(counts) - counts).astype(np.int64)
         self.order = ctx.buffer(order.tobytes() if len(order) else b"\0" * 4)
         verts, tris, self.index_offsets = leaf_vertices(self.models)
         self.n_triangles = len(tris)
@@ -279,6 +290,10 @@ class FoliageRenderer:
             self.impostor_fbo = ctx.framebuffer([self.impostor], self._impostor_depth)
         self._rotation: F64 | None = None
         self.impostor_renders = 0
+        self._centres: F64 | None = None  # first-frame cloud centres, for near_clouds
+        self._near_key: tuple[float, ...] | None = None
+        self._near_counts = np.zeros(len(self.models), np.int64)
+        self.near_order: moderngl.Buffer | None = None
         self._timer = timer_query
         self.queries = [ctx.query(time=timer_query, primitives=True) for _ in range(2)]
 
@@ -365,10 +380,71 @@ class FoliageRenderer:
             gpu_ms=elapsed_ms(q) if self._timer else None,
         )
 
+    def near_clouds(self, camera: Camera, focal_px: float) -> NDArray[np.int32]:
+        """``(j,)`` the clouds, by model, that ``camera`` sees larger than NEAR_TEXELS times
+        the impostor's resolution (``focal_px``: the viewport's height over ``2 tan(fov/2)``,
+        pixels per metre at one metre's depth), measured at their first-frame centres; ones
+        wholly behind the camera are left out."""
+        if self._centres is None:
+            self._centres = self.scene.foliage_at(0)
+        forward = impostor_basis(camera)[2]
+        half = self.scene.foliage_sizes * np.take(self.radii, self.scene.foliage_model)
+        depth = (self._centres - np.asarray(camera.eye)) @ forward
+        limit = NEAR_TEXELS * self.impostor_size
+        near = (depth > -half) & (2.0 * half * focal_px > limit * depth)
+        idx = np.flatnonzero(near)
+        return idx[np.argsort(self.scene.foliage_model[idx], kind="stable")].astype(np.int32)
+
+    def _update_near(self, camera: Camera, focal_px: float) -> None:
+        key = (*np.asarray(camera.eye, float), *camera.view()[:3, :3].ravel(), focal_px)
+        if key == self._near_key:
+            return
+        order = self.near_clouds(camera, focal_px)
+        self._near_counts = np.bincount(
+            self.scene.foliage_model[order], minlength=len(self.models)
+        ).astype(np.int64)
+        data = order.tobytes() if len(order) else b"\0" * 4
+        if self.near_order is None or self.near_order.size < len(data):
+            if self.near_order is not None:
+                self.near_order.release()
+            self.near_order = self.ctx.buffer(reserve=max(len(data), 4096))
+        self.near_order.write(data)
+        self._near_key = key
+
+    def _draw_clouds(
+        self, order: moderngl.Buffer, counts: NDArray[np.int64], common: dict[str, Any]
+    ) -> int:
+        """The real leaf cards of the clouds listed in ``order``, ``counts[m]`` of model m
+        after those of the models before it: one instanced draw call per model."""
+        mgl = self._mgl
+        prog, vao = self._program("leaves")
+        order.bind_to_storage_buffer(ORDER_BINDING)
+        _set(prog, {**common, "u_leaf": 0})
+        first = np.cumsum(counts) - counts
+        calls = 0
+        for m, cloud in enumerate(self.models):
+            n = int(counts[m])
+            if n == 0:
+                continue
+            self.textures[cloud.family].use(0)
+            _set(prog, {"u_first": int(first[m])})
+            lo, hi = self.index_offsets[m], self.index_offsets[m + 1]
+            vao.render(mgl.TRIANGLES, vertices=int(hi - lo), first=int(lo), instances=n)
+            calls += 1
+        return calls
+
     def draw(
-        self, camera: Camera, sun: F64, sky: F64, fog: float, capture: Any = None
+        self,
+        camera: Camera,
+        sun: F64,
+        sky: F64,
+        fog: float,
+        capture: Any = None,
+        focal_px: float | None = None,
     ) -> PassStats:
-        """Pass 2 (or the real clouds) into the framebuffer bound now, depth test on."""
+        """Pass 2 (or the real clouds) into the framebuffer bound now, depth test on. With
+        ``focal_px`` (the main view's; not the sun's) impostor mode draws the clouds near the
+        camera as real leaf cards (:meth:`near_clouds`) and their billboards not."""
         k = self.scene.n_foliage
         if k == 0:
             return PassStats()
@@ -391,6 +467,9 @@ class FoliageRenderer:
             prog, vao = self._program("billboard", *defines)
             if capture is not None:
                 capture.bind_to_storage_buffer(CAPTURE_BINDING)
+            near_focal = 0.0 if focal_px is None or capture is not None else float(focal_px)
+            if near_focal > 0:
+                self._update_near(camera, near_focal)
             self.impostor.use(1)
             _set(
                 prog,
@@ -401,26 +480,19 @@ class FoliageRenderer:
                     "u_forward": forward,
                     "u_tiles": (YAW_STEPS, len(self.models)),
                     "u_impostor": 1,
+                    "u_focal": near_focal,  # 0: every billboard drawn
+                    "u_near_pixels": NEAR_MARGIN * NEAR_TEXELS * self.impostor_size,
                 },
             )
             with q:
                 vao.render(mgl.TRIANGLE_STRIP, vertices=4, instances=k)
-            calls = 1
+                calls = 1
+                if near_focal > 0 and self._near_counts.any():
+                    assert self.near_order is not None
+                    calls += self._draw_clouds(self.near_order, self._near_counts, common)
         else:
-            prog, vao = self._program("leaves")
-            self.order.bind_to_storage_buffer(ORDER_BINDING)
-            _set(prog, {**common, "u_leaf": 0})
-            calls = 0
             with q:
-                for m, cloud in enumerate(self.models):
-                    n = int(self.model_counts[m])
-                    if n == 0:
-                        continue
-                    self.textures[cloud.family].use(0)
-                    _set(prog, {"u_first": int(self.model_first[m])})
-                    lo, hi = self.index_offsets[m], self.index_offsets[m + 1]
-                    vao.render(mgl.TRIANGLES, vertices=int(hi - lo), first=int(lo), instances=n)
-                    calls += 1
+                calls = self._draw_clouds(self.order, self.model_counts, common)
         return PassStats(
             draw_calls=calls,
             primitives=int(q.primitives),
@@ -435,11 +507,13 @@ class FoliageRenderer:
         fog: float,
         pass1: PassStats,
         target: moderngl.Framebuffer,
+        focal_px: float | None = None,
     ) -> FoliageStats:
-        """Pass 2 into ``target`` after ``prepare`` gave ``pass1``."""
+        """Pass 2 into ``target`` after ``prepare`` gave ``pass1`` (``focal_px``: see
+        :meth:`draw`)."""
         target.use()
         self.ctx.enable_only(self._mgl.DEPTH_TEST)
-        pass2 = self.draw(camera, sun, sky, fog)
+        pass2 = self.draw(camera, sun, sky, fog, focal_px=focal_px)
         return FoliageStats(
             mode=self.mode,
             clouds=self.scene.n_foliage,
@@ -491,5 +565,7 @@ class FoliageRenderer:
             self._impostor_depth.release()
         for buf in (self.records, self.order, self.vbo, self.ibo):
             buf.release()
+        if self.near_order is not None:
+            self.near_order.release()
         for tex in self.textures.values():
             tex.release()

@@ -5,6 +5,7 @@ per-instance, per-quad tile indices (paper 4.3, 4.4, 5.1). Offscreen, on any GL 
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -345,7 +346,8 @@ class Renderer:
             gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
         leaves = None
         if self.foliage is not None and pass1 is not None:
-            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo)
+            focal_px = self.size[1] / (2.0 * math.tan(math.radians(camera.fov_y) / 2.0))
+            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo, focal_px=focal_px)
             calls += leaves.draw_calls
             primitives += leaves.primitives
             gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms

@@ -28,7 +28,7 @@ from schemas.grammar import Grammar
 from schemas.metrics import RenderMetrics
 from worker.bench import run_render_bench
 from worker.camera import Camera, frame_points
-from worker.foliage import foliage_points
+from worker.foliage import foliage_points, scene_models
 from worker.render_job import RenderRequest, render_file
 from worker.renderer import Renderer, TessSettings
 from worker.scene_buffers import scene_points
@@ -419,3 +419,43 @@ def test_bench_puts_impostors_beside_the_real_clouds(gl_session: Any) -> None:
         assert 1 <= imp.draw_calls - geo.draw_calls <= MODELS
         assert imp.triangles - imp.foliage_triangles == geo.triangles - geo.foliage_triangles
     assert any("impostors" in line and "x as fast" in line for line in lines)
+
+
+# -- close-ups ---------------------------------------------------------------------------------
+
+
+def close_up(scene: SceneArrays, on_screen: float) -> tuple[Camera, int]:
+    """A camera looking at the largest cloud from where it covers ``on_screen`` pixels of
+    the SIZE view, and that cloud."""
+    i = int(np.argmax(scene.foliage_sizes))
+    centre = scene.foliage_at(0)[i]
+    half = float(scene.foliage_sizes[i]) * scene_models(scene)[scene.foliage_model[i]].radius
+    focal = SIZE[1] / (2.0 * np.tan(np.radians(40.0) / 2.0))
+    depth = 2.0 * half * focal / on_screen
+    eye = centre + depth * np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
+    return Camera(eye=eye, target=centre, fov_y=40.0, aspect=1.0, near=0.05, far=200.0), i
+
+
+def test_close_clouds_are_drawn_as_their_leaf_cards(
+    renderers: dict[str, Renderer], crown: SceneArrays
+) -> None:
+    imp = renderers["impostor"]
+    assert imp.foliage is not None
+    focal = SIZE[1] / (2.0 * np.tan(np.radians(40.0) / 2.0))
+    far_cam = view(crown, 35.0)
+    assert len(imp.foliage.near_clouds(far_cam, focal)) == 0  # the whole crown: all pictures
+    cam, i = close_up(crown, 3.0 * imp.foliage.impostor_size)
+    near = imp.foliage.near_clouds(cam, focal)
+    assert i in near and len(near) < crown.n_foliage
+    stats = imp.draw(cam, TESS, 0, branches=False)
+    assert stats.foliage is not None and stats.foliage.billboards.draw_calls >= 2
+    # the close-up shows what the real clouds show: the near clouds are the same leaf cards
+    # and their billboards are left out (drawn over them, they would change the depth)
+    depth_imp, _ = render(imp, cam, branches=False)
+    depth_geo, _ = render(renderers["geometry"], cam, branches=False)
+    ci, cg = covered(depth_imp), covered(depth_geo)
+    assert cg.mean() > 0.3
+    assert iou(ci, cg) >= 0.97
+    both = ci & cg
+    d = float(np.median(crown.foliage_sizes))
+    assert (np.abs(depth_imp - depth_geo)[both] <= 0.02 * d).mean() >= 0.95
