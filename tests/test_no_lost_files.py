@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from pxr import Usd, UsdUtils
+from pxr import Usd, UsdShade, UsdUtils
 
 import forest.usd.files
 import forest.usd.scene
@@ -148,7 +148,8 @@ def test_cli_generate_usdz_keeps_the_usdc_beside_it(tmp_path: Path) -> None:
     after = snapshot(tmp_path)
     assert set(after) == set(before)
     assert all(after[n] == d for n, d in before.items() if n != out.name)
-    assert zipfile.ZipFile(out).namelist() == [f"{STEM}.usdc"]
+    # the layer, and the leaf picture it carries (nothing of the folder's own files)
+    assert zipfile.ZipFile(out).namelist() == [f"{STEM}.usdc", "0/leaf-broadleaf.png"]
 
 
 def usdz_problems(path: Path) -> list[str]:
@@ -193,6 +194,46 @@ def test_usdz_still_packs_the_bark_tiles_beside_the_scene(
     assert not os.path.isabs(asset.path) and str(tmp_path) not in asset.path
     assert usdz_problems(out) == []
     assert entries(tmp_path) == {"tiles", "tiles/bark.1001.png", out.name}
+
+
+def test_usdz_cuts_its_leaf_cards_with_the_picture_it_carries(
+    small_forest: Forest, tmp_path: Path
+) -> None:
+    """In a .usdz both leaf materials take opacity from the leaf picture (threshold 0.5), a
+    PNG inside the package whose bottom row is the cards' t = 0 (the stem end); a .usdc,
+    which carries no files, binds no texture and points at none."""
+    import OpenImageIO as oiio
+
+    from forest.growth.foliage import leaf_texture
+
+    out = write_scene(small_forest, tmp_path / f"{STEM}.usdz")
+    stage = Usd.Stage.Open(str(out))
+    for name in ("Leaf", "LeafTinted"):
+        surface = UsdShade.Shader(stage.GetPrimAtPath(f"/World/Looks/{name}/Surface"))
+        assert surface.GetInput("opacityThreshold").Get() == 0.5
+        (link,) = surface.GetInput("opacity").GetConnectedSources()[0]
+        source = link.source
+        assert link.sourceName == "a"
+        assert source.GetPrim().GetAttribute("info:id").Get() == "UsdUVTexture"
+        asset = source.GetPrim().GetAttribute("inputs:file").Get()
+        assert not os.path.isabs(asset.path) and "[" in asset.resolvedPath  # inside the package
+    picture = tmp_path / "leaf.png"
+    with zipfile.ZipFile(out) as z:
+        picture.write_bytes(z.read(asset.path))
+    pixels = oiio.ImageBuf(str(picture)).get_pixels(oiio.UINT8)
+    alpha = leaf_texture(small_forest.grammar.leaves.family)[..., 3]
+    assert 0 < (alpha > 0).mean() < 1  # a leaf's outline, not a square
+    np.testing.assert_array_equal(pixels[::-1, :, 3], alpha)
+    assert usdz_problems(out) == []
+
+    plain = write_scene(small_forest, tmp_path / f"{STEM}.usdc")
+    stage = Usd.Stage.Open(str(plain))
+    surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Leaf/Surface"))
+    assert not surface.GetInput("opacity") and entries(tmp_path) == {
+        out.name,
+        plain.name,
+        "leaf.png",
+    }
 
 
 # --- the atomic writer itself ------------------------------------------------------------

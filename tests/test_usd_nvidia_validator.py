@@ -163,8 +163,9 @@ def test_usdz_follows_arkit_rules(scenes: dict[str, Path]) -> None:
         names = z.namelist()
     assert names[0] == "tiles.usdc"  # the root layer: crate
     assert {Path(n).suffix for n in names[1:]} == {".png"}
-    tiles = [n for n in names if n.endswith(".png")]
+    tiles = [n for n in names if Path(n).name.startswith("bark.")]
     assert len(tiles) == len(list(default_dir().glob("bark.*.png")))
+    assert [Path(n).name for n in names[1:] if n not in tiles] == ["leaf-broadleaf.png"]
 
     types = Counter(p.GetTypeName() for p in stage.Traverse())
     assert set(types) <= ARKIT_PRIM_TYPES, types

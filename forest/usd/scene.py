@@ -27,9 +27,11 @@ from forest.geometry.pieces import HUB, QUAD_ST, PieceArrays
 from forest.geometry.transforms import BLOCK, F64, compose_similarity, decompose_similarity
 from forest.growth.foliage import (
     LEAF_GREEN,
+    Family,
     FoliageAnchors,
     LeafCloud,
     cloud_models,
+    leaf_texture,
     yaw_quaternions,
 )
 from forest.growth.generate import Forest
@@ -395,12 +397,27 @@ class LeafMaterials:
         api.Bind(self.tinted, materialPurpose=UsdShade.Tokens.preview)
 
 
-def leaf_material(stage: Usd.Stage, colors: NDArray[np.floating] | None = None) -> LeafMaterials:
+def write_leaf_texture(folder: Path, family: Family) -> Path:
+    """The leaf family's picture (:func:`forest.growth.foliage.leaf_texture`) as
+    ``folder/leaf-<family>.png``, its rows turned so that USD's ``st`` (t up from the image's
+    bottom row) reads it as the leaf cards do: the stem end at t = 0."""
+    from forest.bark.images import write_png
+
+    path = folder / f"leaf-{family}.png"
+    write_png(path, np.ascontiguousarray(leaf_texture(family)[::-1]))
+    return path
+
+
+def leaf_material(
+    stage: Usd.Stage, colors: NDArray[np.floating] | None = None, texture: str | None = None
+) -> LeafMaterials:
     """UsdPreviewSurface leaves: the flat one in the mean of the clouds' linear RGB ``colors``
     (leaf green where there are none), the tinted one reading the ``displayColor`` primvar
     (the instancer's per-instance colour, the skinned leaves' per-face one) with that mean as
-    its fallback. The leaf textures are made by the renderer from code, so no scene points at
-    a texture file."""
+    its fallback. With ``texture`` (an asset path to :func:`write_leaf_texture`'s picture,
+    as a .usdz carries it) both cut each card to its leaf: ``opacity`` from the picture's
+    alpha through ``st``, ``opacityThreshold`` 0.5, so a DCC shows leaves, not square cards;
+    without, no scene points at a texture file it does not carry."""
     mean = (
         tuple(float(c) for c in np.asarray(colors, np.float64).mean(axis=0))
         if colors is not None and len(colors)
@@ -413,6 +430,26 @@ def leaf_material(stage: Usd.Stage, colors: NDArray[np.floating] | None = None) 
         pbr = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/Surface")
         pbr.CreateIdAttr("UsdPreviewSurface")
         pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
+        if texture is not None:
+            reader = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/StReader")
+            reader.CreateIdAttr("UsdPrimvarReader_float2")
+            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+            reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+            cutout = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/Cutout")
+            cutout.CreateIdAttr("UsdUVTexture")
+            cutout.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
+            cutout.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
+            cutout.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
+            cutout.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
+            cutout.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(1, 1, 1, 1))
+            cutout.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+                reader.ConnectableAPI(), "result"
+            )
+            cutout.CreateOutput("a", Sdf.ValueTypeNames.Float)
+            pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(
+                cutout.ConnectableAPI(), "a"
+            )
+            pbr.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
         mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
         return mat, pbr
 
@@ -454,6 +491,7 @@ def write_foliage(
     forest: Forest,
     anchors: FoliageAnchors,
     samples: list[tuple[float | None, F64]],
+    leaf_file: str | None = None,
 ) -> UsdGeom.PointInstancer:
     """Leaf clouds as a PointInstancer of the leaf family's cloud models (one Mesh prototype
     per model, ``protoIndices`` the model): one instance per anchor, turned about +y by its
@@ -468,7 +506,7 @@ def write_foliage(
     inst = UsdGeom.PointInstancer.Define(stage, FOLIAGE)
     prim = inst.GetPrim()
     UsdGeom.Scope.Define(stage, FOLIAGE_PROTOTYPES)
-    material = leaf_material(stage, anchors.color)
+    material = leaf_material(stage, anchors.color, leaf_file)
     models = cloud_models(anchors.family)
     meshes = [
         write_leaf_cloud(stage, f"{FOLIAGE_CLOUD}{m}", cloud, material)
@@ -617,8 +655,14 @@ def write_scene(
     try:
         setup_stage(stage, forest)
         vset, targets = representation_variants(stage, skinned)
-        material = bark_material(stage, tiles, forest.grammar.bark)
         anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
+        leaf_file = None
+        if out.suffix.lower() == ".usdz" and anchors is not None:
+            # the leaf picture goes inside: written beside the layer (an absolute path: the
+            # packager embeds it under a name of its own). Bark tiles only from a given
+            # folder: Blender 4.2 finds no UDIM tile inside a package (magenta bark)
+            leaf_file = write_leaf_texture(tmp.parent, anchors.family).as_posix()
+        material = bark_material(stage, tiles, forest.grammar.bark)
         samples: list[tuple[float | None, F64]] = []
 
         def foliage_sample(time: float | None, palette: F64) -> None:
@@ -627,13 +671,13 @@ def write_scene(
 
         write_instancer(stage, forest, material, targets, progress, foliage_sample)
         if anchors is not None:
-            write_foliage(stage, forest, anchors, samples)
+            write_foliage(stage, forest, anchors, samples, leaf_file)
         if skinned:
             from forest.usd.skinned import write_skinned_trees
 
             vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
             with Usd.EditContext(stage, targets[SKINNED]):
-                write_skinned_trees(stage, forest, material, anchors, progress)
+                write_skinned_trees(stage, forest, material, anchors, progress, leaf_file)
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
                     if stage.GetPrimAtPath(where):

@@ -336,11 +336,13 @@ def write_skinned_trees(
     material: UsdShade.Material,
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
+    leaf_file: str | None = None,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
-    (Leaves, each cloud bound rigidly to its hub bone). Extents are authored per frame on
-    every prim whose points or joints move."""
+    (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
+    see :func:`forest.usd.scene.leaf_material`). Extents are authored per frame on every
+    prim whose points or joints move."""
     trees = UsdGeom.Xform.Define(stage, TREES)
     Usd.ModelAPI(trees).SetKind(Kind.Tokens.group)
     times = forest.frame_times()
@@ -350,7 +352,9 @@ def write_skinned_trees(
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
     codes = [Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
-    leaf_materials = None if anchors is None else leaf_material(stage, anchors.color)
+    leaf_materials = (
+        None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
+    )
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/Tree_{k:05d}"
