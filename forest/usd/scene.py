@@ -661,7 +661,7 @@ def write_scene(
             # the leaf picture goes inside: written beside the layer (an absolute path: the
             # packager embeds it under a name of its own). Bark tiles only from a given
             # folder: Blender 4.2 finds no UDIM tile inside a package (magenta bark)
-            leaf_file = write_leaf_texture(tmp.parent, anchors.family).as_posix()
+            leaf_file = write_leaf_texture(tmp.parent, anchors.family).resolve().as_posix()
         material = bark_material(stage, tiles, forest.grammar.bark)
         samples: list[tuple[float | None, F64]] = []
 
