@@ -290,7 +290,10 @@ class FoliageRenderer:
             self.impostor_fbo = ctx.framebuffer([self.impostor], self._impostor_depth)
         self._rotation: F64 | None = None
         self.impostor_renders = 0
-        self._centres: F64 | None = None  # first-frame cloud centres, for near_clouds
+        # for near_clouds: first-frame cloud centres (made on first use) and bounding radii
+        # (the billboards' half sizes)
+        self._centres: F64 | None = None
+        self._half = scene.foliage_sizes * np.take(self.radii, scene.foliage_model)
         self._near_key: tuple[float, ...] | None = None
         self._near_counts = np.zeros(len(self.models), np.int64)
         self.near_order: moderngl.Buffer | None = None
@@ -388,7 +391,7 @@ class FoliageRenderer:
         if self._centres is None:
             self._centres = self.scene.foliage_at(0)
         forward = impostor_basis(camera)[2]
-        half = self.scene.foliage_sizes * np.take(self.radii, self.scene.foliage_model)
+        half = self._half
         depth = (self._centres - np.asarray(camera.eye)) @ forward
         limit = NEAR_TEXELS * self.impostor_size
         near = (depth > -half) & (2.0 * half * focal_px > limit * depth)

@@ -5,7 +5,6 @@ per-instance, per-quad tile indices (paper 4.3, 4.4, 5.1). Offscreen, on any GL 
 
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
@@ -19,7 +18,7 @@ from worker import shaders
 from worker.camera import GROUND_SPAN, Camera
 from worker.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
 from worker.gl_context import elapsed_ms, gl_info
-from worker.instance_cull import InstanceCuller
+from worker.instance_cull import InstanceCuller, pixel_size
 from worker.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
 from worker.staging import StageRenderer, Staging, SunCamera, sun_camera
 from worker.textures import TileImages, tile_images, upload
@@ -346,7 +345,7 @@ class Renderer:
             gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
         leaves = None
         if self.foliage is not None and pass1 is not None:
-            focal_px = self.size[1] / (2.0 * math.tan(math.radians(camera.fov_y) / 2.0))
+            focal_px = 1.0 / pixel_size(camera, self.size[1])[1]  # pixels per metre at 1 m
             leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo, focal_px=focal_px)
             calls += leaves.draw_calls
             primitives += leaves.primitives

@@ -188,6 +188,34 @@ def tile_asset_path(tiles: str) -> str:
     return posixpath.join(folder, UDIM_PATTERN)
 
 
+def _st_texture(
+    stage: Usd.Stage,
+    path: str,
+    asset: str,
+    color_space: str,
+    fallback: tuple[float, ...],
+    wrap: str | None = None,
+) -> UsdShade.Shader:
+    """A UsdUVTexture at ``path`` reading ``asset`` through an ``st`` primvar reader beside it
+    (``StReader``, in the same material); the caller adds the outputs it uses."""
+    reader = UsdShade.Shader.Define(stage, f"{posixpath.dirname(path)}/StReader")
+    reader.CreateIdAttr("UsdPrimvarReader_float2")
+    reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
+    reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
+    tex = UsdShade.Shader.Define(stage, path)
+    tex.CreateIdAttr("UsdUVTexture")
+    tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(asset))
+    tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set(color_space)
+    if wrap is not None:
+        tex.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set(wrap)
+        tex.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set(wrap)
+    tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*fallback))
+    tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
+        reader.ConnectableAPI(), "result"
+    )
+    return tex
+
+
 def bark_material(
     stage: Usd.Stage, tiles: str | None = None, bark: str = DEFAULT_SET
 ) -> UsdShade.Material:
@@ -206,20 +234,7 @@ def bark_material(
     if tiles is None:
         pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*colour))
     else:
-        reader = UsdShade.Shader.Define(stage, f"{LOOKS}/Bark/StReader")
-        reader.CreateIdAttr("UsdPrimvarReader_float2")
-        reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-        reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-        tex = UsdShade.Shader.Define(stage, BARK_TILES)
-        tex.CreateIdAttr("UsdUVTexture")
-        tex.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(
-            Sdf.AssetPath(tile_asset_path(tiles))
-        )
-        tex.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("sRGB")
-        tex.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(*colour, 1.0))
-        tex.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-            reader.ConnectableAPI(), "result"
-        )
+        tex = _st_texture(stage, BARK_TILES, tile_asset_path(tiles), "sRGB", (*colour, 1.0))
         tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
             tex.ConnectableAPI(), "rgb"
@@ -299,9 +314,7 @@ def write_instancer(
             # the first sample is also the default, so tools that read no time see the pose
             for c in (Usd.TimeCode.Default(), code) if i == 0 else (code,):
                 inst.CreatePositionsAttr().Set(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)), c)
-                inst.CreateOrientationsAttr().Set(
-                    Vt.QuathArray.FromNumpy(q.astype(np.float16)), c
-                )
+                inst.CreateOrientationsAttr().Set(Vt.QuathArray.FromNumpy(q.astype(np.float16)), c)
                 inst.CreateScalesAttr().Set(
                     Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32)),
                     c,
@@ -431,20 +444,8 @@ def leaf_material(
         pbr.CreateIdAttr("UsdPreviewSurface")
         pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.7)
         if texture is not None:
-            reader = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/StReader")
-            reader.CreateIdAttr("UsdPrimvarReader_float2")
-            reader.CreateInput("varname", Sdf.ValueTypeNames.String).Set("st")
-            reader.CreateOutput("result", Sdf.ValueTypeNames.Float2)
-            cutout = UsdShade.Shader.Define(stage, f"{LOOKS}/{name}/Cutout")
-            cutout.CreateIdAttr("UsdUVTexture")
-            cutout.CreateInput("file", Sdf.ValueTypeNames.Asset).Set(Sdf.AssetPath(texture))
-            cutout.CreateInput("sourceColorSpace", Sdf.ValueTypeNames.Token).Set("raw")
-            cutout.CreateInput("wrapS", Sdf.ValueTypeNames.Token).Set("clamp")
-            cutout.CreateInput("wrapT", Sdf.ValueTypeNames.Token).Set("clamp")
-            cutout.CreateInput("fallback", Sdf.ValueTypeNames.Float4).Set(Gf.Vec4f(1, 1, 1, 1))
-            cutout.CreateInput("st", Sdf.ValueTypeNames.Float2).ConnectToSource(
-                reader.ConnectableAPI(), "result"
-            )
+            path = f"{LOOKS}/{name}/Cutout"
+            cutout = _st_texture(stage, path, texture, "raw", (1.0, 1.0, 1.0, 1.0), "clamp")
             cutout.CreateOutput("a", Sdf.ValueTypeNames.Float)
             pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(
                 cutout.ConnectableAPI(), "a"
@@ -471,9 +472,7 @@ def write_leaf_cloud(
     """A leaf-cloud model as a double-sided Mesh of leaf cards (unit diameter), its leaf family
     in ``forest:leafFamily`` (which texture its st index). No displayColor of its own, so the
     instancer's per-instance displayColor reaches it."""
-    mesh = _quad_mesh(
-        stage, path, cloud.positions, cloud.normals, cloud.quads, double_sided=True
-    )
+    mesh = _quad_mesh(stage, path, cloud.positions, cloud.normals, cloud.quads, double_sided=True)
     _primvar(
         mesh.GetPrim(),
         "st",
