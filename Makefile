@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(BIN)/forest demo -o demo
 
 lint: $(STAMP)
-	$(BIN)/ruff check forest schemas farm worker service tests
+	$(BIN)/ruff check forest schemas farm worker service cli bench tests
 	$(BIN)/mypy
 
 test: $(STAMP) lint

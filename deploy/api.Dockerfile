@@ -9,6 +9,8 @@ COPY farm farm
 COPY service service
 COPY worker worker
 COPY shaders shaders
+COPY cli cli
+COPY bench bench
 RUN pip install '.[service]' && useradd --uid 10001 forest && mkdir -p /data && chown forest /data
 USER forest
 # every setting comes from the environment (farm/settings.py, service/settings.py):

@@ -19,6 +19,8 @@ COPY farm farm
 COPY service service
 COPY worker worker
 COPY shaders shaders
+COPY cli cli
+COPY bench bench
 RUN python3 -m venv /opt/venv && /opt/venv/bin/pip install '.[worker]' \
     && useradd --uid 10001 forest && mkdir -p /data && chown forest /data
 ENV PATH=/opt/venv/bin:$PATH FOREST_DATA_DIR=/data FOREST_ARTIFACTS_DIR=/data/artifacts

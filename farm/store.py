@@ -45,7 +45,7 @@ def tile_job_id(parent: str, i: int, j: int) -> str:
 
 def tile_job_ids(parent: str, params: dict[str, Any]) -> list[tuple[int, int, str]]:
     """``(i, j, job id)`` of every tile of a forest job's ``params`` (none if not tiled)."""
-    from schemas.jobs import tile_grid
+    from schemas.tiles import tile_grid
 
     size = params.get("tile_size")
     if not size:

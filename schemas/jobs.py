@@ -14,13 +14,12 @@ from pydantic import Field, model_validator
 
 from schemas.base import StrictModel
 from schemas.grammar import Grammar
+from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
 
 JobState = Literal["queued", "active", "completed", "failed", "canceled"]
 JobKind = Literal["forest", "render", "forest_tile"]
 """``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job."""
 MAX_UNTILED_TREES = 200_000
-MAX_TILED_TREES = 10_000_000  # the plan hashes every cell: 80 MB at this cap
-MAX_TILES = 100_000
 UsdFormat = Literal["usda", "usdc", "usdz"]
 SceneFormat = Literal["usda", "usdc", "usdz", "glb"]
 """USD, or glTF 2.0 binary (skinned trees, wind animation, textures inside) for game engines."""
@@ -110,11 +109,6 @@ class ForestRequest(TreeRequest):
         return self
 
 
-def tile_grid(area: tuple[float, float], tile_size: float) -> tuple[int, int]:
-    """How many tiles along x and z cover ``area`` with squares of ``tile_size`` metres."""
-    return max(1, math.ceil(area[0] / tile_size)), max(1, math.ceil(area[1] / tile_size))
-
-
 class RenderRequest(FiniteModel):
     """A render job of a finished forest job's scene (the camera frames the forest itself)."""
 
@@ -127,7 +121,7 @@ class RenderRequest(FiniteModel):
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
     """Measured frames (wind samples from ``frame`` on); the preview is the first."""
     view: Literal["overview", "side", "eye"] = "overview"
-    """Named camera (worker.camera.CameraSpec): the whole forest from 35 degrees azimuth and
+    """Named camera (worker.render.camera.CameraSpec): the whole forest from 35 degrees azimuth and
     18 up, the same horizontally, or eyes 1.7 m above the ground at ``distance``."""
     eye: tuple[float, float, float] | None = None
     """Camera position in metres (Y up); with ``target``, it overrides ``view``."""
@@ -143,7 +137,7 @@ class RenderRequest(FiniteModel):
     lod_pixels: Annotated[float, Field(ge=0, le=64, allow_inf_nan=False)] | None = 0.5
     """Pieces thinner on screen than this many pixels are not drawn (a distant tree's
     twigs, under its leaves); 0 draws every piece in view, null also those out of view
-    (whole instances are tested on the GPU before the draws: worker.instance_cull)."""
+    (whole instances are tested on the GPU before the draws: worker.render.instance_cull)."""
     clip: Literal["mp4", "webm", "gif"] | None = None
     """Also encode the frames as ``clip.<format>`` (an artifact with its media type); with
     ``frames`` 1 the clip is the scene's whole wind loop, which loops seamlessly."""

@@ -9,11 +9,11 @@ OUT=${OUT:-gpu-checks}
 PY=${PYTHON:-python3}
 mkdir -p "$OUT"
 nvidia-smi --query-gpu=name,driver_version --format=csv 2>&1 | tee "$OUT/device.txt"
-timeout 300 "$PY" -m forest.cli bench render --trees 1,10,50,100,250,500,1000 --levels 1,10 \
+timeout 300 "$PY" -m cli bench render --trees 1,10,50,100,250,500,1000 --levels 1,10 \
   --width 1920 --height 1080 --frames 10 --foliage-trees 100,1000 \
   --plot "$OUT/bench-render.png" 2>&1 | tee "$OUT/bench-render.txt"
 # a mature species, where the cull pass and sub-pixel LOD matter most (rows lod, staged_lod)
-timeout 240 "$PY" -m forest.cli bench render --preset oak --trees 1,10,100,1000 --levels 1 \
+timeout 240 "$PY" -m cli bench render --preset oak --trees 1,10,100,1000 --levels 1 \
   --width 1920 --height 1080 --frames 5 --no-naive --foliage-trees none \
   --plot "$OUT/bench-render-oak.png" 2>&1 | tee "$OUT/bench-render-oak.txt"
 # warnings shown, not raised: a GPU image's own plugins warn, and pyproject's filter names

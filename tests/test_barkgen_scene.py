@@ -18,7 +18,7 @@ from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import BARK_TILE_SET_ATTR, write_scene
 from schemas.grammar import Grammar
-from worker.textures import tile_images
+from worker.render.textures import tile_images
 
 
 def _grammar(bark: str) -> Grammar:

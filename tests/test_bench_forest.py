@@ -7,9 +7,9 @@ from pathlib import Path
 
 from click.testing import CliRunner
 
-from forest.bench.floor import page_cache_write_seconds, timed_saves
-from forest.bench.forest import run_forest_bench
-from forest.cli import main
+from bench.floor import page_cache_write_seconds, timed_saves
+from bench.forest import run_forest_bench
+from cli import main
 from forest.usd import files
 
 

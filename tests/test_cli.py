@@ -19,7 +19,7 @@ ROOT = Path(__file__).parents[1]
 def forest(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
-        [sys.executable, "-m", "forest.cli", *args],
+        [sys.executable, "-m", "cli", *args],
         cwd=cwd,
         env=env,
         capture_output=True,
@@ -192,7 +192,7 @@ def test_palette_size_is_capped(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "forest.cli",
+            "cli",
             "generate",
             "--preset",
             "almond",

@@ -163,7 +163,7 @@ def test_glb_round_trips_through_pygltflib(doc: gl.GLTF2) -> None:
 def cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     return subprocess.run(
-        [sys.executable, "-m", "forest.cli", *args],
+        [sys.executable, "-m", "cli", *args],
         cwd=cwd, env=env, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
 

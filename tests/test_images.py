@@ -13,6 +13,7 @@ import OpenImageIO as oiio
 import pytest
 from click.testing import CliRunner
 
+from cli import main
 from forest.bark.images import (
     read_example,
     read_pixels,
@@ -20,7 +21,6 @@ from forest.bark.images import (
     write_png,
     write_texture_array,
 )
-from forest.cli import main
 from forest.errors import ForestError, OutputError
 
 

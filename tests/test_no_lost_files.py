@@ -16,12 +16,12 @@ from pxr import Usd, UsdShade, UsdUtils
 
 import forest.usd.files
 import forest.usd.scene
+from bench.tiles import procedural_examples
+from cli import main
 from farm.artifacts import ArtifactStore
 from forest.atomic import all_replaced_when_written, replaced_when_written, write_text
 from forest.bark import tileset as tileset_mod
 from forest.bark.tileset import TileGeometry, build_tileset, default_classes, write_tileset
-from forest.bench.tiles import procedural_examples
-from forest.cli import main
 from forest.errors import OutputError
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -325,7 +325,7 @@ def test_a_failed_tile_set_write_leaves_the_old_set(
 
 @pytest.fixture(scope="module")
 def gl_ok() -> None:
-    from worker.gl_context import GLUnavailableError, create_context
+    from worker.render.gl_context import GLUnavailableError, create_context
 
     try:
         create_context(require=330).release()
@@ -343,8 +343,8 @@ def test_render_outputs_are_replaced_together_or_not_at_all(
     monkeypatch: pytest.MonkeyPatch,
     fail: str | None,
 ) -> None:
-    import worker.render_job
-    from worker.render_job import RenderRequest, render_file
+    import worker.render.render_file
+    from worker.render.render_file import RenderRequest, render_file
 
     (tmp_path / "scene").mkdir()
     scene = write_scene(small_forest, tmp_path / "scene" / f"{STEM}.usdc")
@@ -355,7 +355,7 @@ def test_render_outputs_are_replaced_together_or_not_at_all(
     metrics.write_bytes(b"old metrics")
     before[metrics.name] = b"old metrics"
     if fail is not None:
-        monkeypatch.setattr(worker.render_job, fail, _raise)
+        monkeypatch.setattr(worker.render.render_file, fail, _raise)
     req = RenderRequest(scene=scene, output=png, metrics=metrics, width=32, height=24)
     if fail is None:
         render_file(req)

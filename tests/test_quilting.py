@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from bench.tiles import min_cut_python
 from forest.bark.quilting import cut_mask, is_connected, min_cut_paths, path_cost, squared_error
-from forest.bench.tiles import min_cut_python
 
 
 def brute_force(err: np.ndarray) -> tuple[int, list[tuple[int, ...]]]:

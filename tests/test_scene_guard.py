@@ -1,4 +1,4 @@
-"""The upload guard (``worker.scene_guard``) on hostile scenes: each is refused with an error
+"""The upload guard (``worker.jobs.scene_guard``) on hostile scenes: each is refused with an error
 that names the field (the upload's ``scene`` and the prim or attribute) and no server path,
 before the reader composes anything; a real forest scene passes, and a ``.usdz`` gives up
 its own bark tiles and nothing else."""
@@ -15,7 +15,7 @@ from forest.errors import SceneError
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
-from worker.scene_guard import UploadCaps, check_scene_file, package_tiles
+from worker.jobs.scene_guard import UploadCaps, check_scene_file, package_tiles
 
 CAPS = UploadCaps(memory_bytes=3072 << 20)
 

@@ -18,6 +18,8 @@ from pydantic import ValidationError
 from scipy.signal import fftconvolve
 from skimage import data as skdata
 
+from bench.tiles import procedural_examples, stitch_inputs, stitch_tile_python
+from cli import main
 from forest.bark.images import read_pixels, read_texture_array
 from forest.bark.tiles import manifest_for
 from forest.bark.tileset import (
@@ -28,8 +30,6 @@ from forest.bark.tileset import (
     stitch_tiles,
 )
 from forest.bark.tilesets import SETS, default_dir, make_set, set_dir
-from forest.bench.tiles import procedural_examples, stitch_inputs, stitch_tile_python
-from forest.cli import main
 from forest.errors import ForestError, LimitError
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset

@@ -13,7 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pxr import Usd
 
-from forest.cli import main
+from cli import main
 from forest.errors import ForestError, LimitError
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset

@@ -179,7 +179,7 @@ def test_cli_skinned_and_no_skinned(tmp_path: Path) -> None:
     --no-skinned with a .usdz is a one-line error naming the option (exit 2)."""
     from click.testing import CliRunner
 
-    from forest.cli.app import main
+    from cli.app import main
 
     def run(*args: str) -> tuple[int, str]:
         res = CliRunner().invoke(

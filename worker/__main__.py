@@ -1,8 +1,6 @@
 """``python -m worker -Q default,gpu``: what ``forest worker`` runs (used by ``forest serve``)."""
 
-import sys
-
-from forest.cli import main
+from worker.jobs.main import worker_command
 
 if __name__ == "__main__":
-    main(["worker", *sys.argv[1:]])
+    worker_command(prog_name="python -m worker")

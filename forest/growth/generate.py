@@ -6,7 +6,6 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from functools import cached_property
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -37,9 +36,6 @@ from forest.growth.skeleton import (
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
-
-if TYPE_CHECKING:
-    from schemas.jobs import TreeRequest
 
 Progress = Callable[[str, int, int], None]
 MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
@@ -88,18 +84,6 @@ class ForestOptions:
             raise LimitError(
                 f"segments must be in [1, 8], got {self.segments}", path="segments", limit=8
             )
-
-
-def options_from_request(req: TreeRequest) -> ForestOptions:
-    """The generation options of an API request (a ForestRequest adds trees, area, placement)."""
-    from schemas.jobs import ForestRequest  # the service's schemas: not on the CLI's path
-
-    options = ForestOptions(
-        frames=req.frames, fps=req.fps, segments=req.segments, wind=Wind(strength_deg=req.wind_deg)
-    )
-    if isinstance(req, ForestRequest):
-        options = replace(options, trees=req.trees, area=req.area, placement=req.placement)
-    return options
 
 
 @dataclass(frozen=True, eq=False)

@@ -26,7 +26,7 @@ from forest.growth.generate import MAX_AREA, Forest, ForestOptions, Progress, ge
 from forest.growth.scatter import CellGrid, PlacedTrees, Placement, placed
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
-from schemas.jobs import MAX_TILED_TREES, MAX_TILES, tile_grid
+from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
 
 

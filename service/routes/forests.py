@@ -7,7 +7,8 @@ import math
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
-from schemas.jobs import ForestRequest, Job, tile_grid
+from schemas.jobs import ForestRequest, Job
+from schemas.tiles import tile_grid
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.inputs import check_cost, resolve_grammar

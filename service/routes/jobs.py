@@ -22,7 +22,7 @@ ARTIFACT_TYPES = {
     ".usdc": "model/vnd.usd",
     ".usdz": "model/vnd.usdz+zip",
     ".glb": "model/gltf-binary",
-    ".mp4": "video/mp4",  # render clips (worker.clip)
+    ".mp4": "video/mp4",  # render clips (worker.render.clip)
     ".webm": "video/webm",
     ".gif": "image/gif",
 }

@@ -9,9 +9,10 @@ from typing import Any, get_args
 from fastapi import APIRouter
 from fastapi.responses import Response
 
+from farm.requests import options_from_request
 from forest.errors import ForestError
 from forest.gltf.document import write_glb
-from forest.growth.generate import generate_forest, options_from_request
+from forest.growth.generate import generate_forest
 from forest.usd.scene import write_scene
 from schemas.jobs import SceneFormat, TreeRequest
 from service.deps import ServicesDep

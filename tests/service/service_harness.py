@@ -172,7 +172,7 @@ class Server:
             [
                 sys.executable,
                 "-m",
-                "forest.cli",
+                "cli",
                 "serve",
                 "--port",
                 str(self.port),
@@ -258,7 +258,8 @@ def served(data: Path, env: dict[str, str]) -> Iterator[Server]:
 def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> bytes:
     """The library's own output for a forest or tree request body (a .usdz names its inner
     layer by stem)."""
-    from forest.growth.generate import generate_forest, options_from_request
+    from farm.requests import options_from_request
+    from forest.growth.generate import generate_forest
     from forest.growth.presets import load_preset
     from forest.usd.scene import write_scene
     from schemas.jobs import ForestRequest, TreeRequest

@@ -17,10 +17,10 @@ from fastapi import FastAPI
 from service_harness import PG, pg_database, require_server
 from sqlalchemy import text
 
+from cli import main
 from farm.db import engine_for, migrate
 from farm.keys import KeyStore
 from farm.store import JobStore
-from forest.cli import main
 from forest.errors import ForestError
 from service.app import create_app
 from service.security import Keys

@@ -22,7 +22,7 @@ def test_bench_service_runs_jobs_on_postgresql_and_redis() -> None:
     with pg_database(f"bench_{tag}") as db:
         try:
             res = subprocess.run(
-                [sys.executable, "-m", "forest.cli", "bench", "service", "--preset",
+                [sys.executable, "-m", "cli", "bench", "service", "--preset",
                  "alternating", "--concurrency", "1", "--requests", "2", "--workers", "1",
                  "--jobs", "2", "--trees", "2", "--database", db, "--broker", REDIS_URL],
                 env={**os.environ, "PYTHONPATH": str(ROOT), "FOREST_QUEUE_PREFIX": prefix},

@@ -11,8 +11,9 @@ from pathlib import Path
 import pytest
 from service_harness import Server, served
 
+from farm.requests import options_from_request
 from forest.gltf.document import write_glb
-from forest.growth.generate import generate_forest, options_from_request
+from forest.growth.generate import generate_forest
 from forest.growth.presets import load_preset
 from schemas.jobs import ForestRequest, TreeRequest
 

@@ -9,7 +9,7 @@ import httpx
 import pytest
 from click.testing import CliRunner
 
-from forest.cli import main
+from cli import main
 from service.app import create_app
 from service.settings import ServiceSettings
 

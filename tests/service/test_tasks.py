@@ -1,4 +1,4 @@
-"""A job's delivery run in-process (``worker.tasks.execute``) with stand-in task kinds, each
+"""A job's delivery run in-process (``worker.jobs.tasks.execute``) with stand-in task kinds, each
 attempt in its supervised child process: retries up to the attempt cap then failed with the
 error, bad input failed at once, a crash or a memory limit of the child failed at once (not
 a lost worker), cancel kills the child, a child holding its GIL keeps the lease, a duplicate
@@ -20,9 +20,9 @@ from farm.db import migrate
 from farm.settings import FarmSettings, override_settings
 from farm.store import JobStore
 from forest.errors import ForestError
-from worker import tasks
-from worker.supervise import scrub_paths
-from worker.tasks import JobContext, Outcome, execute
+from worker.jobs import tasks
+from worker.jobs.supervise import scrub_paths
+from worker.jobs.tasks import JobContext, Outcome, execute
 
 
 @pytest.fixture

@@ -13,10 +13,10 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
-from worker.camera import Camera
-from worker.gl_context import create_context
-from worker.renderer import Renderer, TessSettings
-from worker.scene_buffers import scene_bounds
+from worker.render.camera import Camera
+from worker.render.gl_context import create_context
+from worker.render.renderer import Renderer, TessSettings
+from worker.render.scene_buffers import scene_bounds
 
 
 def _bark_pixels(ctx: Any, path: Path) -> np.ndarray:

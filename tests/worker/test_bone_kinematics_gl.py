@@ -16,9 +16,9 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
-from worker import bone_kinematics
-from worker.bone_kinematics import bone_records
-from worker.scene_buffers import SceneBuffers
+from worker.render import bone_kinematics
+from worker.render.bone_kinematics import bone_records
+from worker.render.scene_buffers import SceneBuffers
 
 
 def gpu_palette(buffers: SceneBuffers) -> NDArray[np.float64]:

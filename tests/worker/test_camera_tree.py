@@ -11,10 +11,10 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
-from worker.camera import CameraSpec
-from worker.foliage import foliage_points
-from worker.render_job import preview_view
-from worker.scene_buffers import scene_points
+from worker.render.camera import CameraSpec
+from worker.render.foliage import foliage_points
+from worker.render.render_file import preview_view
+from worker.render.scene_buffers import scene_points
 
 
 @pytest.fixture(scope="module")

@@ -12,11 +12,11 @@ import pytest
 from click.testing import CliRunner
 from PIL import Image
 
-from forest.cli import main
+from cli import main
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
-from worker.clip import MEDIA_TYPES, orbit_camera_eyes, write_clip
+from worker.render.clip import MEDIA_TYPES, orbit_camera_eyes, write_clip
 
 FRAMES, FPS = 6, 6.0  # a 1 s clip: long enough to loop (Wind.loop_s)
 # imageio-ffmpeg's frame reader leaves its ffmpeg pipe to the garbage collector once the
@@ -127,7 +127,7 @@ def test_render_job_clip_artifact_and_missing_bark_warning(windy: Path, tmp_path
     from schemas.jobs import RenderRequest
     from schemas.metrics import RenderMetrics
     from service.routes.jobs import ARTIFACT_TYPES
-    from worker.tasks import JobContext, run_render
+    from worker.jobs.tasks import JobContext, run_render
 
     # the scene's material names a tile folder beside it that is not there (an upload's)
     forest = generate_forest(
@@ -183,9 +183,9 @@ def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) 
     ``forest render`` does."""
     from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
-    from worker.render_job import RenderRequest as Job
-    from worker.render_job import render_file
-    from worker.tasks import JobContext, run_render
+    from worker.jobs.tasks import JobContext, run_render
+    from worker.render.render_file import RenderRequest as Job
+    from worker.render.render_file import render_file
 
     store = ArtifactStore(tmp_path / "artifacts")
     scene = tmp_path / "s.usdc"
@@ -194,11 +194,11 @@ def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) 
     req = RenderRequest(forest_job="c" * 32, width=32, height=24, tess_max=1, **cam)  # type: ignore[arg-type]
     params = req.model_dump(mode="json") | {"scene": "scene.usdc"}
     out = run_render(JobContext("d" * 32, params, store.scratch("d" * 32), store))
-    from worker.camera import CameraSpec
+    from worker.render.camera import CameraSpec
 
     render_file(Job(scene=windy, output=tmp_path / "cli.png", width=32, height=24,
                     tess_max=1, camera=CameraSpec(**cam)))  # type: ignore[arg-type]  # fmt: skip
-    from worker.textures import read_image_subimages
+    from worker.render.textures import read_image_subimages
 
     a = read_image_subimages(out.files["preview.png"])[0]
     b = read_image_subimages(tmp_path / "cli.png")[0]

@@ -19,19 +19,19 @@ from click.testing import CliRunner
 from numpy.typing import NDArray
 from pxr import Usd, UsdGeom
 
-from forest.cli import main
+from bench.render import run_render_bench
+from cli import main
 from forest.growth.foliage import MODELS, YAW_STEPS
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import FOLIAGE, write_scene
 from schemas.grammar import Grammar
 from schemas.metrics import RenderMetrics
-from worker.bench import run_render_bench
-from worker.camera import Camera, frame_points
-from worker.foliage import foliage_points, scene_models
-from worker.render_job import RenderRequest, render_file
-from worker.renderer import Renderer, TessSettings
-from worker.scene_buffers import scene_points
+from worker.render.camera import Camera, frame_points
+from worker.render.foliage import foliage_points, scene_models
+from worker.render.render_file import RenderRequest, render_file
+from worker.render.renderer import Renderer, TessSettings
+from worker.render.scene_buffers import scene_points
 
 SIZE = (160, 160)
 EMPTY = 1e9  # eye depth of pixels nothing covers
@@ -398,7 +398,7 @@ def test_render_counts_pass_one_in_the_frame_that_runs_it(
 
 
 def test_bench_puts_impostors_beside_the_real_clouds(gl_session: Any) -> None:
-    from worker.bench import FoliageBenchRow
+    from bench.render import FoliageBenchRow
 
     lines: list[str] = []
     rows: list[FoliageBenchRow] = []

@@ -12,18 +12,8 @@ import pytest
 from click.testing import CliRunner
 from numpy.typing import NDArray
 
-from forest.cli import main
-from forest.errors import ForestError
-from forest.usd.read import SceneArrays
-from worker.camera import (
-    EYE_HEIGHT,
-    FRAME_MARGIN,
-    CameraSpec,
-    box_corners,
-    place_camera,
-    project,
-)
-from worker.gallery import (
+from cli import main
+from cli.sheets.gallery import (
     GalleryOptions,
     bar_length,
     frame_tree,
@@ -31,11 +21,21 @@ from worker.gallery import (
     posed_vertices,
     scene_surface_points,
 )
-from worker.render_job import preview_view
-from worker.renderer import Renderer
-from worker.scene_buffers import scene_points
-from worker.staging import Staging
-from worker.textures import procedural_tiles, read_image_subimages
+from forest.errors import ForestError
+from forest.usd.read import SceneArrays
+from worker.render.camera import (
+    EYE_HEIGHT,
+    FRAME_MARGIN,
+    CameraSpec,
+    box_corners,
+    place_camera,
+    project,
+)
+from worker.render.render_file import preview_view
+from worker.render.renderer import Renderer
+from worker.render.scene_buffers import scene_points
+from worker.render.staging import Staging
+from worker.render.textures import procedural_tiles, read_image_subimages
 
 SIZE = (96, 72)
 # two of the paper's presets, which stay as they are
@@ -58,7 +58,7 @@ def in_frame(camera: Any, points: NDArray[np.float64]) -> NDArray[np.float64]:
 
 def test_overview_is_todays_default(mixed_scene: SceneArrays) -> None:
     """The default spec is the old automatic camera (so golden previews stay)."""
-    from worker.camera import frame_points
+    from worker.render.camera import frame_points
 
     pts = scene_points(mixed_scene)
     old = frame_points(pts, 4 / 3)

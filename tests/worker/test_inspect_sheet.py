@@ -12,11 +12,11 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from forest.cli import main
+from cli import main
+from cli.sheets.inspect import skin_forest
 from forest.geometry.tolerances import TEST_RIM_POSITION_REL
 from forest.usd.read import SceneArrays
-from worker.inspect_sheet import skin_forest
-from worker.textures import read_image_subimages
+from worker.render.textures import read_image_subimages
 
 ROOT = Path(__file__).parents[2]
 
@@ -56,7 +56,7 @@ def test_contact_sheet_png(mixed_scene_path: Path, tmp_path: Path) -> None:
     out = tmp_path / "sheet.png"
     args = [str(mixed_scene_path), "-o", str(out), "--frame", "1", "--width", "480"]
     res = subprocess.run(
-        [sys.executable, "-m", "forest.cli", "inspect", *args, "--height", "360"],
+        [sys.executable, "-m", "cli", "inspect", *args, "--height", "360"],
         capture_output=True,
         text=True,
         timeout=300,

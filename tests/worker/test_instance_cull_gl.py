@@ -1,4 +1,4 @@
-"""Per-instance culling and sub-pixel level of detail (worker.instance_cull) on a real GL 4.3
+"""Per-instance culling and sub-pixel level of detail (worker.render.instance_cull) on a real GL 4.3
 context: the GPU keeps exactly the instances that the numpy twin keeps, the frustum test
 never drops a piece that shows (the picture is the one drawn without it), and dropping
 pieces thinner than a pixel changes a distant forest's picture by little while drawing
@@ -19,16 +19,16 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
-from worker.camera import Camera, frame_box
-from worker.instance_cull import (
+from worker.render.camera import Camera, frame_box
+from worker.render.instance_cull import (
     DEFAULT_LOD_PIXELS,
     piece_bounds,
     tube_radius,
     visible_reference,
 )
-from worker.renderer import Renderer, TessSettings
-from worker.scene_buffers import scene_bounds, scene_points
-from worker.staging import STAGED
+from worker.render.renderer import Renderer, TessSettings
+from worker.render.scene_buffers import scene_bounds, scene_points
+from worker.render.staging import STAGED
 
 
 @pytest.fixture(scope="module")

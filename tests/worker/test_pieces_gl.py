@@ -11,7 +11,7 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from tests.test_pieces_cap import CAPPED
-from worker.render_job import RenderRequest, render_file
+from worker.render.render_file import RenderRequest, render_file
 
 
 def test_capped_forest_renders(gl_session: Any, tmp_path: Path) -> None:

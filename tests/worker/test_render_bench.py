@@ -9,9 +9,9 @@ from typing import Any
 import pytest
 from click.testing import CliRunner
 
-from forest.cli import main
-from forest.cli.app import parse_counts
-from worker.bench import run_render_bench
+from bench.render import run_render_bench
+from cli import main
+from cli.app import parse_counts
 
 
 def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_path: Path) -> None:
@@ -69,7 +69,7 @@ def test_saturated_gpu_timer_reports_no_gpu_time() -> None:
     frame at level 4 read 4294.97 ms): such a pass has no GPU time, not a wrong one."""
     from types import SimpleNamespace
 
-    from worker.gl_context import TIMER_SATURATED_NS, elapsed_ms
+    from worker.render.gl_context import TIMER_SATURATED_NS, elapsed_ms
 
     assert elapsed_ms(SimpleNamespace(elapsed=5_000_000)) == 5.0  # type: ignore[arg-type]
     assert elapsed_ms(SimpleNamespace(elapsed=TIMER_SATURATED_NS)) is None  # type: ignore[arg-type]

@@ -22,9 +22,9 @@ from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
 from tests.helpers_skin import skin
-from worker.camera import Camera, frame_box
-from worker.renderer import Renderer, TessSettings
-from worker.scene_buffers import scene_bounds, scene_points
+from worker.render.camera import Camera, frame_box
+from worker.render.renderer import Renderer, TessSettings
+from worker.render.scene_buffers import scene_bounds, scene_points
 
 F64 = NDArray[np.float64]
 # Outer level k of a quad patch belongs to the edge between these corners (shaders/piece.tesc)

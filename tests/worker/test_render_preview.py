@@ -23,17 +23,17 @@ from click.testing import CliRunner
 from numpy.typing import NDArray
 from pxr import Usd, Vt
 
+from cli import main
 from forest.bark.images import write_png
-from forest.cli import main
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from schemas.metrics import RenderMetrics
 from schemas.tileset import DEFAULT_MANIFEST
-from worker.render_job import preview_view
-from worker.renderer import Renderer
-from worker.textures import procedural_tiles, read_image_subimages
+from worker.render.render_file import preview_view
+from worker.render.renderer import Renderer
+from worker.render.textures import procedural_tiles, read_image_subimages
 
 ROOT = Path(__file__).parents[2]
 DATA = ROOT / "tests" / "data"
@@ -251,7 +251,7 @@ def test_missing_egl_names_the_packages(tmp_path: Path) -> None:
         "GLCONTEXT_LINUX_LIBEGL": "libEGL-missing.so",
     }
     res = subprocess.run(
-        [sys.executable, "-m", "forest.cli", "render", str(GOLDEN_SCENE), "-o", "p.png"],
+        [sys.executable, "-m", "cli", "render", str(GOLDEN_SCENE), "-o", "p.png"],
         cwd=tmp_path,
         env=env,
         capture_output=True,

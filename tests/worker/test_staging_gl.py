@@ -1,4 +1,4 @@
-"""The staged mode (worker.staging.STAGED): sun shadows on the ground under a tree, no tree
+"""The staged mode (worker.render.staging.STAGED): sun shadows on the ground under a tree, no tree
 face black, multisampled edges, the sun's view fitted to what the camera sees."""
 
 from __future__ import annotations
@@ -14,9 +14,9 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
-from worker.camera import Camera, box_corners, project, with_ground
-from worker.renderer import SUN, Renderer, TessSettings
-from worker.staging import STAGED, Staging, sun_camera
+from worker.render.camera import Camera, box_corners, project, with_ground
+from worker.render.renderer import SUN, Renderer, TessSettings
+from worker.render.staging import STAGED, Staging, sun_camera
 
 SIZE = (200, 150)
 
@@ -151,7 +151,7 @@ def test_sun_view_covers_what_the_camera_sees() -> None:
 def test_staged_cli(tmp_path: Path, one_tree: SceneArrays) -> None:
     from click.testing import CliRunner
 
-    from forest.cli import main
+    from cli import main
 
     out = tmp_path / "staged.png"
     res = CliRunner().invoke(

@@ -15,10 +15,10 @@ from forest.geometry.pieces import QUAD_ST
 from forest.usd.read import SceneArrays
 from schemas.tileset import DEFAULT_MANIFEST
 from tests.helpers_skin import skin
-from worker import shaders
-from worker.camera import box_corners, frame_box
-from worker.gl_context import GLUnavailableError, create_context
-from worker.scene_buffers import (
+from worker.render import shaders
+from worker.render.camera import box_corners, frame_box
+from worker.render.gl_context import GLUnavailableError, create_context
+from worker.render.scene_buffers import (
     InstanceLayout,
     SceneBuffers,
     check_scene,
@@ -26,7 +26,7 @@ from worker.scene_buffers import (
     patch_vertices,
     scene_bounds,
 )
-from worker.textures import procedural_tiles
+from worker.render.textures import procedural_tiles
 
 # -- shaders -------------------------------------------------------------------------------
 

@@ -1,0 +1,168 @@
+"""``forest bench service``: latency and throughput of ``forest serve`` in a subprocess on a
+temporary data folder: ``POST /v1/trees`` at several client concurrencies, and forest-job
+throughput (trees/s) with 1 and 2 workers, on the embedded SQLite job store and broker or on
+a real job store and broker given by URL."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import httpx
+import numpy as np
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@contextmanager
+def embedded_server(
+    data: Path, workers: int, backends: dict[str, str] | None = None
+) -> Iterator[str]:
+    """``forest serve`` with ``workers`` job workers; ``backends`` holds FOREST_DATABASE_URL
+    and FOREST_BROKER_URL when not the embedded ones."""
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
+    env["FOREST_DATA_DIR"] = str(data)
+    env["FOREST_RATE_LIMIT"] = ""  # measures the server, not its per-key limiter (429s)
+    env.update(backends or {})
+    log = open(data.parent / f"{data.name}.log", "ab")  # noqa: SIM115
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cli", "serve", "--port", str(port),
+         "--workers", str(workers)],
+        env=env, stdout=log, stderr=subprocess.STDOUT,
+    )
+    log.close()
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            if proc.poll() is not None or time.monotonic() > deadline:
+                raise RuntimeError(f"forest serve did not start; see {log.name}")
+            try:
+                if httpx.get(f"{url}/readyz", timeout=2).status_code == 200:
+                    break
+            except httpx.HTTPError:
+                pass
+            time.sleep(0.2)
+        time.sleep(1.0 if workers else 0.0)  # workers connect to the broker
+        yield url
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+
+
+def tree_latency(
+    url: str, body: dict[str, object], clients: int, requests: int
+) -> dict[str, float]:
+    """``requests`` POSTs spread over ``clients`` threads (one connection each)."""
+    times: list[float] = []
+    lock = threading.Lock()
+    per = [requests // clients + (i < requests % clients) for i in range(clients)]
+    errors: list[str] = []
+
+    def run(n: int) -> None:
+        with httpx.Client(base_url=url, timeout=120) as c:
+            for _ in range(n):
+                t0 = time.perf_counter()
+                r = c.post("/v1/trees", json=body)
+                dt = time.perf_counter() - t0
+                if r.status_code != 200:
+                    errors.append(f"{r.status_code} {r.text[:200]}")
+                with lock:
+                    times.append(dt)
+
+    with httpx.Client(base_url=url, timeout=120) as c:  # warm-up (imports, caches)
+        c.post("/v1/trees", json=body)
+    start = time.perf_counter()
+    threads = [threading.Thread(target=run, args=(n,)) for n in per if n]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    wall = time.perf_counter() - start
+    if errors:
+        raise RuntimeError(f"{len(errors)} failed request(s), first: {errors[0]}")
+    ms = np.array(times) * 1000
+    return {
+        "p50_ms": float(np.percentile(ms, 50)),
+        "p99_ms": float(np.percentile(ms, 99)),
+        "rps": len(ms) / wall,
+    }
+
+
+def job_throughput(url: str, body: dict[str, object], jobs: int) -> dict[str, float]:
+    with httpx.Client(base_url=url, timeout=60) as c:
+
+        def count(state: str) -> int:  # one cheap count: polling must not eat the workers' CPU
+            return int(c.get("/v1/jobs", params={"state": state, "limit": 1}).json()["total"])
+
+        # a job store of its own may hold earlier runs' jobs: count from what is there
+        done0, bad0 = count("completed"), count("failed")
+        start = time.perf_counter()
+        ids = [
+            c.post("/v1/forests", json=body | {"seed": 1000 + i}).json()["id"] for i in range(jobs)
+        ]
+        while True:
+            if count("failed") > bad0:
+                raise RuntimeError(f"{count('failed') - bad0} job(s) failed")
+            if count("completed") - done0 >= len(ids):
+                break
+            time.sleep(0.1)
+        wall = time.perf_counter() - start
+    trees = jobs * int(body["trees"])  # type: ignore[call-overload]
+    return {"seconds": wall, "jobs_per_s": jobs / wall, "trees_per_s": trees / wall}
+
+
+def run_service_bench(
+    preset: str,
+    concurrency: list[int],
+    requests: int,
+    workers: list[int],
+    jobs: int,
+    trees: int,
+    echo: Callable[[str], None] = print,
+    database_url: str | None = None,
+    broker_url: str | None = None,
+) -> None:
+    backends = {}
+    if database_url:
+        backends["FOREST_DATABASE_URL"] = database_url
+    if broker_url:
+        backends["FOREST_BROKER_URL"] = broker_url
+        if os.environ.get("FOREST_QUEUE_PREFIX"):  # a broker shared with other farms
+            backends["FOREST_QUEUE_PREFIX"] = os.environ["FOREST_QUEUE_PREFIX"]
+    broker = (broker_url or "sqla+sqlite").split(":", 1)[0]
+    store = (database_url or "sqlite").split(":", 1)[0].split("+", 1)[0]
+    with tempfile.TemporaryDirectory(prefix="forest-bench-") as tmp:
+        echo(f"POST /v1/trees (preset {preset}, usdc), {requests} requests per level, "
+             "embedded server")
+        echo(f"{'clients':>8} {'p50 ms':>9} {'p99 ms':>9} {'req/s':>8}")
+        with embedded_server(Path(tmp) / "api", 0) as url:
+            for c in concurrency:
+                r = tree_latency(url, {"preset": preset, "format": "usdc"}, c, max(requests, c))
+                echo(f"{c:>8} {r['p50_ms']:>9.1f} {r['p99_ms']:>9.1f} {r['rps']:>8.1f}")
+        echo(f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), "
+             f"job store {store}, broker {broker}")
+        echo(f"{'workers':>8} {'seconds':>9} {'jobs/s':>8} {'trees/s':>9}")
+        for w in workers:
+            with embedded_server(Path(tmp) / f"jobs{w}", w, backends) as url:
+                body: dict[str, object] = {"preset": preset, "trees": trees, "format": "usdc"}
+                r = job_throughput(url, body, jobs)
+                echo(f"{w:>8} {r['seconds']:>9.2f} {r['jobs_per_s']:>8.2f} "
+                     f"{r['trees_per_s']:>9.1f}")

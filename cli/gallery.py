@@ -1,0 +1,54 @@
+"""``forest gallery``: every preset as one tree and as a stand, plus a contact sheet."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from cli.app import input_errors, main
+from forest.errors import ForestError
+
+
+@main.command()
+@click.option(
+    "-o", "--output", type=click.Path(path_type=Path), required=True, help="Folder for the PNGs."
+)
+@click.option(
+    "--presets",
+    "presets_text",
+    help="Comma-separated preset names (default: every one, see `forest presets`).",
+)
+@click.option(
+    "--size",
+    "size_text",
+    default="480x640",
+    show_default=True,
+    help="WIDTHxHEIGHT of a single-tree image; a stand is drawn at HEIGHTxWIDTH.",
+)
+@click.option("--seed", type=int, default=1, show_default=True)
+@click.option("--stand-trees", type=int, default=16, show_default=True, help="Trees in each stand.")
+@input_errors
+def gallery(
+    output: Path, presets_text: str | None, size_text: str, seed: int, stand_trees: int
+) -> None:
+    """Render every preset as one tree (side view on the ground, with a scale bar and its
+    height) and as a small stand (overview), into DIR/<preset>.png, DIR/<preset>_stand.png
+    and DIR/contact_sheet.png."""
+    from cli.sheets.gallery import GalleryOptions, make_gallery, parse_size
+
+    presets = None
+    if presets_text is not None:
+        presets = tuple(p.strip() for p in presets_text.split(",") if p.strip())
+        if not presets:
+            raise ForestError("name at least one preset", path="presets")
+    make_gallery(
+        GalleryOptions(
+            output=output,
+            presets=presets,
+            size=parse_size(size_text),
+            seed=seed,
+            stand_trees=stand_trees,
+        ),
+        echo=click.echo,
+    )

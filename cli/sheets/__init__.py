@@ -1,0 +1,1 @@
+"""Picture sheets the command line draws: the gallery and the inspect sheet."""

@@ -1,0 +1,357 @@
+"""``forest gallery``: every preset as one tree (side view, on the ground, with a scale bar
+and its measured height) and as a small stand (overview, on the ground), plus a contact sheet.
+
+Each scene goes through a written and re-read USD file, as a render job sees it. One tree is
+framed from its own posed surface (every skinned piece vertex) and leaf clouds; the stand is
+as many trees as the tree's crown width suits, Poisson-placed. Same seed, same images.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.bark.images import write_png
+from forest.errors import ForestError, LimitError, OutputError
+from forest.geometry.transforms import F64
+from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset, preset_names
+from forest.usd.read import SceneArrays, read_scene
+from forest.usd.scene import write_scene
+from schemas.grammar import Grammar
+from worker.render.camera import (
+    Camera,
+    CameraSpec,
+    frame_points,
+    place_camera,
+    project,
+    with_ground,
+)
+from worker.render.foliage import foliage_points
+from worker.render.gl_context import create_context, raise_gl_error
+from worker.render.instance_cull import DEFAULT_LOD_PIXELS
+from worker.render.renderer import Renderer, auto_lod
+from worker.render.staging import STAGED
+from worker.render.textures import tile_images
+
+if TYPE_CHECKING:
+    import moderngl
+    from PIL import Image as PILImage
+
+Echo = Callable[[str], None]
+SINGLE_SIZE = (480, 640)  # width, height: portrait for one tree, llvmpipe-friendly
+STAND_TREES = 16
+AZIMUTH = 35.0  # the overview's, so a tree and its stand are seen from the same side
+FOV = 40.0
+TESS_MAX = 6.0
+BAR_LENGTHS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)  # metres
+BAR_SEGMENTS = {0.5: 1, 1.0: 2, 2.0: 2, 5.0: 5, 10.0: 5, 20.0: 4, 50.0: 5}
+BAR_OF_HEIGHT = 0.6  # the longest bar no taller than this fraction of the tree
+SHEET_THUMB = 320  # contact-sheet row height in pixels
+MIN_SIZE, MAX_SIZE = 64, 4096
+
+
+@dataclass(frozen=True)
+class GalleryOptions:
+    """``size``: (width, height) of a single-tree image; a stand is drawn at (height, width)."""
+
+    output: Path
+    presets: tuple[str, ...] | None = None  # None: every shipped preset
+    size: tuple[int, int] = SINGLE_SIZE
+    seed: int = 1
+    stand_trees: int = STAND_TREES
+
+    def check(self) -> None:
+        for name, v in zip(("width", "height"), self.size, strict=True):
+            if not MIN_SIZE <= v <= MAX_SIZE:
+                raise ForestError(
+                    f"{name} must be in [{MIN_SIZE}, {MAX_SIZE}], got {v}", path="size"
+                )
+        if not 0 <= self.seed < 2**63:
+            raise ForestError(f"must be in [0, 2^63), got {self.seed}", path="seed")
+        if not 2 <= self.stand_trees <= 100:
+            raise ForestError(f"must be in [2, 100], got {self.stand_trees}", path="stand_trees")
+        known = preset_names()
+        for name in self.presets or ():
+            if name not in known:
+                raise ForestError(
+                    f"unknown preset {name!r}; choose from {', '.join(known)}", path="presets"
+                )
+        if self.presets is not None and not self.presets:
+            raise ForestError("name at least one preset", path="presets")
+        if self.output.exists() and not self.output.is_dir():
+            raise OutputError("exists and is not a folder", path=str(self.output))
+
+
+def parse_size(text: str) -> tuple[int, int]:
+    """``"480x640"`` -> ``(480, 640)``; anything else is an input error naming ``size``."""
+    parts = text.lower().split("x")
+    try:
+        w, h = (int(p) for p in parts)
+    except ValueError:
+        raise ForestError(f"expected WIDTHxHEIGHT in pixels, got {text!r}", path="size") from None
+    return w, h
+
+
+# -- measuring a scene ----------------------------------------------------------------------------
+
+
+def posed_vertices(scene: SceneArrays, frame: int = 0, chunk: int = 1024) -> F64:
+    """``(m, 3)`` float64 world positions of every piece vertex, skinned as the vertex shader
+    skins them (blend of the palette's bone matrices by the piece's joint weights), at palette
+    sample ``frame``. Per piece type, ``chunk`` instances at a time (bounded memory)."""
+    pal = scene.palette(frame)
+    out = []
+    for t, piece in enumerate(scene.pieces):
+        idx = np.nonzero(scene.proto_indices == t)[0]
+        homo = np.c_[piece.positions, np.ones(len(piece.positions))]  # (v, 4)
+        joints = np.arange(piece.joint_rest.shape[0])
+        for start in range(0, len(idx), chunk):
+            bones = pal[
+                scene.bone_offset[idx[start : start + chunk], None] + joints
+            ]  # (m, j, 4, 4)
+            at_joint = np.einsum("mjab,vb->mjva", bones[:, :, :3], homo)  # (m, j, v, 3)
+            v = np.arange(len(homo))[:, None]
+            picked = at_joint[:, piece.joint_indices, v]  # (m, v, 4, 3)
+            out.append(np.einsum("mvkc,vk->mvc", picked, piece.joint_weights).reshape(-1, 3))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
+def scene_surface_points(scene: SceneArrays, frame: int = 0) -> F64:
+    """``(m, 3)`` posed piece vertices and the corners of every leaf cloud's box."""
+    return np.concatenate([posed_vertices(scene, frame), foliage_points(scene, frame)])
+
+
+def bar_length(height: float) -> float:
+    """The longest of :data:`BAR_LENGTHS` no taller than ``BAR_OF_HEIGHT`` of ``height``."""
+    fits = [b for b in BAR_LENGTHS if b <= BAR_OF_HEIGHT * height]
+    return fits[-1] if fits else BAR_LENGTHS[0]
+
+
+@dataclass(frozen=True)
+class TreeShot:
+    """One tree's camera and scale bar: ``bar`` is (2, 3) world base and top of the bar,
+    in the vertical plane through the tree's centre facing the camera."""
+
+    camera: Camera
+    height: float
+    crown_width: float
+    bar: F64
+    bar_metres: float
+
+
+def frame_tree(points: F64, root: F64, aspect: float) -> TreeShot:
+    """A side view of the tree enclosed by ``points`` (``(m, 3)``) whose trunk stands at
+    ``root`` (``(3,)``, on y = 0), with a scale bar standing on the ground to its left in the
+    vertical plane through the root facing the camera (so it measures the trunk at scale)."""
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    height = float(hi[1] - root[1])
+    az = np.deg2rad(AZIMUTH)
+    right = np.array([np.cos(az), 0.0, -np.sin(az)])  # the side view's screen x
+    left = max(float(-((points - root) @ right).min()), 0.0)
+    gap = 0.08 * max(height, float(np.ptp((points - root) @ right)))
+    metres = bar_length(height)
+    base = root - (left + gap) * right
+    bar = np.stack([base, base + np.array([0.0, metres, 0.0])])
+    # room for the bar's width and its label
+    room = np.stack([base - 0.5 * gap * right, base + np.array([0.0, metres + gap, 0.0])])
+    cam = frame_points(np.concatenate([points, bar, room]), aspect, FOV, AZIMUTH, 0.0)
+    width = float(max(hi[0] - lo[0], hi[2] - lo[2]))
+    return TreeShot(with_ground(cam), height, width, bar, metres)
+
+
+# -- drawing --------------------------------------------------------------------------------------
+
+
+def _font(size: int) -> PILImage.ImageFont:  # type: ignore[name-defined]
+    from PIL import ImageFont
+
+    return ImageFont.load_default(size=size)
+
+
+def _caption(image: PILImage.Image, text: str) -> None:
+    """``text`` in the top-left corner on a light band."""
+    from PIL import ImageDraw
+
+    draw = ImageDraw.Draw(image, "RGBA")
+    size = max(12, image.height // 36)
+    font = _font(size)
+    _, _, x1, y1 = draw.textbbox((0, 0), text, font=font)
+    pad = size // 2
+    draw.rectangle((0, 0, x1 + 2 * pad, y1 + 2 * pad), fill=(255, 255, 255, 170))
+    draw.text((pad, pad), text, fill=(20, 20, 20, 255), font=font)
+
+
+def _scale_bar(image: PILImage.Image, shot: TreeShot) -> None:
+    """The bar as alternating black and white segments with its length above it."""
+    from PIL import ImageDraw
+
+    draw = ImageDraw.Draw(image)
+    size = (image.width, image.height)
+    ends = project(shot.camera, shot.bar, size)  # (2, 2): base, top in pixels
+    n = BAR_SEGMENTS[shot.bar_metres]
+    half_w = max(2.0, image.width / 120)
+    x = float(ends[0, 0])
+    ys = np.linspace(ends[0, 1], ends[1, 1], n + 1)
+    draw.rectangle((x - half_w - 1, ys[-1] - 1, x + half_w + 1, ys[0] + 1), fill=(0, 0, 0))
+    for k in range(n):
+        colour = (245, 245, 245) if k % 2 else (25, 25, 25)
+        lo_y, hi_y = sorted((float(ys[k]), float(ys[k + 1])))
+        draw.rectangle((x - half_w, lo_y, x + half_w, hi_y), fill=colour)
+    font = _font(max(12, image.height // 40))
+    label = f"{shot.bar_metres:g} m"
+    x0, y0, x1, y1 = draw.textbbox((0, 0), label, font=font)
+    draw.text(
+        (x - (x1 - x0) / 2, float(ys[-1]) - (y1 - y0) - 8), label, fill=(15, 15, 15), font=font
+    )
+
+
+def _render(
+    ctx: moderngl.Context,
+    scene: SceneArrays,
+    camera: Camera,
+    size: tuple[int, int],
+) -> NDArray[np.uint8]:
+    """``(h, w, 4)`` uint8 frame 0 of ``scene``, staged (ground, sky, sun shadows, MSAA, tone
+    map: worker.render.staging.STAGED)."""
+    # the species' shipped bark set, as the grammar's ``bark`` names it
+    images = tile_images(scene.manifest, None, scene.tile_folder, bark=scene.bark_tile_set)
+    renderer = Renderer(ctx, scene, size, images, staging=STAGED)
+    try:
+        pts = scene_surface_points(scene)
+        tess = auto_lod(camera, pts.min(axis=0), pts.max(axis=0), TESS_MAX)
+        # sub-pixel twigs of a stand's far trees are skipped, as `forest render` does
+        renderer.draw(camera, tess, lod_pixels=DEFAULT_LOD_PIXELS)
+        raise_gl_error(ctx, "rendering the gallery")
+        return renderer.read_color()
+    finally:
+        renderer.release()
+
+
+def _scene(grammar: Grammar, seed: int, options: ForestOptions, path: Path) -> SceneArrays:
+    # read back only: the instanced forms suffice (no skinned trees to bake)
+    return read_scene(write_scene(generate_forest(grammar, seed, options), path, skinned=False))
+
+
+def _stand_scene(
+    grammar: Grammar, seed: int, trees: int, spacing: float, path: Path
+) -> tuple[SceneArrays, float, int]:
+    """A stand of ``trees`` (fewer if the forest's piece cap says so) on a square that gives
+    each tree about ``spacing`` metres; returns the scene, the square's side and the count."""
+    while True:
+        side = spacing * math.sqrt(trees)
+        options = ForestOptions(trees=trees, area=(side, side))
+        try:
+            return _scene(grammar, seed, options, path), side, trees
+        except LimitError:
+            if trees <= 2:
+                raise
+            trees //= 2
+
+
+# -- the gallery ----------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class GalleryEntry:
+    preset: str
+    single: Path
+    stand: Path
+    height: float
+    pieces: int
+    stand_trees: int
+
+
+def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEntry]:
+    """Write ``<preset>.png``, ``<preset>_stand.png`` for each preset and
+    ``contact_sheet.png`` into ``options.output``; echo a line per file."""
+    options.check()
+    from PIL import Image
+
+    out = options.output
+    out.mkdir(parents=True, exist_ok=True)
+    names = list(options.presets) if options.presets is not None else preset_names()
+    w, h = options.size
+    entries: list[GalleryEntry] = []
+    ctx = create_context()
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            for name in names:
+                grammar = load_preset(name)
+                one = ForestOptions(trees=1, area=(1.0, 1.0))
+                scene = _scene(grammar, options.seed, one, Path(tmp) / f"{name}.usdc")
+                root = scene.tree_transforms[0, :3, 3]
+                shot = frame_tree(scene_surface_points(scene), root, w / h)
+                image = Image.fromarray(_render(ctx, scene, shot.camera, (w, h))[..., :3])
+                _scale_bar(image, shot)
+                _caption(image, f"{name}: {shot.height:.1f} m tall, {scene.n_instances} pieces")
+                single = write_png(out / f"{name}.png", np.asarray(image))
+                echo(
+                    f"wrote {single}: {name}, one tree {shot.height:.1f} m tall, "
+                    f"{scene.n_instances} pieces, side view, {shot.bar_metres:g} m bar"
+                )
+
+                spacing = max(0.9 * shot.crown_width, 0.4 * shot.height, 0.5)
+                stand, side, n = _stand_scene(
+                    grammar,
+                    options.seed,
+                    options.stand_trees,
+                    spacing,
+                    Path(tmp) / f"{name}_stand.usdc",
+                )
+                pts = scene_surface_points(stand)
+                cam = place_camera(CameraSpec(view="overview", fov=FOV), pts, h / w, ground=True)
+                image = Image.fromarray(_render(ctx, stand, cam, (h, w))[..., :3])
+                _caption(image, f"{name}: {n} trees on {side:.0f} m x {side:.0f} m")
+                stand_path = write_png(out / f"{name}_stand.png", np.asarray(image))
+                echo(
+                    f"wrote {stand_path}: {name}, {n} trees, {stand.n_instances} pieces, "
+                    f"{side:.0f} m square, overview"
+                )
+                entries.append(
+                    GalleryEntry(name, single, stand_path, shot.height, scene.n_instances, n)
+                )
+    finally:
+        ctx.release()
+    sheet = write_png(out / "contact_sheet.png", contact_sheet(entries))
+    echo(f"wrote {sheet}: {len(entries)} preset(s)")
+    return entries
+
+
+def contact_sheet(entries: Sequence[GalleryEntry], thumb: int = SHEET_THUMB) -> NDArray[np.uint8]:
+    """``(h, w, 3)`` uint8: per preset, its tree and its stand scaled to ``thumb`` pixels high
+    under its name; two presets a row (one when there is one)."""
+    from PIL import Image, ImageDraw
+
+    font = _font(max(14, thumb // 14))
+    label_h, gap = thumb // 10 + 6, 12
+    cells = []
+    for e in entries:
+        parts = []
+        for path in (e.single, e.stand):
+            with Image.open(path) as im:
+                rgb = im.convert("RGB")
+            parts.append(
+                rgb.resize((round(rgb.width * thumb / rgb.height), thumb), Image.Resampling.LANCZOS)
+            )
+        cell = Image.new("RGB", (parts[0].width + gap + parts[1].width, label_h + thumb), "white")
+        cell.paste(parts[0], (0, label_h))
+        cell.paste(parts[1], (parts[0].width + gap, label_h))
+        ImageDraw.Draw(cell).text((4, 2), e.preset, fill=(0, 0, 0), font=font)
+        cells.append(cell)
+    cols = 1 if len(cells) <= 1 else 2
+    rows = max(1, math.ceil(len(cells) / cols))
+    cw = max((c.width for c in cells), default=thumb)
+    ch = label_h + thumb
+    sheet = Image.new("RGB", (cols * cw + (cols + 1) * gap, rows * ch + (rows + 1) * gap), "white")
+    for k, cell in enumerate(cells):
+        r, c = divmod(k, cols)
+        sheet.paste(cell, (gap + c * (cw + gap), gap + r * (ch + gap)))
+    return np.asarray(sheet)

@@ -1,0 +1,359 @@
+"""Commands that make forests: ``presets``, ``generate``, ``demo``, ``bench generate``."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import click
+
+from cli.app import PROGRESS_TREES, bench, input_errors, main, stage_progress
+from forest.errors import ForestError
+
+
+class FiniteRange(click.FloatRange):
+    """A float range that refuses NaN and infinities too (``FloatRange`` lets NaN through: no
+    comparison with NaN is true); the bounds are the service's request limits."""
+
+    name = "finite float range"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        out = super().convert(value, param, ctx)
+        if not math.isfinite(out):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return out
+
+@main.command()
+@input_errors
+def presets() -> None:
+    """List the grammar presets shipped with the package."""
+    from forest.growth.grammar import compile_grammar
+    from forest.growth.presets import load_preset, preset_names
+
+    for name in preset_names():
+        g = load_preset(name)
+        cg = compile_grammar(g)
+        click.echo(f"{name:<12} ~{cg.expected_pieces:6.0f} pieces/tree  {g.description}")
+
+
+def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
+    from forest.growth.grammar import load_grammar
+    from forest.growth.presets import load_preset
+
+    if (preset is None) == (grammar is None):
+        raise ForestError("give exactly one of --preset NAME or --grammar FILE", path="grammar")
+    return load_preset(preset) if preset is not None else load_grammar(grammar)  # type: ignore[arg-type]
+
+
+@main.command()
+@click.option("--preset", help="Name of a shipped grammar (see `forest presets`).")
+@click.option("--grammar", type=click.Path(path_type=Path), help="A grammar JSON file.")
+@click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
+@click.option("--trees", type=int, default=1, show_default=True)
+@click.option(
+    "--area",
+    type=(FiniteRange(0, 1e6, min_open=True), FiniteRange(0, 1e6, min_open=True)),
+    default=(20.0, 20.0),
+    show_default=True,
+    metavar="W D",
+    help="Width and depth in metres of the area the trees stand in.",
+)
+@click.option(
+    "--placement", type=click.Choice(["poisson", "grid"]), default="poisson", show_default=True
+)
+@click.option(
+    "--frames",
+    type=int,
+    default=0,
+    show_default=True,
+    help="Wind frames to sample (0: a still, posed forest).",
+)
+@click.option("--fps", type=FiniteRange(0, 1000, min_open=True), default=24.0, show_default=True)
+@click.option(
+    "--wind",
+    "wind_deg",
+    type=FiniteRange(0, 90),
+    default=4.0,
+    show_default=True,
+    help="Wind sway at the tips, degrees.",
+)
+@click.option(
+    "--segments",
+    type=int,
+    default=1,
+    show_default=True,
+    help="Piece resolution: quad rings per tube section.",
+)
+@click.option(
+    "--skinned/--no-skinned",
+    default=None,
+    help="Bake each tree as SkelRoot + skinned Mesh, the composed default (exact skinning "
+    "in any USD tool), or write only the posed instanced pieces. Default: skinned for up "
+    "to 64 trees and 20,000 pieces (forest.usd.scene.SKINNED_MAX_TREES and "
+    "SKINNED_MAX_PIECES), posed above; a .usdz is always skinned.",
+)
+@click.option(
+    "--season",
+    type=click.Choice(["summer", "autumn"]),
+    default="summer",
+    show_default=True,
+    help="Leaf colours: the species' summer palette or its autumn one.",
+)
+@click.option(
+    "--tiles",
+    "tiles_dir",
+    metavar="DIR",
+    help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
+    "and tile indices follow its manifest.json.",
+)
+@click.option(
+    "--tile-size",
+    type=FiniteRange(0, 1e6, min_open=True),
+    default=None,
+    metavar="M",
+    help="Cut the area into M x M metre tiles: writes OUT (.usda/.usdc root layer, each tile "
+    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile; placement is "
+    "seamless across tiles and allows more trees than one scene.",
+)
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    required=True,
+    help="OUT.usda, OUT.usdc, OUT.usdz, or OUT.glb (glTF 2.0 binary: skinned trees, wind "
+    "animation, textures inside, for game engines and web viewers)",
+)
+@input_errors
+def generate(
+    preset: str | None,
+    grammar: Path | None,
+    seed: int,
+    trees: int,
+    area: tuple[float, float],
+    placement: str,
+    frames: int,
+    fps: float,
+    wind_deg: float,
+    segments: int,
+    skinned: bool | None,
+    season: str,
+    tiles_dir: str | None,
+    tile_size: float | None,
+    output: Path,
+) -> None:
+    """Generate a forest from a grammar and a seed and write it as USD or glTF (by the
+    output's suffix)."""
+    from forest.bark.tiles import manifest_for
+    from forest.gltf import GLB_SUFFIX
+    from forest.growth.generate import ForestOptions, generate_forest
+    from forest.growth.skeleton import Wind
+    from forest.usd.files import FORMATS, check_output_path
+    from forest.usd.scene import wants_skinned, write_scene
+    from schemas.tileset import DEFAULT_MANIFEST
+
+    check_output_path(output, (*FORMATS, GLB_SUFFIX))
+    glb = output.suffix.lower() == GLB_SUFFIX
+    g = _load_grammar(preset, grammar)
+    manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
+    options = ForestOptions(
+        trees=trees,
+        area=area,
+        frames=frames,
+        fps=fps,
+        placement=placement,  # type: ignore[arg-type]
+        segments=segments,
+        wind=Wind(strength_deg=wind_deg),
+        season=season,  # type: ignore[arg-type]
+    )
+    if tile_size is not None:
+        if glb or tiles_dir:
+            raise ForestError(
+                "--tile-size writes a USD root layer (.usda or .usdc) and no --tiles",
+                path="tile_size",
+            )
+        _generate_tiled(g, seed, options, tile_size, bool(skinned), output)
+        return
+    if skinned is False and output.suffix.lower() == ".usdz":
+        raise ForestError(
+            "a .usdz is always skinned (ARKit allows no PointInstancer): drop --no-skinned "
+            "or write .usdc",
+            path="skinned",
+        )
+    heavy = trees >= PROGRESS_TREES or (skinned is not False and trees > 20)
+    with stage_progress(heavy, "forest") as bar:
+        forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
+        if glb:
+            from forest.gltf.document import write_glb
+
+            tiles = output.parent / tiles_dir if tiles_dir else None
+            write_glb(forest, output, tiles=tiles, progress=bar)
+        else:
+            write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+    wrote_skinned = glb or wants_skinned(forest, output, skinned)
+    click.echo(
+        f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
+        f"{len(forest.bones)} bones, {frames} frame(s)"
+        + (", skinned" if wrote_skinned else ", posed")
+    )
+
+
+def _generate_tiled(
+    g: Any, seed: int, options: Any, tile_size: float, skinned: bool, output: Path
+) -> None:
+    """``forest generate --tile-size``: every tile in turn (each its own forest), then the
+    root layer."""
+    from forest.growth.tiling import TilePlan, generate_tile
+    from forest.usd.files import check_output_path
+    from forest.usd.tiled import tiles_folder, write_root, write_tile
+
+    out = check_output_path(output, (".usda", ".usdc"))
+    plan = TilePlan(options.trees, options.area, tile_size, seed)
+    threshold = plan.threshold()
+    entries = []
+    pieces = 0
+    n = plan.nx * plan.nz
+    with stage_progress(n > 1, "tiles") as bar:
+        for k, (i, j) in enumerate(plan.tiles()):
+            forest = generate_tile(g, plan, i, j, options, threshold=threshold)
+            pieces += 0 if forest is None else forest.n_instances
+            entries.append(write_tile(forest, out, i, j, skinned=skinned))
+            bar("tiles", k + 1, n)
+    write_root(out, entries, frames=options.frames, fps=options.fps, meta=plan.meta())
+    click.echo(
+        f"wrote {out} and {n} tile(s) in {tiles_folder(out)}: {options.trees} tree(s), "
+        f"{pieces} pieces, {options.frames} frame(s)" + (", skinned" if skinned else "")
+    )
+
+
+@main.command()
+@click.option(
+    "-o",
+    "--output",
+    type=click.Path(path_type=Path),
+    default=Path("demo"),
+    show_default=True,
+    help="Folder to write into.",
+)
+@input_errors
+def demo(output: Path) -> None:
+    """Write a small forest (and one skinned, animated tree) into a folder, and render a
+    preview of the forest where an EGL driver is present."""
+    from forest.growth.generate import ForestOptions, generate_forest
+    from forest.growth.presets import load_preset
+    from forest.usd.scene import write_scene
+
+    try:
+        output.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ForestError(f"cannot create folder: {exc.strerror}", path=str(output)) from None
+    jobs = [
+        # a swaying stand, posed pieces (light); a still mixed pair and one animated tree
+        # skinned (exact in any DCC); .usda text of a skinned mature tree would be hundreds
+        # of MB, so the demo writes binary layers
+        ("forest.usdc", "almond", ForestOptions(trees=12, area=(24.0, 24.0), frames=24), False),
+        ("birches.usdc", "birch", ForestOptions(trees=2, area=(8.0, 8.0)), True),
+        ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
+    ]
+    for name, preset, options, skinned in jobs:
+        forest = generate_forest(load_preset(preset), 1, options)
+        path = write_scene(forest, output / name, skinned=skinned)
+        kind = "skinned + instanced" if skinned else "posed + instanced"
+        click.echo(
+            f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
+            f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
+        )
+    _demo_preview(output)
+    click.echo("open the scenes in usdview, Blender (File > Import > USD) or any USD tool")
+
+
+def _demo_preview(folder: Path) -> None:
+    """Render the demo forest with the worker's renderer; without the worker's packages or an
+    EGL driver the scenes still stand, so say what is missing and go on."""
+    try:
+        from worker.render.render_file import RenderRequest, render_file
+    except ImportError as exc:
+        click.echo(
+            f"preview skipped: the render worker is not installed ({exc.name}); "
+            "pip install 'interlocking-forest[worker]'"
+        )
+        return
+    png, metrics = folder / "preview.png", folder / "metrics.json"
+    try:
+        # staged (ground, sun shadows, MSAA, tone map): the picture a user judges the trees by
+        m = render_file(
+            RenderRequest(
+                scene=folder / "forest.usdc", output=png, metrics=metrics, frames=4, staged=True
+            )
+        )
+    except ForestError as exc:
+        click.echo(f"preview skipped: {exc}")
+        return
+    click.echo(
+        f"{png}  {m.width}x{m.height} staged, on {m.renderer}: median {m.median.cpu_ms:.1f} ms "
+        f"per frame over 4 wind frames; figures in {metrics}"
+    )
+
+
+@bench.command("generate")
+@click.option("--trees", type=int, default=10_000, show_default=True)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--repeat", type=int, default=3, show_default=True)
+@input_errors
+def bench_generate(trees: int, preset: str, repeat: int) -> None:
+    """Pieces/s of expansion + assembly + pose + tiles against a per-piece Python loop, and
+    seconds to write the forest as .usdc."""
+    from bench.generate import run_generate_bench
+
+    run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)
+
+
+@bench.command("forest")
+@click.option("--trees", type=click.IntRange(1), default=1_000_000, show_default=True)
+@click.option(
+    "--tile-size",
+    type=FiniteRange(0, 1e6, min_open=True),
+    default=250.0,
+    show_default=True,
+    help="Metres per tile.",
+)
+@click.option("--preset", default="alternating", show_default=True)
+@click.option("--frames", type=click.IntRange(0), default=0, show_default=True)
+@click.option(
+    "--workers",
+    default="1,2",
+    show_default=True,
+    help="Comma-separated worker process counts, each a run of its own.",
+)
+@click.option(
+    "--area",
+    type=(FiniteRange(0, 1e6, min_open=True), FiniteRange(0, 1e6, min_open=True)),
+    metavar="W D",
+    default=None,
+    help="Width and depth in metres (default: trees 4 m apart).",
+)
+@input_errors
+def bench_forest(
+    trees: int,
+    tile_size: float,
+    preset: str,
+    frames: int,
+    workers: str,
+    area: tuple[float, float] | None,
+) -> None:
+    """A tiled forest made by 1 and 2 worker processes (the farm's tile work in a process
+    pool): wall time and ratio, peak RSS per worker, bytes per tree and per bone per frame,
+    write time against the page-cache floor."""
+    from bench.forest import run_forest_bench
+    from forest.growth.presets import load_preset
+
+    try:
+        counts = [int(w) for w in workers.split(",")]
+    except ValueError:
+        raise ForestError(
+            f"workers must be integers like 1,2, got {workers!r}", path="workers"
+        ) from None
+    if not counts or min(counts) < 1:
+        raise ForestError(f"workers must be at least 1, got {workers!r}", path="workers")
+    load_preset(preset)  # an unknown preset fails here, before any worker starts
+    run_forest_bench(trees, tile_size, preset, frames, counts, area, echo=click.echo)

@@ -1,6 +1,0 @@
-"""The ``forest`` command line. Input errors print one line naming what is wrong and exit 2."""
-
-from forest.cli import gallery, keys, render, service, tiles, trees  # noqa: F401  (register the commands)
-from forest.cli.app import main
-
-__all__ = ["main"]

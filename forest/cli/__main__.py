@@ -1,3 +1,0 @@
-from forest.cli import main
-
-main()

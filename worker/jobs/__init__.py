@@ -1,0 +1,2 @@
+"""Job execution: the task kinds, their supervision, the uploaded-scene guard, the worker's
+entry point."""

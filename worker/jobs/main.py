@@ -1,0 +1,78 @@
+"""``forest worker``: one Celery worker process (solo pool: one task at a time, one GL context)
+consuming the given queues, plus a reaper thread. Scale with more processes or replicas."""
+
+from __future__ import annotations
+
+import os
+import socket
+import sys
+
+import click
+
+from farm.db import migrate
+from farm.dispatch import QUEUES
+from farm.reaper import Reaper, tidy_once
+from farm.settings import get_settings
+from forest.errors import ForestError
+
+
+def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
+    unknown = [q for q in queues if q not in QUEUES]
+    if unknown or not queues:
+        raise ForestError(
+            f"unknown queue(s) {', '.join(unknown)}; the queues are {QUEUES}", path="queues"
+        )
+    import forest.usd.scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
+    from forest.geometry.pieces import piece_library
+    from worker.jobs.supervise import preload
+    from worker.jobs.tasks import app, runtime
+
+    piece_library(1)  # built once per process (about a second): not inside the first job
+    preload()  # each job runs in a child of a fork server that imported pxr and forest once
+    settings = get_settings()
+    migrate(settings.db_url)
+    settings.artifacts.mkdir(parents=True, exist_ok=True)
+    rt = runtime()
+    # a worker killed mid-job (this one's predecessor, say) left its scratch folder behind
+    tidy_once(rt.store, rt.artifacts)
+    reaper = Reaper(
+        rt.store, rt.dispatcher, settings.reaper_interval_s, settings.requeue_after_s,
+        artifacts=rt.artifacts, housekeeping_s=settings.housekeeping_s,
+        artifact_ttl_s=settings.artifact_ttl_s,
+    )
+    reaper.start()
+    node = name or f"forest-{os.getpid()}@{socket.gethostname()}"
+    app.worker_main(
+        [
+            "worker",
+            "-Q", ",".join(settings.queue(q) for q in queues),
+            "--pool", "solo",
+            "-n", node,
+            "-l", loglevel,
+            "--without-gossip",
+            "--without-mingle",
+            "--without-heartbeat",
+        ]
+    )
+
+
+@click.command("worker", context_settings={"help_option_names": ["-h", "--help"]})
+@click.option("-Q", "--queues", default="default,gpu", show_default=True, help="Queues to consume.")
+@click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
+@click.option("--loglevel", default="info", show_default=True)
+@click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
+def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: bool) -> None:
+    """Join a cluster: consume jobs from the broker and job store in the settings
+    (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
+    try:
+        if list_kinds:
+            from farm.dispatch import KIND_QUEUES
+            from worker.jobs.tasks import KINDS
+
+            for kind in KINDS:
+                click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}")
+            return
+        run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
+    except ForestError as exc:  # the same one-line answer and exit code as the forest command
+        click.echo(f"error: {exc}", err=True)
+        sys.exit(2)

@@ -1,0 +1,229 @@
+"""One job attempt in a child process of its own, supervised by the worker.
+
+The worker (parent) claims the job, starts a child from a fork server (clean: no threads, no
+database connections; the heavy modules preloaded once) and then only waits: it extends the
+lease every ``heartbeat_s`` whatever the child does (a long GL draw or a big write holds the
+child's GIL, not the parent's), kills the child when cancel is asked or the lease is lost, and
+reads how the child ended:
+
+- a message ``ok`` (artifact files in the scratch folder + result), ``bad`` (the input cannot
+  work: a permanent failure) or ``error`` (anything else: retried);
+- no message and a signal: a crash (SIGSEGV in the USD reader on a crafted file), a CPU limit
+  (SIGXCPU) or the kernel's OOM killer: permanent failures of the job, not a lost worker.
+
+Resource limits (``RLIMIT_AS``, ``RLIMIT_CPU``) are set in the child before it runs anything, so
+a time-sample bomb ends as a MemoryError of one child, not an OOM of the worker.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import multiprocessing as mp
+import re
+import resource
+import signal
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from multiprocessing.context import BaseContext
+from pathlib import Path
+from typing import Any
+
+PRELOAD = [
+    "forest.usd.scene", "forest.growth.generate", "worker.render.render_file", "worker.jobs.tasks"
+]
+STAGE_BYTES = 64
+_CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
+# an absolute path in a message: /a/b/c -> c (job errors never show server paths)
+_ABS_PATH = re.compile(r"(?:(?<=[\s@'\"(=:])|^)/(?:[^\s@'\"(),:]+/)*([^\s@'\"(),:/]*)")
+
+
+def scrub_paths(text: str) -> str:
+    """``text`` with every absolute file path replaced by its last part."""
+    return _ABS_PATH.sub(lambda m: m.group(1) or ".", text)
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Resource limits of a job's child process; None: unlimited."""
+
+    memory_bytes: int | None = None
+    cpu_s: int | None = None
+
+
+@dataclass(frozen=True)
+class ChildEnd:
+    """How a child ended. ``status``: ok, bad (permanent), error (retry), crash (permanent),
+    canceled, lost (lease lost: record nothing)."""
+
+    status: str
+    message: str = ""
+    files: dict[str, str] | None = None
+    result: dict[str, Any] | None = None
+
+
+_context: BaseContext | None = None
+
+
+def context() -> BaseContext:
+    """The fork-server context (children start from a clean, preloaded process)."""
+    global _context
+    if _context is None:
+        _context = mp.get_context("forkserver")
+    return _context
+
+
+def preload(modules: list[str] | None = None) -> None:
+    """Import ``modules`` once in the fork server (a worker calls this before its first job)."""
+    from multiprocessing import forkserver
+
+    ctx = context()
+    ctx.set_forkserver_preload(modules or PRELOAD)
+    # started and warmed now, not inside the first job's claim: its start (seconds of
+    # imports) would come before that job's first heartbeat
+    forkserver.ensure_running()
+    warm = ctx.Process(target=_noop)  # type: ignore[attr-defined]
+    warm.start()
+    warm.join()
+
+
+def _noop() -> None:
+    pass
+
+
+def _die_with_parent() -> None:
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+def _set_limits(limits: Limits) -> None:
+    if limits.memory_bytes is not None:
+        resource.setrlimit(resource.RLIMIT_AS, (limits.memory_bytes, limits.memory_bytes))
+    if limits.cpu_s is not None:
+        # soft: SIGXCPU (the parent reports it); hard a little later: SIGKILL
+        resource.setrlimit(resource.RLIMIT_CPU, (limits.cpu_s, limits.cpu_s + 5))
+
+
+def _child_main(
+    target: Callable[..., Any],
+    args: tuple[Any, ...],
+    limits: Limits,
+    progress: Any,
+    stage: Any,
+    conn: Connection,
+) -> None:
+    """Runs in the child: limits, then ``target(report, *args)``; one message to the parent."""
+    from forest.errors import ForestError
+
+    _die_with_parent()
+    _set_limits(limits)
+
+    def report(name: str, fraction: float) -> None:
+        progress.value = float(fraction)
+        stage.value = name.encode("utf-8", "replace")[: STAGE_BYTES - 1]
+
+    try:
+        files, result = target(report, *args)
+        msg: tuple[Any, ...] = ("ok", files, result)
+    except ForestError as exc:  # bad input: retrying cannot help
+        msg = ("bad", scrub_paths(str(exc)))
+    except MemoryError:
+        mib = (limits.memory_bytes or 0) >> 20
+        msg = ("bad", f"the job ran out of memory (its limit is {mib} MiB)")
+    except Exception as exc:
+        msg = ("error", scrub_paths(f"{type(exc).__name__}: {exc}"))
+    conn.send(msg)
+    conn.close()
+
+
+def crash_message(exitcode: int, stage: str, limits: Limits) -> str:
+    """What a child that died of a signal (``exitcode`` = -signal) tells the job's owner."""
+    sig = -exitcode
+    name = signal.Signals(sig).name if sig in signal.Signals.__members__.values() else str(sig)
+    if sig == signal.SIGXCPU:
+        return f"the job used up its CPU time limit ({limits.cpu_s} s)"
+    if sig == signal.SIGKILL:
+        return "the job's process was killed (SIGKILL: most likely out of memory)"
+    if stage in ("check", "read"):
+        return f"the scene could not be read: the USD reader crashed ({name})"
+    return f"the job's process crashed ({name}) during {stage or 'start'}"
+
+
+def supervise(
+    target: Callable[..., Any],
+    args: tuple[Any, ...],
+    limits: Limits,
+    heartbeat: Callable[[float, str], bool | None],
+    heartbeat_s: float,
+) -> ChildEnd:
+    """Run ``target(report, *args) -> (files, result)`` in a child; call
+    ``heartbeat(progress, stage)`` every ``heartbeat_s`` (True: cancel asked, None: lease lost)
+    until it ends. The child is killed on cancel or a lost lease."""
+    ctx = context()
+    progress = ctx.Value("d", 0.0, lock=False)
+    stage = ctx.Array("c", STAGE_BYTES, lock=False)
+    recv, send = ctx.Pipe(duplex=False)
+    proc = ctx.Process(  # type: ignore[attr-defined]
+        target=_child_main, args=(target, args, limits, progress, stage, send), daemon=True
+    )
+    proc.start()
+    send.close()
+    msg: tuple[Any, ...] | None = None
+    end: ChildEnd | None = None
+    next_beat = time.monotonic()  # at once: starting the child may have taken a while
+    try:
+        while True:
+            ready = wait([recv, proc.sentinel], timeout=max(0.0, next_beat - time.monotonic()))
+            if recv in ready:
+                with contextlib.suppress(EOFError, OSError):
+                    msg = recv.recv()
+                break
+            if proc.sentinel in ready:
+                break
+            if time.monotonic() >= next_beat:
+                next_beat = time.monotonic() + heartbeat_s
+                flag = heartbeat(float(progress.value), stage.value.decode("utf-8", "replace"))
+                if flag is None:
+                    end = ChildEnd("lost")
+                    break
+                if flag:
+                    end = ChildEnd("canceled", "canceled on request")
+                    break
+    finally:
+        if end is not None and proc.is_alive():  # canceled or lost: stop it now
+            proc.kill()
+        proc.join(10)
+        if proc.is_alive():
+            proc.kill()
+            proc.join(5)
+        recv.close()
+    if end is not None:
+        return end
+    last_stage = stage.value.decode("utf-8", "replace")
+    if msg is not None:
+        if msg[0] == "ok":
+            return ChildEnd("ok", files=msg[1], result=msg[2])
+        return ChildEnd(msg[0], msg[1])
+    code = proc.exitcode if proc.exitcode is not None else 0
+    if code < 0:
+        return ChildEnd("crash", crash_message(code, last_stage, limits))
+    return ChildEnd("error", f"the job's process exited with status {code} during {last_stage}")
+
+
+def job_limits(memory_mb: int, cpu_s: int) -> Limits:
+    """Settings -> limits (0: unlimited)."""
+    return Limits(memory_mb << 20 if memory_mb > 0 else None, cpu_s if cpu_s > 0 else None)
+
+
+def under(root: Path, path: Path) -> bool:
+    """``path`` lies inside ``root`` (both resolved)."""
+    try:
+        path.resolve().relative_to(root.resolve())
+    except ValueError:
+        return False
+    return True
+
+
