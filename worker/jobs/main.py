@@ -9,14 +9,17 @@ import sys
 
 import click
 
-from farm.db import migrate
-from farm.dispatch import QUEUES
-from farm.reaper import Reaper, tidy_once
-from farm.settings import get_settings
 from forest.errors import ForestError
 
 
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
+    # the farm's packages (Celery, SQLAlchemy) load here, not when the `forest` command starts:
+    # a core install without the service extras still runs every other command
+    from farm.db import migrate
+    from farm.dispatch import QUEUES
+    from farm.reaper import Reaper, tidy_once
+    from farm.settings import get_settings
+
     unknown = [q for q in queues if q not in QUEUES]
     if unknown or not queues:
         raise ForestError(
