@@ -11,6 +11,7 @@ from typing import Any, TypeVar
 
 import click
 
+from forest import __version__
 from forest.errors import ForestError
 
 F = TypeVar("F", bound=Callable[..., Any])
@@ -60,7 +61,9 @@ def stage_progress(enabled: bool, label: str) -> Iterator[Callable[[str, int, in
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
-@click.version_option(package_name="interlocking-forest", prog_name="forest")
+# the running code's version, not the installed distribution's metadata (which an editable
+# install keeps from when it was installed)
+@click.version_option(__version__, prog_name="forest")
 def main() -> None:
     """Procedural forests from interlocking quad-mesh pieces, written as USD scenes."""
     from forest.memory import keep_freed_memory

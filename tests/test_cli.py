@@ -38,6 +38,16 @@ def test_presets_lists_every_preset(tmp_path: Path) -> None:
     ]  # fmt: skip
 
 
+def test_version_is_the_running_code_s(tmp_path: Path) -> None:
+    """``forest --version`` reports ``forest.__version__`` (which the files it writes carry),
+    not the installed distribution's metadata, which an editable install keeps stale."""
+    from forest import __version__
+
+    out = forest("--version", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout == f"forest, version {__version__}\n"
+
+
 def test_generate_writes_a_forest(tmp_path: Path) -> None:
     out = forest(
         "generate",
