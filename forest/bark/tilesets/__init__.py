@@ -103,11 +103,6 @@ def make_set(name: str, folder: Path) -> TileSet:
         )
 
 
-def make_default(folder: Path) -> TileSet:
-    """Build the default tile set into ``folder``."""
-    return make_set(DEFAULT_SET, folder)
-
-
 @functools.cache
 def mean_colour(name: str) -> tuple[float, float, float]:
     """Linear RGB (0 to 1) mean of shipped set ``name``'s tiles: the flat bark colour for
