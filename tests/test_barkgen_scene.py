@@ -38,8 +38,12 @@ def test_unknown_bark_is_a_grammar_error_on_bark() -> None:
 
 
 def test_every_shipped_set_compiles() -> None:
+    """The names a grammar's ``bark`` accepts are exactly the sets shipped on disk, and each
+    compiles into the grammar the scene is written from."""
+    on_disk = {p.parent.name for p in set_dir(SETS[0]).parent.glob("*/manifest.json")}
+    assert on_disk == set(SETS)
     for name in SETS:
-        compile_grammar(_grammar(name))
+        assert compile_grammar(_grammar(name)).grammar.bark == name
 
 
 def test_scene_names_the_set_and_its_mean_colour(birch_scene: Path) -> None:
