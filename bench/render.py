@@ -29,6 +29,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from forest.bark.tile_folder import TileImages
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
@@ -40,7 +41,7 @@ from worker.render.instance_cull import DEFAULT_LOD_PIXELS
 from worker.render.render_file import preview_view
 from worker.render.renderer import Renderer, TessSettings
 from worker.render.staging import STAGED
-from worker.render.textures import TileImages, procedural_tiles
+from worker.render.textures import procedural_tiles
 
 if TYPE_CHECKING:
     import moderngl

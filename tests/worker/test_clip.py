@@ -198,7 +198,7 @@ def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) 
 
     render_file(Job(scene=windy, output=tmp_path / "cli.png", width=32, height=24,
                     tess_max=1, camera=CameraSpec(**cam)))  # type: ignore[arg-type]  # fmt: skip
-    from worker.render.textures import read_image_subimages
+    from forest.bark.tile_folder import read_image_subimages
 
     a = read_image_subimages(out.files["preview.png"])[0]
     b = read_image_subimages(tmp_path / "cli.png")[0]

@@ -21,6 +21,7 @@ from cli.sheets.gallery import (
     posed_vertices,
     scene_surface_points,
 )
+from forest.bark.tile_folder import read_image_subimages
 from forest.errors import ForestError
 from forest.usd.read import SceneArrays
 from worker.render.camera import (
@@ -35,7 +36,7 @@ from worker.render.render_file import preview_view
 from worker.render.renderer import Renderer
 from worker.render.scene_buffers import scene_points
 from worker.render.staging import Staging
-from worker.render.textures import procedural_tiles, read_image_subimages
+from worker.render.textures import procedural_tiles
 
 SIZE = (96, 72)
 # two of the paper's presets, which stay as they are

@@ -14,9 +14,9 @@ from click.testing import CliRunner
 
 from cli import main
 from cli.sheets.inspect import skin_forest
+from forest.bark.tile_folder import read_image_subimages
 from forest.geometry.tolerances import TEST_RIM_POSITION_REL
 from forest.usd.read import SceneArrays
-from worker.render.textures import read_image_subimages
 
 ROOT = Path(__file__).parents[2]
 

@@ -25,6 +25,7 @@ from pxr import Usd, Vt
 
 from cli import main
 from forest.bark.images import write_png
+from forest.bark.tile_folder import read_image_subimages
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
@@ -33,7 +34,7 @@ from schemas.metrics import RenderMetrics
 from schemas.tileset import DEFAULT_MANIFEST
 from worker.render.render_file import preview_view
 from worker.render.renderer import Renderer
-from worker.render.textures import procedural_tiles, read_image_subimages
+from worker.render.textures import procedural_tiles
 
 ROOT = Path(__file__).parents[2]
 DATA = ROOT / "tests" / "data"

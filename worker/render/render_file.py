@@ -17,6 +17,7 @@ import numpy as np
 
 from forest.atomic import all_replaced_when_written
 from forest.bark.images import write_png
+from forest.bark.tile_folder import shipped_tile_folder
 from forest.errors import ForestError, OutputError
 from forest.usd.read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
@@ -29,7 +30,7 @@ from worker.render.metrics import render_metrics, write_metrics
 from worker.render.renderer import Renderer, TessSettings, auto_lod
 from worker.render.scene_buffers import check_scene, scene_points
 from worker.render.staging import STAGED, Staging
-from worker.render.textures import shipped_tile_folder, tile_images
+from worker.render.textures import tile_images
 
 MAX_SIZE = 8192
 MAX_TESS = 64.0  # GL_MAX_TESS_GEN_LEVEL is at least 64 on every GL 4 driver

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.bark.tile_folder import TileImages
 from forest.usd.read import SceneArrays
 from schemas.metrics import TessellationSettings
 from worker.render import shaders
@@ -21,7 +22,7 @@ from worker.render.gl_context import elapsed_ms, gl_info
 from worker.render.instance_cull import InstanceCuller, pixel_size
 from worker.render.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
 from worker.render.staging import StageRenderer, Staging, SunCamera, sun_camera
-from worker.render.textures import TileImages, tile_images, upload
+from worker.render.textures import tile_images, upload
 
 if TYPE_CHECKING:
     import moderngl
