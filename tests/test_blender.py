@@ -27,6 +27,8 @@ from forest.growth.presets import load_preset
 from forest.usd.scene import FOLIAGE, PIECES, write_scene
 from forest.usd.skinned import tree_slices
 
+pytestmark = pytest.mark.slow  # Blender (bpy) imports and renders in a subprocess
+
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
 CHECK = ROOT / "tests" / "blender_import_check.py"

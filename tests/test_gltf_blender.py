@@ -18,6 +18,8 @@ from helpers_gltf import CHECK_FRAMES, FPS, FRAMES, TREES, expected_bark, small_
 from forest.gltf.document import write_glb
 from forest.growth.generate import Forest
 
+pytestmark = pytest.mark.slow  # Blender (bpy) imports in a subprocess
+
 ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
 CHECK = ROOT / "tests" / "gltf_blender_check.py"

@@ -29,6 +29,8 @@ from forest.gltf.document import write_glb
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 
+pytestmark = pytest.mark.slow  # the glTF-Validator and three.js under Node
+
 
 @pytest.fixture(scope="module")
 def forest() -> Forest:

@@ -242,6 +242,7 @@ def test_photo_tiles_do_not_repeat(photo_set: Path) -> None:
     check_no_repetition(photo_set)
 
 
+@pytest.mark.slow  # 4-8 s a set
 @pytest.mark.parametrize("name", SETS)
 def test_shipped_tiles_do_not_repeat(name: str) -> None:
     check_no_repetition(set_dir(name))
@@ -312,6 +313,7 @@ def test_shipped_set_has_the_default_manifest_classes(name: str) -> None:
     assert size < 2_000_000, f"{name} tile set is {size} bytes"
 
 
+@pytest.mark.slow  # every set rebuilt, 5 s each
 @pytest.mark.parametrize("name", SETS)
 def test_shipped_set_is_what_the_code_makes(name: str, tmp_path: Path) -> None:
     """The shipped files are current (rebuild them with ``python -m forest.bark.tilesets``).

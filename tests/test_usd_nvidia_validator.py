@@ -24,6 +24,8 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
 
+pytestmark = pytest.mark.slow  # NVIDIA's validator in its own venv
+
 ROOT = Path(__file__).resolve().parents[1]
 VALIDATE = ROOT / ".venv-validator" / "bin" / "nvidia_usd_validate"
 SETUP = "bash tests/setup_validator_venv.sh"

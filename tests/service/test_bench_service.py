@@ -9,7 +9,10 @@ import sys
 import uuid
 from pathlib import Path
 
+import pytest
 from service_harness import PG, REDIS, REDIS_URL, delete_redis_keys, pg_database, require_server
+
+pytestmark = pytest.mark.slow  # a job-throughput bench on PostgreSQL and Redis
 
 ROOT = Path(__file__).parents[2]
 

@@ -21,6 +21,8 @@ from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
 from service_harness import Server
 
+pytestmark = pytest.mark.slow  # schemathesis against a running server
+
 SMALL_CAPS = {  # generated requests stay cheap: the point is the contract, not the work
     "FOREST_MAX_FOREST_TREES": "4",
     "FOREST_MAX_FOREST_PIECES": "3000",

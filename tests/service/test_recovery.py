@@ -27,6 +27,8 @@ from service_harness import (
     served,
 )
 
+pytestmark = pytest.mark.slow  # workers killed and jobs paused on every backend
+
 BODY = {"preset": "hazel", "trees": 4, "seed": 31, "format": "usdc"}
 
 

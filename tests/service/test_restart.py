@@ -7,7 +7,10 @@ from __future__ import annotations
 from collections.abc import Callable
 from pathlib import Path
 
+import pytest
 from service_harness import Server
+
+pytestmark = pytest.mark.slow  # whole farms stopped and started on every backend
 
 BODY = {"preset": "hazel", "format": "usdc"}
 

@@ -20,6 +20,8 @@ from typing import Any
 import pytest
 from service_harness import Server
 
+pytestmark = pytest.mark.slow  # Chromium against a running farm, about 90 s
+
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path("/usr/bin/chromium")
 PLAYWRIGHT = ROOT / "web" / "node_modules" / "playwright-core"

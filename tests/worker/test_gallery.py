@@ -216,6 +216,7 @@ def test_single_tree_framing_and_bar(mixed_scene: SceneArrays) -> None:
     assert shot.bar[0, 1] == root[1]  # the bar stands on the ground
 
 
+@pytest.mark.slow  # a tree and a stand per preset, staged; 11 s on llvmpipe
 def test_gallery_writes_images_of_trees_on_the_ground(gl43: Any, tmp_path: Path) -> None:
     lines: list[str] = []
     out = tmp_path / "gallery"

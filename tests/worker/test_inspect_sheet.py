@@ -49,6 +49,7 @@ def test_sheet_skeleton_joins_child_roots_to_parent_tips(mixed_scene: SceneArray
     np.testing.assert_allclose(root, tip, atol=TEST_RIM_POSITION_REL * scale)
 
 
+@pytest.mark.slow  # a VTK render in a process of its own; 16 s on llvmpipe
 def test_contact_sheet_png(mixed_scene_path: Path, tmp_path: Path) -> None:
     """Drawn by ``forest inspect`` in a process of its own, as users run it: VTK terminates
     the process's EGL display when its window goes, which kills every other EGL context of

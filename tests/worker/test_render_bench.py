@@ -14,6 +14,7 @@ from cli import main
 from cli.app import parse_counts
 
 
+@pytest.mark.slow  # 20 bench rows; 10 s on llvmpipe
 def test_bench_compares_instanced_with_a_draw_per_piece(gl_session: Any, tmp_path: Path) -> None:
     lines: list[str] = []
     rows = run_render_bench(
