@@ -12,6 +12,7 @@ from typing import Any, TypeVar
 import click
 
 from forest.errors import ForestError
+from forest.extras import require
 
 F = TypeVar("F", bound=Callable[..., Any])
 EXIT_INPUT = 2
@@ -31,6 +32,18 @@ def input_errors(fn: F) -> F:
             sys.exit(EXIT_INPUT)
 
     return wrapper  # type: ignore[return-value]
+
+
+def needs(extra: str, *modules: str) -> None:
+    """Stop the running command with one line naming ``extra`` (exit 2, through
+    :func:`input_errors`) when one of ``modules`` is not installed; call it first, before
+    any work."""
+    ctx: click.Context | None = click.get_current_context()
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name or "")
+        ctx = ctx.parent
+    require(extra, *modules, path=" ".join(["forest", *reversed(names)]))
 
 
 @contextmanager

@@ -268,18 +268,14 @@ def demo(output: Path) -> None:
 
 
 def _demo_preview(folder: Path) -> None:
-    """Render the demo forest with the worker's renderer; without the worker's packages or an
-    EGL driver the scenes still stand, so say what is missing and go on."""
-    try:
-        from worker.render.render_file import RenderRequest, render_file
-    except ImportError as exc:
-        click.echo(
-            f"preview skipped: the render worker is not installed ({exc.name}); "
-            "pip install 'interlocking-forest[worker]'"
-        )
-        return
+    """Render the demo forest with the worker's renderer; without the render extra or an EGL
+    driver the scenes still stand, so say what is missing and go on."""
+    from forest.extras import require
+    from worker.render.render_file import RenderRequest, render_file  # GL loads on first use
+
     png, metrics = folder / "preview.png", folder / "metrics.json"
     try:
+        require("render", "moderngl", path="")
         # staged (ground, sun shadows, MSAA, tone map): the picture a user judges the trees by
         m = render_file(
             RenderRequest(
