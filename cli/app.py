@@ -13,6 +13,7 @@ import click
 
 from forest import __version__
 from forest.errors import ForestError
+from forest.extras import require
 
 F = TypeVar("F", bound=Callable[..., Any])
 EXIT_INPUT = 2
@@ -32,6 +33,18 @@ def input_errors(fn: F) -> F:
             sys.exit(EXIT_INPUT)
 
     return wrapper  # type: ignore[return-value]
+
+
+def needs(extra: str, *modules: str) -> None:
+    """Stop the running command with one line naming ``extra`` (exit 2, through
+    :func:`input_errors`) when one of ``modules`` is not installed; call it first, before
+    any work."""
+    ctx: click.Context | None = click.get_current_context()
+    names = []
+    while ctx is not None and ctx.parent is not None:
+        names.append(ctx.info_name or "")
+        ctx = ctx.parent
+    require(extra, *modules, path=" ".join(["forest", *reversed(names)]))
 
 
 @contextmanager

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.app import input_errors, main
+from cli.app import input_errors, main, needs
 from forest.errors import ForestError
 
 
@@ -35,6 +35,7 @@ def gallery(
     """Render every preset as one tree (side view on the ground, with a scale bar and its
     height) and as a small stand (overview), into DIR/<preset>.png, DIR/<preset>_stand.png
     and DIR/contact_sheet.png."""
+    needs("render", "moderngl", "PIL")
     from cli.sheets.gallery import GalleryOptions, make_gallery, parse_size
 
     presets = None

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from cli.app import input_errors, main
+from cli.app import input_errors, main, needs
 from forest.errors import ForestError
 
 if TYPE_CHECKING:
@@ -27,6 +27,7 @@ data_option = click.option(
 
 def _store(data_dir: Path) -> KeyStore:
     """The key table of the configured job store, migrated (the server may not have run)."""
+    needs("service", "sqlalchemy", "alembic")
     from sqlalchemy.exc import OperationalError
 
     from farm.db import migrate
@@ -76,9 +77,10 @@ def create(tenant: str, admin: bool, data_dir: Path) -> None:
 @input_errors
 def list_keys(data_dir: Path) -> None:
     """Every key: id, tenant, scope, created, revoked (UTC)."""
+    store = _store(data_dir)  # a missing job store or extra: its line, no table header
     echo: Callable[[str], None] = click.echo
     echo("id\ttenant\tscope\tcreated\trevoked")
-    for k in _store(data_dir).list():
+    for k in store.list():
         scope = "admin" if k.admin else "tenant"
         echo(f"{k.id}\t{k.tenant}\t{scope}\t{_when(k.created_at)}\t{_when(k.revoked_at)}")
 

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from cli.app import bench, input_errors, main, parse_counts
+from cli.app import bench, input_errors, main, needs, parse_counts
 from forest.errors import ForestError
 
 VIEW_NAMES = ("overview", "side", "eye")  # worker.render.camera.VIEWS, without importing the worker
@@ -157,6 +157,8 @@ def render(
     fps: float | None = None,
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
+    # a clip goes through imageio: ffmpeg for mp4 and webm, Pillow for gif and webp
+    needs("render", "moderngl", *(("imageio", "imageio_ffmpeg", "PIL") if clip else ()))
     from worker.render.camera import CameraSpec
     from worker.render.render_file import RenderRequest, render_file
 
@@ -232,6 +234,7 @@ def render(
 def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> None:
     """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
     indices, piece types."""
+    needs("inspect", "pyvista", "vtk")
     from cli.sheets.inspect import contact_sheet
     from forest.errors import OutputError
     from forest.usd.read import read_scene
@@ -303,6 +306,7 @@ def bench_render(
     tessellation levels (the paper's Figure 16 and its levels 1 and 10), in the bare mode;
     the staged mode (ground, sun shadows, 4x MSAA, tone map) instanced beside it; each also
     with the cull pass and sub-pixel LOD that `forest render` uses (modes lod, staged_lod)."""
+    needs("render", "moderngl", "matplotlib")
     from bench.render import run_render_bench
 
     try:

@@ -6,8 +6,12 @@ from pathlib import Path
 
 import click
 
-from cli.app import bench, input_errors, main, parse_counts
+from cli.app import bench, input_errors, main, needs, parse_counts
+from forest.extras import install_line, installed
 from worker.jobs.main import worker_command
+
+# what the API and its job store and queue import first (the rest of the extra loads with them)
+SERVICE_MODULES = ("fastapi", "uvicorn", "sqlalchemy", "alembic", "celery")
 
 
 @main.command()
@@ -37,9 +41,11 @@ from worker.jobs.main import worker_command
     help="API processes sharing the port: synchronous requests (POST /v1/trees) run "
     "side by side; /metrics sums all of them.",
 )
+@input_errors
 def serve(data_dir: Path, host: str, port: int, workers: int, api_workers: int) -> None:
     """The HTTP API plus local worker processes. With no FOREST_DATABASE_URL /
     FOREST_BROKER_URL / FOREST_ARTIFACTS_DIR set, everything lives in --data (SQLite)."""
+    needs("service", *SERVICE_MODULES)
     import os
 
     from service.embedded import serve as run_serve
@@ -52,6 +58,8 @@ def serve(data_dir: Path, host: str, port: int, workers: int, api_workers: int) 
         f"{workers} worker(s)"
     )
     click.echo(f"  jobs {s.db_url.split('@')[-1]}, broker {s.broker.split('@')[-1]}")
+    if workers and not installed("moderngl"):
+        click.echo(f"  render jobs fail without the render extra: {install_line('render')}")
     if not s.api_keys:
         from farm.db import migrate
         from farm.keys import KeyStore
@@ -104,6 +112,7 @@ def bench_service(
     """Latency (p50, p99) and req/s of POST /v1/trees at several client counts, and
     forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server or on the
     job store and broker given."""
+    needs("service", *SERVICE_MODULES, "httpx")
     from bench.service import run_service_bench
 
     run_service_bench(

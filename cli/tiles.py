@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.app import bench, input_errors, main
+from cli.app import bench, input_errors, main, needs
 
 
 @main.command()
@@ -71,6 +71,8 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
 def bench_tiles(size: int, n_tiles: int, repeat: int) -> None:
     """Milliseconds per tile of the quilting stitch against a plain-Python baseline, and of
     the whole tile-set build."""
+    # its examples are procedural bark (forest.bark.barkgen), filtered with scipy.ndimage
+    needs("dev", "scipy")
     from bench.tiles import run_tiles_bench
 
     run_tiles_bench(size=size, tiles=n_tiles, repeat=repeat, echo=click.echo)

@@ -25,11 +25,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.bark.images import write_png
-from forest.errors import ForestError
+from forest.extras import MissingExtraError
 from forest.geometry.transforms import F64
 from forest.usd.read import SceneArrays
 from worker.render.camera import Camera, frame_points
-from worker.render.gl_context import INSTALL_EGL, INSTALL_WORKER, GLUnavailableError
+from worker.render.gl_context import INSTALL_EGL, GLUnavailableError
 from worker.render.scene_buffers import scene_points
 
 I64 = NDArray[np.int64]
@@ -126,7 +126,7 @@ def _pyvista() -> Any:
     try:
         import pyvista
     except ImportError:
-        raise ForestError(f"pyvista is not installed: {INSTALL_WORKER}", path="pyvista") from None
+        raise MissingExtraError("inspect", "pyvista", path="pyvista") from None
     pyvista.OFF_SCREEN = True
     return pyvista
 

@@ -16,6 +16,8 @@ from types import ModuleType
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.extras import require
+
 F64 = NDArray[np.float64]
 
 FURROW = np.array([38.0, 27.0, 20.0])
@@ -25,7 +27,10 @@ LICHEN = np.array([118.0, 132.0, 96.0])
 
 def _ndimage() -> ModuleType:
     """scipy.ndimage on first use: a third of a second to import, and only making bark
-    needs it (the grammar checks import this module for its species names)."""
+    needs it (the grammar checks import this module for its species names). Making bark is
+    a developer's task (rebuilding the shipped tile sets, ``forest bench tiles``), so scipy
+    comes with the dev extra, not with the core install."""
+    require("dev", "scipy", path="bark")
     from scipy import ndimage
 
     return ndimage

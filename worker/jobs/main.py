@@ -10,6 +10,7 @@ import sys
 import click
 
 from forest.errors import ForestError
+from forest.extras import require
 
 
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
@@ -68,6 +69,8 @@ def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: boo
     """Join a cluster: consume jobs from the broker and job store in the settings
     (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
     try:
+        # the job store and queue: the one-line answer, not a traceback, on a core install
+        require("service", "celery", "sqlalchemy", "alembic", path="forest worker")
         if list_kinds:
             from farm.dispatch import KIND_QUEUES
             from worker.jobs.tasks import KINDS

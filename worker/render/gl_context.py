@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from forest.errors import ForestError
+from forest.extras import install_line
 
 if TYPE_CHECKING:
     import moderngl
@@ -27,7 +28,6 @@ INSTALL_EGL = (
     "install Mesa's EGL (Debian/Ubuntu: apt-get install libegl1 libegl-mesa0 libgl1-mesa-dri "
     "libgles2) or a GPU driver that ships libEGL"
 )
-INSTALL_WORKER = "install the render worker's packages: pip install 'interlocking-forest[worker]'"
 
 
 class GLUnavailableError(ForestError):
@@ -54,7 +54,9 @@ def create_context(require: int = REQUIRED_VERSION) -> moderngl.Context:
         import moderngl
     except ImportError:
         raise GLUnavailableError(
-            f"moderngl is not installed: {INSTALL_WORKER}", path="gl"
+            "moderngl is not installed; it comes with the render extra: "
+            f"{install_line('render')}",
+            path="gl",
         ) from None
     create: Any = moderngl.create_context  # its stub types ``backend`` wrongly
     try:
