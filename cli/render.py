@@ -48,13 +48,21 @@ def camera_options(fn: Any) -> Any:
             metavar="N",
             help="Frame tree N of the scene alone (a close-up) in the view, not the forest.",
         ),
-        click.option("--ground", is_flag=True, help="A ground under the trees and a sky gradient."),
         click.option(
-            "--staged",
+            "--bare",
             is_flag=True,
-            help="Ground and sky with sun shadows, 4x MSAA, filtered impostors and a filmic "
-            "tone map (the bare mode, the default, is the paper's measurement set-up).",
+            help="No ground, sky, sun shadows, MSAA or tone map: the paper's measurement set-up "
+            "(the default is staged: ground and sky with sun shadows, 4x MSAA and a filmic "
+            "tone map).",
         ),
+        click.option(
+            "--ground",
+            is_flag=True,
+            help="The bare mode with a ground under the trees and a sky gradient (no shadows, "
+            "MSAA or tone map).",
+        ),
+        # the default now; still accepted, as scripts name it
+        click.option("--staged", is_flag=True, hidden=True),
     ]
     for option in reversed(options):
         fn = option(fn)
@@ -150,17 +158,23 @@ def render(
     fov: float = 40.0,
     distance: float | None = None,
     tree_index: int | None = None,
+    bare: bool = False,
     ground: bool = False,
     staged: bool = False,
     clip: Path | None = None,
     orbit: bool = False,
     fps: float | None = None,
 ) -> None:
-    """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics."""
+    """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics; staged
+    (ground, sun shadows, MSAA, tone map) unless --bare or --ground."""
     # a clip goes through imageio: ffmpeg for mp4 and webm, Pillow for gif and webp
     needs("render", "moderngl", *(("imageio", "imageio_ffmpeg", "PIL") if clip else ()))
     from worker.render.camera import CameraSpec
     from worker.render.render_file import RenderRequest, render_file
+
+    if staged and (bare or ground):
+        other = "--bare" if bare else "--ground"
+        raise ForestError(f"--staged and {other} ask for two looks: give one", path="staged")
 
     spec = CameraSpec(
         view=view,
@@ -190,7 +204,7 @@ def render(
             foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
             camera=spec,
             ground=ground,
-            staged=staged,
+            staged=not (bare or ground),
             clip=clip,
             orbit=orbit,
             fps=fps,

@@ -119,7 +119,8 @@ class RenderRequest(FiniteModel):
     tess_max: Annotated[float, Field(ge=1, le=64, allow_inf_nan=False)] = 8.0
     frame: Annotated[int, Field(ge=0, le=10_000)] = 0
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
-    """Measured frames (wind samples from ``frame`` on); the preview is the first."""
+    """Measured frames (wind samples from ``frame`` on); the preview is the first. A still
+    scene (no wind frames) draws one, and the job's ``warnings`` and ``frames`` say so."""
     view: Literal["overview", "side", "eye"] = "overview"
     """Named camera (worker.render.camera.CameraSpec): the whole forest from 35 degrees azimuth and
     18 up, the same horizontally, or eyes 1.7 m above the ground at ``distance``."""
@@ -132,8 +133,9 @@ class RenderRequest(FiniteModel):
     """Eye view: metres from the forest's centre (default: the least that shows it all)."""
     tree: Annotated[int, Field(ge=0, le=10_000_000)] | None = None
     """The view frames this tree of the scene alone (a close-up), not the forest."""
-    staged: bool = False
-    """Ground, sky, sun shadows, 4x MSAA and a filmic tone map (the bare mode otherwise)."""
+    staged: bool = True
+    """Ground, sky, sun shadows, 4x MSAA and a filmic tone map; false: the bare mode (the
+    paper's measurement set-up: none of these)."""
     lod_pixels: Annotated[float, Field(ge=0, le=64, allow_inf_nan=False)] | None = 0.5
     """Pieces thinner on screen than this many pixels are not drawn (a distant tree's
     twigs, under its leaves); 0 draws every piece in view, null also those out of view

@@ -119,4 +119,5 @@ class RenderMetrics(StrictModel):
     frames: Annotated[list[FrameMetrics], Field(min_length=1)]
     median: MetricsSummary
     warnings: list[str] = []
-    """What the render fell back on (e.g. bark tiles not found: placeholder bark)."""
+    """What the render fell back on (e.g. bark tiles not found: placeholder bark; one frame
+    of a still scene where more were asked)."""

@@ -4,13 +4,14 @@ cross-site writes.
 Keys live in the job store (``farm.keys``: ``forest keys create/list/revoke``, SHA-256 digests
 only); ``FOREST_API_KEYS`` may add ``key=tenant`` (or ``key=tenant:admin``) pairs as a
 bootstrap. A request names its key in the ``X-API-Key`` header and every ``/v1`` route depends
-on :func:`caller`: 401 without a live key. A key found in the store is trusted for
-``FOREST_API_KEY_CACHE_S`` (2 s) before it is looked up again, so a revocation takes effect
-within that long. An admin key sees, cancels and downloads every tenant's jobs; any other key
-only its own tenant's (404 for the rest). With no key anywhere (none in the settings, none ever
-made in the store: revoking the last key closes the API, it does not open it) the API is open,
-every caller is the tenant ``local``, and only loopback clients are answered (403 for the
-rest): the embedded default for one machine, which says so at start.
+on :func:`caller`: 401 without a live key; the presets, public data that a page lists before a
+key is pasted, depend on :func:`public` instead (no key needed). A key found in the store is
+trusted for ``FOREST_API_KEY_CACHE_S`` (2 s) before it is looked up again, so a revocation
+takes effect within that long. An admin key sees, cancels and downloads every tenant's jobs;
+any other key only its own tenant's (404 for the rest). With no key anywhere (none in the
+settings, none ever made in the store: revoking the last key closes the API, it does not open
+it) the API is open, every caller is the tenant ``local``, and only loopback clients are
+answered (403 for the rest): the embedded default for one machine, which says so at start.
 
 State-changing requests (POST, PUT, PATCH, DELETE) are rate limited per key with the
 ``limits`` library (moving window; ``FOREST_RATE_LIMIT``, storage ``FOREST_RATE_LIMIT_STORAGE``,
@@ -160,6 +161,24 @@ class RateLimit:
                 )
 
 
+def _loopback_when_open(request: Request) -> None:
+    """403 for a client off loopback while the API is open (no key anywhere)."""
+    if request.app.state.services.keys.open() and not is_loopback(
+        request.client.host if request.client else None
+    ):
+        raise HTTPException(
+            403,
+            "this server has no API keys and answers loopback clients only; "
+            "create a key with `forest keys create`",
+        )
+
+
+def public(request: Request) -> None:
+    """A route anyone may read, key or not (the presets); an open server still answers
+    loopback clients only."""
+    _loopback_when_open(request)
+
+
 def caller(
     request: Request, key: Annotated[str | None, Depends(api_key_header)] = None
 ) -> Caller:
@@ -171,12 +190,7 @@ def caller(
         raise HTTPException(
             401, "a valid X-API-Key header is required", headers={"WWW-Authenticate": "ApiKey"}
         )
-    if services.keys.open() and not is_loopback(request.client.host if request.client else None):
-        raise HTTPException(
-            403,
-            "this server has no API keys and answers loopback clients only; "
-            "create a key with `forest keys create`",
-        )
+    _loopback_when_open(request)
     if request.method in WRITES:
         # per key (a tenant's keys are limited apart); the open server limits its one caller
         who_key = hashlib.sha256((key or OPEN_TENANT).encode()).hexdigest()[:32]

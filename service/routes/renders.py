@@ -67,6 +67,7 @@ def upload_render(
     tess_max: Annotated[float, Form(ge=1, le=64, allow_inf_nan=False)] = 8.0,
     frame: Annotated[int, Form(ge=0, le=10_000)] = 0,
     frames: Annotated[int, Form(ge=1, le=10_000)] = 1,
+    staged: Annotated[bool, Form()] = True,
     idempotency_key: IdempotencyKey = None,
 ) -> JSONResponse:
     """A render job of an uploaded USD scene (multipart form: ``scene`` file + the same
@@ -80,6 +81,7 @@ def upload_render(
     params = {
         "forest_job": None, "scene": name, "scene_sha256": hashlib.sha256(data).hexdigest(),
         "width": width, "height": height, "tess_max": tess_max, "frame": frame, "frames": frames,
+        "staged": staged,
     }
     # the scene is in place before the job is sent, so no worker can see the job without it
     return submit(services, "render", params, idempotency_key, tenant, inputs={name: data})

@@ -1,11 +1,12 @@
 """API keys in the job store, on SQLite and PostgreSQL: stored as digests only, made and revoked
 with `forest keys`, checked by the API (a revoked key is refused once its cache time is over),
-tenants apart and an admin scope over every tenant; with no key anywhere the API answers
-loopback clients only."""
+tenants apart and an admin scope over every tenant; every route needs a key but the presets
+(public); with no key anywhere the API answers loopback clients only."""
 
 from __future__ import annotations
 
 import asyncio
+import re
 import uuid
 from collections.abc import Iterator
 from pathlib import Path
@@ -201,13 +202,37 @@ def test_a_revoked_key_is_refused_once_its_cache_time_is_over(db_url: str) -> No
     assert keys.caller("fk_000000000000_guess") is None
 
 
+def test_only_the_presets_are_public(db_url: str, tmp_path: Path) -> None:
+    app, _ = _app(db_url, tmp_path, api_keys="boot-key=alpha")
+    routes = sorted(
+        (method.upper(), path)
+        for path, item in app.openapi()["paths"].items()
+        if path.startswith("/v1/")
+        for method in item
+    )
+    assert ("GET", "/v1/presets") in routes and len(routes) >= 8
+    # every path parameter filled in ({job_id}, {name:path}): the key is checked before them
+    calls = [(method, re.sub(r"\{[^}]+\}", "x", path), None) for method, path in routes]
+    r = _call(app, [*calls, ("GET", "/v1/presets", "not-a-key")])
+    for (method, path, _), answer in zip(calls, r, strict=False):
+        want = 200 if path == "/v1/presets" else 401
+        assert answer.status_code == want, (method, path, answer.text)
+    assert r[-1].status_code == 200  # a wrong key does not hide public data
+    assert {"birch", "oak"} <= {p["name"] for p in r[-1].json()["items"]}
+
+
 def test_without_keys_only_loopback_is_answered(db_url: str, tmp_path: Path) -> None:
     app, _ = _app(db_url, tmp_path, api_key_cache_s=0)
-    local = _call(app, [("GET", "/v1/jobs", None)])
-    remote = _call(app, [("GET", "/v1/jobs", None), ("GET", "/healthz", None)], client="10.1.2.3")
-    assert local[0].status_code == 200
+    local = _call(app, [("GET", "/v1/jobs", None), ("GET", "/v1/presets", None)])
+    remote = _call(
+        app,
+        [("GET", "/v1/jobs", None), ("GET", "/healthz", None), ("GET", "/v1/presets", None)],
+        client="10.1.2.3",
+    )
+    assert [x.status_code for x in local] == [200, 200]
     assert remote[0].status_code == 403 and "loopback" in remote[0].json()["detail"]
     assert remote[1].status_code == 200  # probes stay open
+    assert remote[2].status_code == 403  # public data too: an open server is loopback's only
     _, key = KeyStore(db_url).create("alpha")  # a key exists now: no more open access
     keyed = _call(app, [("GET", "/v1/jobs", None), ("GET", "/v1/jobs", key)], client="10.1.2.3")
     assert [x.status_code for x in keyed] == [401, 200]

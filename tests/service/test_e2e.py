@@ -72,6 +72,7 @@ def test_forest_job_then_render(server: Server, tmp_path: Path) -> None:
     uploaded = server.wait(r.json()["id"], timeout=90)
     assert uploaded["state"] == "completed", uploaded
     assert server.get(f"/v1/jobs/{uploaded['id']}/artifacts/preview.png").content == png.content
+    assert render["params"]["staged"] is uploaded["params"]["staged"] is True  # the default
     r = httpx.post(
         f"{server.url}/v1/renders/upload",
         files={"scene": ("notes.txt", b"hello", "text/plain")},

@@ -161,6 +161,8 @@ def test_long_gil_holding_render_keeps_its_lease_and_cancel_stops_one(server: Se
 def test_tenants_are_apart(server: Server) -> None:
     assert httpx.get(f"{server.url}/v1/jobs").status_code == 401
     assert httpx.get(f"{server.url}/v1/jobs", headers={"X-API-Key": "nope"}).status_code == 401
+    presets = httpx.get(f"{server.url}/v1/presets", headers={"X-API-Key": "nope"})
+    assert presets.status_code == 200 and presets.json()["items"]  # public data, key or not
     r = server.post("/v1/forests", {"preset": "almond", "seed": 5}, headers=B)
     assert r.status_code == 202
     job_id = r.json()["id"]

@@ -30,15 +30,31 @@ try {
   });
   page.on("pageerror", (e) => seen.console.push(String(e)));
 
-  // -- without a key the keyed server refuses, and the page says so
+  // -- without a key the keyed server refuses, and the page says how to make one; the presets
+  // are public, so they are listed all the same
   await page.goto(base + "/");
   await page.waitForFunction(() => document.querySelector("#key-status").textContent !== "", null, { timeout: 10000 });
   step("no_key_status", await page.textContent("#key-status"));
+  await page.waitForFunction(() => document.querySelectorAll(".preset").length >= 8, null, { timeout: 15000 });
+  step("no_key_presets", await page.$$eval(".preset", (cards) => cards.map((c) => c.dataset.name)));
+  step("no_key_help", (await page.isVisible("#key-help")) ? await page.innerText("#key-help") : null);
+  step("no_key_jobs_table", await page.isVisible("#jobs"));
+  await page.screenshot({ path: `${out}/page-no-key.png` });
 
-  // -- the key, kept in this browser, is sent as X-API-Key
+  // -- a wrong key: the page says the server refused it
+  await page.fill("#api-key", "fk_000000000000_wrong");
+  await page.dispatchEvent("#api-key", "change");
+  await page.waitForFunction(() => document.querySelector("#key-help-title").textContent.includes("refused"), null, { timeout: 10000 });
+  step("wrong_key_status", await page.textContent("#key-status"));
+  step("wrong_key_help", (await page.isVisible("#key-help")) ? await page.innerText("#key-help") : null);
+
+  // -- the key, kept in this browser, is sent as X-API-Key; the explanation goes
   await page.fill("#api-key", key);
   await page.dispatchEvent("#api-key", "change");
-  await page.waitForFunction(() => document.querySelectorAll(".preset").length >= 8, null, { timeout: 15000 });
+  await page.waitForSelector("#key-help", { state: "hidden", timeout: 10000 });
+  step("key_help_with_key", await page.isVisible("#key-help"));
+  step("jobs_table_with_key", await page.isVisible("#jobs"));
+  step("key_status_with_key", await page.textContent("#key-status"));
   await page.reload();
   step("key_kept", (await page.inputValue("#api-key")) === key);
   await page.waitForFunction(() => document.querySelectorAll(".preset").length >= 8, null, { timeout: 15000 });

@@ -1,6 +1,7 @@
 """The farm's page in a real browser: Debian's Chromium driven by playwright-core (page.mjs)
 against ``forest serve`` on loopback with two tenants' keys. The page signs in with a key kept
-in the browser, shows the presets with their gallery images, checks a grammar against the
+in the browser (without one it lists the public presets and says how to make a key), shows
+the presets with their gallery images, checks a grammar against the
 JSON Schema as it is typed and puts the server's 422 messages on the field they name, submits
 a forest job that reaches ``completed`` and renders its preview, downloads an artifact, shows
 a tree's GLB with its wind playing on a non-empty WebGL canvas and a small forest's
@@ -79,8 +80,27 @@ def test_no_request_leaves_loopback(seen: dict[str, Any]) -> None:
 
 def test_api_key_kept_and_required(seen: dict[str, Any]) -> None:
     s = seen["steps"]
-    assert s["no_key_status"] == "this server needs a valid API key"
+    assert s["no_key_status"] == "this server needs an API key"
     assert s["key_kept"] is True
+
+
+def test_without_a_key_the_page_says_how_to_make_one(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    help_text = s["no_key_help"]
+    assert help_text is not None, "no key explanation shown"
+    assert help_text.startswith("This server needs an API key")
+    assert "forest keys create --tenant NAME" in help_text
+    assert "API key field" in help_text
+    assert s["no_key_jobs_table"] is False  # the explanation, not an empty job table
+    # the presets are public: listed before any key is pasted
+    assert {"almond", "birch", "oak", "willow"} <= set(s["no_key_presets"])
+    # a wrong key is told apart from none, with the same way out
+    assert s["wrong_key_status"] == "the server refused this key"
+    assert s["wrong_key_help"].startswith("The server refused this API key")
+    assert "forest keys create --tenant NAME" in s["wrong_key_help"]
+    # a valid key: the explanation goes and the job table shows
+    assert s["key_help_with_key"] is False and s["jobs_table_with_key"] is True
+    assert s["key_status_with_key"] == ""
 
 
 def test_presets_with_gallery_images(seen: dict[str, Any]) -> None:

@@ -151,6 +151,27 @@ def test_render_job_clip_artifact_and_missing_bark_warning(windy: Path, tmp_path
     assert out.result["warnings"] == metrics.warnings
 
 
+def test_render_job_of_a_still_scene_draws_one_frame(tmp_path: Path) -> None:
+    """Frames asked of a scene without wind would all be the same picture: the job draws one,
+    and its result and metrics say so."""
+    from farm.artifacts import ArtifactStore
+    from schemas.jobs import RenderRequest
+    from schemas.metrics import RenderMetrics
+    from worker.jobs.tasks import JobContext, run_render
+
+    still = generate_forest(load_preset("alternating"), 2, ForestOptions(trees=1))
+    store = ArtifactStore(tmp_path / "artifacts")
+    store.publish("e" * 32, write_scene(still, tmp_path / "still.usdc"), "scene.usdc")
+    req = RenderRequest(forest_job="e" * 32, width=32, height=24, tess_max=1, frames=5)
+    params = req.model_dump(mode="json") | {"scene": "scene.usdc"}
+    out = run_render(JobContext("f" * 32, params, store.scratch("f" * 32), store))
+    note = "the scene is still (no wind frames): rendering 1 frame instead of 5"
+    assert out.result["frames"] == 1 and len(out.result["frame_cpu_ms"]) == 1
+    assert out.result["warnings"] == [note]
+    metrics = RenderMetrics.model_validate_json(out.files["metrics.json"].read_text())
+    assert len(metrics.frames) == 1 and metrics.warnings == [note]
+
+
 def test_render_request_clip_fields() -> None:
     from pydantic import ValidationError
 
@@ -196,8 +217,9 @@ def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) 
     out = run_render(JobContext("d" * 32, params, store.scratch("d" * 32), store))
     from worker.render.camera import CameraSpec
 
+    assert req.staged  # a job is staged unless it asks for the bare mode, as `forest render`
     render_file(Job(scene=windy, output=tmp_path / "cli.png", width=32, height=24,
-                    tess_max=1, camera=CameraSpec(**cam)))  # type: ignore[arg-type]  # fmt: skip
+                    tess_max=1, camera=CameraSpec(**cam), staged=True))  # type: ignore[arg-type]  # fmt: skip
     from forest.bark.tile_folder import read_image_subimages
 
     a = read_image_subimages(out.files["preview.png"])[0]

@@ -15,6 +15,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -32,7 +33,8 @@ from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from schemas.metrics import RenderMetrics
 from schemas.tileset import DEFAULT_MANIFEST
-from worker.render.render_file import preview_view
+from worker.render.clip import ORBIT_FRAMES
+from worker.render.render_file import RenderRequest, frames_to_draw, preview_view
 from worker.render.renderer import Renderer
 from worker.render.textures import procedural_tiles
 
@@ -119,6 +121,7 @@ def test_render_writes_preview_and_metrics(gl_session: Any, tmp_path: Path) -> N
         "4",
         "--frames",
         "3",
+        "--bare",  # the paper's set-up: no shadow pass in the draw calls counted below
     )
     assert res.exit_code == 0, res.output
     assert read_png(out).shape == (48, 64, 4)
@@ -146,13 +149,55 @@ def test_render_per_instance_draws_once_per_piece(gl_session: Any, tmp_path: Pat
     met = tmp_path / "m.json"
     res = run_cli(
         "render", str(GOLDEN_SCENE), "-o", str(tmp_path / "p.png"), "--metrics", str(met),
-        "--width", "32", "--height", "32", "--per-instance",
+        "--width", "32", "--height", "32", "--per-instance", "--bare",
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     m = RenderMetrics.model_validate_json(met.read_text())
     assert m.mode == "per_instance"
     assert m.frames[0].draw_calls == m.instances + 1  # + the foliage billboards
     assert m.lod_pixels is None and m.frames[0].drawn_instances is None  # no cull pass
+
+
+def test_still_scene_renders_one_frame(gl_session: Any, tmp_path: Path) -> None:
+    still = write_scene(
+        generate_forest(load_preset("almond"), 3, ForestOptions(trees=1)), tmp_path / "s.usdc"
+    )
+    met = tmp_path / "m.json"
+    res = run_cli(
+        "render", str(still), "-o", str(tmp_path / "p.png"), "--metrics", str(met),
+        "--width", "32", "--height", "24", "--tess-max", "2", "--frames", "5",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    note = "the scene is still (no wind frames): rendering 1 frame instead of 5"
+    assert res.stderr == f"warning: {note}\n"
+    assert "median of 1 frame(s)" in res.stdout
+    m = RenderMetrics.model_validate_json(met.read_text())
+    assert len(m.frames) == 1 and m.warnings == [note]
+
+
+def test_frames_to_draw() -> None:
+    """The frames drawn: as asked, one of a scene with one pose (and a note) unless the camera
+    orbits, a clip without ``frames`` the whole wind loop."""
+    still: Any = SimpleNamespace(n_frames=1, times=[None])
+    posed: Any = SimpleNamespace(n_frames=1, times=[0.0])
+    windy: Any = SimpleNamespace(n_frames=24, times=[k / 24 for k in range(24)])
+
+    def req(**kw: Any) -> RenderRequest:
+        return RenderRequest(scene=Path("s.usdc"), output=Path("p.png"), **kw)
+
+    assert frames_to_draw(req(frames=5), still) == (
+        1, "the scene is still (no wind frames): rendering 1 frame instead of 5"
+    )
+    assert frames_to_draw(req(frames=3), posed) == (
+        1, "the scene has one wind frame: rendering 1 frame instead of 3"
+    )
+    assert frames_to_draw(req(), still) == (1, None)
+    assert frames_to_draw(req(frames=5), windy) == (5, None)
+    gif = Path("c.gif")
+    assert frames_to_draw(req(clip=gif), windy) == (24, None)
+    assert frames_to_draw(req(clip=gif), still) == (1, None)
+    assert frames_to_draw(req(clip=gif, orbit=True), still) == (ORBIT_FRAMES, None)
+    assert frames_to_draw(req(clip=gif, orbit=True, frames=8), still) == (8, None)
 
 
 def write_tile_folder(folder: Path, colour: tuple[int, int, int], as_array: bool) -> None:
@@ -236,6 +281,7 @@ def test_scene_breaking_the_contract_gets_one_line(gl_session: Any, tmp_path: Pa
         # checked though no clip uses it: a given option is never ignored
         (["--fps", "nan"], "error: fps: must be in (0, 120], got nan"),
         (["--alpha", "inf"], "error: alpha: must be in [0, 1], got inf"),
+        (["--ground", "--staged"], "error: staged: --staged and --ground ask for two looks"),
     ],
 )
 def test_bad_options_get_one_line(tmp_path: Path, args: list[str], message: str) -> None:

@@ -148,18 +148,35 @@ def test_sun_view_covers_what_the_camera_sees() -> None:
     assert max(sun_camera(close, lo, hi, sun).half) < 0.5 * max(light.half)
 
 
-def test_staged_cli(tmp_path: Path, one_tree: SceneArrays) -> None:
+def test_render_cli_is_staged_unless_bare(tmp_path: Path, one_tree: SceneArrays) -> None:
     from click.testing import CliRunner
 
     from cli import main
+    from worker.render.textures import read_image_subimages
 
-    out = tmp_path / "staged.png"
-    res = CliRunner().invoke(
-        main, ["render", one_tree.path, "-o", str(out), "--staged", "--width", "96",
-               "--height", "64", "--tess-max", "2"],
-    )  # fmt: skip
-    assert res.exit_code == 0, res.output
-    assert out.stat().st_size > 0
+    looks = {}
+    for look, flags in [("default", []), ("staged", ["--staged"]), ("bare", ["--bare"]),
+                        ("ground", ["--ground"])]:  # fmt: skip
+        out = tmp_path / f"{look}.png"
+        res = CliRunner().invoke(
+            main, ["render", one_tree.path, "-o", str(out), *flags, "--width", "96",
+                   "--height", "64", "--tess-max", "2"],
+        )  # fmt: skip
+        assert res.exit_code == 0, res.output
+        looks[look] = read_image_subimages(out)[0][..., :3].astype(np.int32)
+    # --staged, the default now, is still accepted (scripts name it) and changes nothing
+    np.testing.assert_array_equal(looks["default"], looks["staged"])
+    for a, b in [("default", "bare"), ("default", "ground"), ("bare", "ground")]:
+        assert np.abs(looks[a] - looks[b]).max(axis=2).mean() > 4, (a, b)
+    # the bare frame's bottom rows are its flat background; staged, the ground is there
+    bottom = looks["bare"][-3:].reshape(-1, 3)
+    assert np.ptp(bottom, axis=0).max() <= 2
+    assert np.abs(looks["default"][-3:].reshape(-1, 3) - bottom).max(axis=1).mean() > 20
+    both = CliRunner().invoke(
+        main, ["render", one_tree.path, "-o", str(tmp_path / "x.png"), "--staged", "--bare"]
+    )
+    assert both.exit_code == 2
+    assert both.output == "error: staged: --staged and --bare ask for two looks: give one\n"
 
 
 def test_distant_leaf_clouds_cover_as_in_the_bare_mode(

@@ -1,6 +1,7 @@
-// The farm's page: presets, a grammar editor checked against the committed JSON Schema as
+// The farm's page: presets (public), a grammar editor checked against the committed JSON Schema as
 // you type (ajv) with the server's 422 messages on their fields, forest and render jobs with
-// a live list (polling), previews, downloads, and a three.js viewer of GLBs.
+// a live list (polling), previews, downloads, and a three.js viewer of GLBs. Without a valid
+// API key the page says how to make one instead of showing an empty job list.
 import "./style.css";
 import Ajv2020 from "ajv/dist/2020";
 import grammarSchema from "../../schemas/json/grammar.schema.json";
@@ -23,16 +24,46 @@ const el = (tag, props = {}, ...children) => {
 // ---- API key --------------------------------------------------------------------------------
 const keyInput = $("#api-key");
 keyInput.value = apiKey();
+let keyRefused = false; // the server answered 401: no polling until another key is pasted
 keyInput.addEventListener("change", () => {
   setApiKey(keyInput.value.trim());
   blobs.clear();
+  keyRefused = false;
   refreshJobs();
-  loadPresets();
+  if (!presets.length) loadPresets();
 });
 
-function showKeyProblem(err) {
-  $("#key-status").textContent =
-    err instanceof ApiError && err.status === 401 ? "this server needs a valid API key" : "";
+const KEY_HELP = {
+  needed: {
+    status: "this server needs an API key",
+    title: "This server needs an API key",
+    why: "Jobs, renders and the 3D viewer need a key; the presets below are public.",
+  },
+  refused: {
+    status: "the server refused this key",
+    title: "The server refused this API key",
+    why: "It is mistyped, revoked, or from another server's job store: make a new one.",
+  },
+};
+
+/** A keyed call's outcome: a 401 shows how to make a key (none pasted) or that the pasted one
+ * is refused, and hides the job table; an answer (``null``) hides the explanation. Other
+ * errors say nothing about the key. Returns whether it was a 401. */
+function keyOutcome(err) {
+  if (err && !(err instanceof ApiError && err.status === 401)) return false;
+  keyRefused = err !== null;
+  const state = err === null ? null : apiKey() ? "refused" : "needed";
+  $("#key-help").hidden = state === null;
+  if (state === null) {
+    delete document.body.dataset.key;
+    $("#key-status").textContent = "";
+    return false;
+  }
+  document.body.dataset.key = state;
+  $("#key-status").textContent = KEY_HELP[state].status;
+  $("#key-help-title").textContent = KEY_HELP[state].title;
+  $("#key-help-why").textContent = KEY_HELP[state].why;
+  return true;
 }
 
 // ---- grammar editor -------------------------------------------------------------------------
@@ -95,12 +126,12 @@ function choosePreset(name) {
 
 async function loadPresets() {
   try {
-    presets = (await api("/v1/presets")).items;
-    showKeyProblem(null);
+    presets = (await api("/v1/presets")).items; // public: no key needed
   } catch (err) {
-    showKeyProblem(err);
+    $("#presets-status").textContent = err.message;
     return;
   }
+  $("#presets-status").textContent = "";
   const strip = $("#presets");
   const select = $("#preset");
   strip.replaceChildren();
@@ -142,7 +173,7 @@ function clearErrors() {
 function showServerErrors(err) {
   if (!(err instanceof ApiError) || !Array.isArray(err.detail)) {
     $("#err-general").textContent = err.message;
-    showKeyProblem(err);
+    keyOutcome(err);
     return;
   }
   const byField = {};
@@ -321,10 +352,9 @@ async function refreshJobs() {
   let page;
   try {
     page = await api("/v1/jobs?limit=50");
-    showKeyProblem(null);
+    keyOutcome(null);
   } catch (err) {
-    showKeyProblem(err);
-    $("#jobs-status").textContent = err.message;
+    $("#jobs-status").textContent = keyOutcome(err) ? "an API key shows your jobs here" : err.message;
     return;
   }
   $("#jobs-status").textContent = `${page.total} job(s)`;
@@ -345,4 +375,4 @@ async function refreshJobs() {
 
 loadPresets();
 refreshJobs();
-setInterval(refreshJobs, 1000);
+setInterval(() => keyRefused || refreshJobs(), 1000);

@@ -207,6 +207,7 @@ def run_render(ctx: JobContext) -> Outcome:
         "cpu_ms": metrics.median.cpu_ms,
         "gpu_ms": metrics.median.gpu_ms,
         "frame_cpu_ms": [f.cpu_ms for f in metrics.frames],
+        "frames": len(metrics.frames),  # one for a still scene, whatever was asked (warnings)
         "primitives": metrics.median.primitives,
     }
     files = {"preview.png": req.output, "metrics.json": ctx.scratch / "metrics.json"}

@@ -3,7 +3,8 @@
 The camera frames the forest automatically, or as a :class:`worker.render.camera.CameraSpec` asks;
 wind frames are played from the scene's time-sampled bone palette. Frame ``F`` is drawn once
 unmeasured (shader compilation, first uploads), then ``N`` measured frames ``F, F+1, ...``
-(wrapping around the palette's samples); the preview is the first measured frame.
+(wrapping around the palette's samples); the preview is the first measured frame. A still
+scene (one pose) draws one frame however many are asked, unless the camera orbits, and says so.
 """
 
 from __future__ import annotations
@@ -65,7 +66,9 @@ class RenderRequest:
     impostor_size: int = IMPOSTOR_SIZE
     camera: CameraSpec = field(default_factory=CameraSpec)
     ground: bool = False  # a ground under the trees and a sky gradient (worker.render.staging)
-    staged: bool = False  # ground, sky, sun shadows, MSAA, tone map (worker.render.staging.STAGED)
+    # ground, sky, sun shadows, MSAA, tone map (worker.render.staging.STAGED); the library's
+    # default is the bare measurement set-up, `forest render` and render jobs ask for staged
+    staged: bool = False
     clip: Path | None = None  # .mp4/.webm/.gif/.webp of the measured frames (worker.render.clip)
     orbit: bool = False  # the camera turns once about the target over the frames
     fps: float | None = None  # the clip's rate; None: the scene's (else 24)
@@ -185,6 +188,20 @@ def scene_fps(scene: SceneArrays) -> float:
     return float(fps) if isinstance(fps, int | float) and 0 < fps <= 120 else DEFAULT_FPS
 
 
+def frames_to_draw(req: RenderRequest, scene: SceneArrays) -> tuple[int, str | None]:
+    """The frames to draw and measure, and a note when that is fewer than asked. A clip
+    without ``frames`` is the whole wind loop (an orbit of a still scene: ORBIT_FRAMES); a
+    scene with one pose draws one frame, as every further one would be the same picture,
+    unless the camera orbits."""
+    n_frames = scene.n_frames
+    if req.clip is not None and req.frames == 1:
+        return (n_frames if n_frames > 1 else ORBIT_FRAMES if req.orbit else 1), None
+    if n_frames == 1 and req.frames > 1 and not req.orbit:
+        still = "is still (no wind frames)" if scene.times[0] is None else "has one wind frame"
+        return 1, f"the scene {still}: rendering 1 frame instead of {req.frames}"
+    return req.frames, None
+
+
 def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = None) -> RenderMetrics:
     """Render ``req``; ``on_stage`` hears ``read`` before the scene is read and ``render``
     after (a supervisor tells a reader crash from a renderer crash by it)."""
@@ -205,7 +222,8 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
     try:
         scene_folder = scene.tile_folder if req.scene_tiles else None
         images = tile_images(scene.manifest, req.tiles, scene_folder, bark=scene.bark_tile_set)
-        warnings = bark_warnings(req, scene)
+        n_draw, fewer = frames_to_draw(req, scene)
+        warnings = bark_warnings(req, scene) + ([] if fewer is None else [fewer])
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
         renderer = Renderer(
@@ -228,10 +246,6 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
             spec=req.camera,
             ground=req.ground or req.staged,
         )
-        n_draw = req.frames
-        if req.clip is not None and req.frames == 1:
-            # a clip of the whole wind loop (or an orbit of a still scene)
-            n_draw = n_frames if n_frames > 1 else ORBIT_FRAMES if req.orbit else 1
         cameras = [camera] * n_draw
         if req.orbit:
             cameras = [
