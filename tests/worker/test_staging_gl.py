@@ -152,7 +152,7 @@ def test_render_cli_is_staged_unless_bare(tmp_path: Path, one_tree: SceneArrays)
     from click.testing import CliRunner
 
     from cli import main
-    from worker.render.textures import read_image_subimages
+    from forest.bark.tile_folder import read_image_subimages
 
     looks = {}
     for look, flags in [("default", []), ("staged", ["--staged"]), ("bare", ["--bare"]),
