@@ -12,8 +12,8 @@ from pxr import Usd, UsdShade
 
 from forest.bark.tilesets import SETS, mean_colour, set_dir
 from forest.errors import GrammarError
+from forest.growth.compile import compile_grammar
 from forest.growth.generate import ForestOptions, generate_forest
-from forest.growth.grammar import compile_grammar
 from forest.growth.presets import load_preset
 from forest.usd.contract import BARK_TILE_SET
 from forest.usd.read import read_scene

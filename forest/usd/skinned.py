@@ -24,6 +24,7 @@ from forest.geometry.transforms import (
     decompose_similarity,
     invert_similarity,
     rotation_y,
+    similarity_scale,
     transform_points,
     transform_vectors,
 )
@@ -495,16 +496,11 @@ def joint_frames(forest: Forest) -> JointFrames:
     rest = dcc.locals(forest.local_bones(None))
     rest[tree_root] = np.eye(4)
     binds = _bind_transforms(forest, still)[dcc.bone]
-    bind_scale = _scale(binds)
+    bind_scale = similarity_scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
     parent_scale = np.where(dcc.parent >= 0, bind_scale[np.maximum(dcc.parent, 0)], 1.0)
     parent_scale[tree_root] = 1.0
-    return JointFrames(dcc, binds, rest, _scale(rest), parent_scale, tree_root, still)
-
-
-def _scale(m: F64) -> F64:
-    """Uniform scale of similarities ``(n, 4, 4)``."""
-    return np.cbrt(np.linalg.det(m[:, :3, :3]))
+    return JointFrames(dcc, binds, rest, similarity_scale(rest), parent_scale, tree_root, still)
 
 
 def _bind_transforms(forest: Forest, still: F64) -> F64:
