@@ -25,29 +25,31 @@ similarity that best fits its skinned vertices, time-sampled; :data:`SKINNED` on
 tree per SkelRoot (when written, then the default; ``Pieces`` and ``Foliage`` inactive).
 
 ``/World/Forest/Pieces`` (:data:`PIECES`, PointInstancer): every piece of every tree, ``n``
-instances. ``protoIndices``, ``ids``, ``positions``, ``orientations`` (quath) and
-``orientationsf`` (quatf), ``scales``, ``extent`` (in the ``engine`` and ``posed``
-variants). Vertex primvars, int[] ``(n,)``: :data:`TREE_ID`, :data:`BONE_OFFSET` (the
-instance's first bone in the palette), :data:`PARENT` (-1 at a tree's root),
-:data:`PARENT_RIM`, :data:`TWIST`, :data:`DEPTH`, :data:`SYMBOL` (an index into
-:data:`SYMBOLS`); :data:`TILE_INDICES` int[] ``(n, q_max)`` (elementSize ``q_max``, the most
-quads of any piece; -1 past a piece's quads). Attributes: :data:`SYMBOLS` token[] the
-grammar's symbols; the compact bone rig (:mod:`forest.growth.rig`, ``b`` bones):
-:data:`BONE_FORMAT` int (:data:`BONE_FORMAT_VERSION`), :data:`BONE_PARENTS` int[] ``(b,)``
-(-1 for a tree's root), :data:`BONE_TRANSLATIONS` double3[] ``(b,)``, :data:`BONE_SCALES`
-double[] ``(b,)``, :data:`ROOT_ROTATIONS` quatd[] ``(n,)`` (each instance's root bone), and
-:data:`JOINT_ROTATIONS` quatf[] ``(b - n,)`` time-sampled with wind: every hub and terminal,
-in palette order without the roots. A scene of format 1 has :data:`LEGACY_BONE_PALETTE`
-instead (matrix4d[] per bone per frame), which the reader refuses.
+instances. ``protoIndices`` and ``ids``; ``positions``, ``orientations`` (quath), ``scales``
+and ``extent`` in the ``engine`` variant (the topological transforms, with ``orientationsf``
+quatf) and in the ``posed`` one (time-sampled). Vertex primvars, int[] ``(n,)``:
+:data:`TREE_ID`, :data:`BONE_OFFSET` (the instance's first bone in the palette),
+:data:`PARENT` (-1 at a tree's root), :data:`PARENT_RIM`, :data:`TWIST`, :data:`DEPTH`,
+:data:`SYMBOL` (an index into :data:`SYMBOLS`); :data:`TILE_INDICES` int[] ``(n, q_max)``
+(elementSize ``q_max``, the most quads of any piece; -1 past a piece's quads). Attributes:
+:data:`SYMBOLS` token[] the grammar's symbols; the compact bone rig (``b`` bones,
+:mod:`forest.growth.rig`): :data:`BONE_FORMAT` int (:data:`BONE_FORMAT_VERSION`),
+:data:`BONE_PARENTS` int[] ``(b,)`` (-1 for a tree's root), :data:`BONE_TRANSLATIONS`
+double3[] ``(b,)``, :data:`BONE_SCALES` double[] ``(b,)``, :data:`ROOT_ROTATIONS` quatd[]
+``(n,)`` (each instance's root bone), and :data:`JOINT_ROTATIONS` quatf[] ``(b - n,)``
+time-sampled with wind: every hub and terminal, in palette order without the roots. A scene
+of format 1 has :data:`LEGACY_BONE_PALETTE` instead (matrix4d[] per bone per frame), which
+the reader refuses.
 
 ``/World/Forest/Pieces/Prototypes/<piece>`` (:data:`PIECE_PROTOTYPES`, Mesh, one per piece
 type: ``v`` points, ``q`` quads, ``r`` leaf rims, ``j = 2 + r`` joints): points, vertex
 normals, faceVarying ``st``; primvars :data:`TILE_CLASS` uniform int[] ``(q,)``,
 :data:`JOINT_INDICES` int[] and :data:`JOINT_WEIGHTS` float[] ``(v, 4)`` (vertex,
 elementSize 4); attributes :data:`ROOT_RIM` int[] ``(6,)``, :data:`LEAF_RIMS` int[]
-``(r, 6)``, :data:`BUILDING` matrix4d[] ``(r,)`` (root rim -> leaf rim), :data:`JOINT_REST`
-matrix4d[] ``(j,)`` (joint frames in model space), :data:`JOINT_PARENTS` int[] ``(j,)``,
-:data:`JOINT_NAMES` token[] ``(j,)``; bound to :data:`BARK_MATERIAL`.
+``(r, 6)`` (flat, like every array of rows here), :data:`BUILDING` matrix4d[] ``(r,)``
+(root rim -> leaf rim), :data:`JOINT_REST` matrix4d[] ``(j,)`` (joint frames in model
+space), :data:`JOINT_PARENTS` int[] ``(j,)``, :data:`JOINT_NAMES` token[] ``(j,)``; bound to
+:data:`BARK_MATERIAL`.
 
 ``/World/Forest/Foliage`` (:data:`FOLIAGE`, PointInstancer; only where the forest bears leaf
 clouds): ``k`` clouds. ``protoIndices`` (the cloud model), ``ids``, ``positions`` (centres,
@@ -58,7 +60,8 @@ int[] (the piece it sits on), :data:`BONE_OFFSET` int[] (that piece's), :data:`J
 (1, the hub), :data:`REST_POSITION` float3[] ``(k,)`` (in the piece's model space): the
 centre at any frame is ``palette[boneOffset + joint]`` applied to the rest position.
 ``/World/Forest/Foliage/Prototypes/LeafCloud<m>`` (:data:`FOLIAGE_CLOUD` + the model index,
-Mesh): double-sided leaf cards of unit diameter, vertex ``st``, :data:`LEAF_FAMILY` token.
+Mesh): double-sided leaf cards of unit diameter, vertex ``st``, :data:`LEAF_FAMILY` token
+(which leaf picture its ``st`` index); bound to the leaf materials.
 
 ``/World/Forest/Trees`` (:data:`TREES`, Xform, kind group; authored in the ``skinned``
 variant), one ``Tree_NNNNN`` (:func:`tree_name`) SkelRoot per tree (kind component; assetInfo
