@@ -86,7 +86,7 @@ def run_tile_job(job: TileJob) -> TileResult:
 
     from forest.growth.presets import load_preset
     from forest.growth.tiling import generate_tile, tile_name
-    from forest.usd.scene import JOINT_ROTATIONS, PIECES
+    from forest.usd.contract import JOINT_ROTATIONS, PIECES
     from forest.usd.tiled import write_tile_file
 
     grammar = load_preset(job.preset)

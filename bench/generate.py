@@ -16,13 +16,14 @@ from bench.floor import page_cache_write_seconds, timed_saves
 from forest.bark.tiles import class_tables
 from forest.geometry import rim
 from forest.geometry.pieces import PieceArrays, piece_library, skinning_rest_inverse
-from forest.geometry.transforms import axis_angle_matrix
+from forest.geometry.transforms import axis_angle_matrix, similarity_scale
+from forest.growth.compile import compile_grammar
 from forest.growth.expand import crown_shape, rim_tables
 from forest.growth.generate import Forest, ForestOptions, generate_forest
-from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.grammar import CompiledGrammar
+from forest.growth.poser import piece_tables
 from forest.growth.presets import load_preset
 from forest.growth.scatter import tree_transforms
-from forest.growth.skeleton import _piece_tables
 from forest.usd.scene import write_scene
 from schemas.tileset import DEFAULT_MANIFEST
 
@@ -38,7 +39,7 @@ def baseline_generate(
     rng = random.Random(seed)
     twists = rim.twists()
     inv_rest = skinning_rest_inverse(pieces)
-    tab = _piece_tables(pieces)
+    tab = piece_tables(pieces)
     hub_t = tab.hub_t.T
     tip_t = tab.tip_t.T.reshape(len(pieces), -1, 3)
     tip_r = tab.tip_r.T.reshape(len(pieces), -1, 3, 3)
@@ -64,7 +65,7 @@ def baseline_generate(
         return math.atan2(z, x), math.hypot(x, z)
 
     for t in range(n_trees):
-        r0 = float(np.cbrt(np.linalg.det(trees[t][:3, :3])))
+        r0 = float(similarity_scale(trees[t]))
         top_h = rng.uniform(*crown.height) if crown else math.inf
         centre = trees[t][:3, 3]
         # symbol, parent terminal, depth, order, radius (m), height (m), roll, cap

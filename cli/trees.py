@@ -28,7 +28,7 @@ class FiniteRange(click.FloatRange):
 @input_errors
 def presets() -> None:
     """List the grammar presets shipped with the package."""
-    from forest.growth.grammar import compile_grammar
+    from forest.growth.compile import compile_grammar
     from forest.growth.presets import load_preset, preset_names
 
     for name in preset_names():
@@ -147,7 +147,7 @@ def generate(
     from forest.bark.tiles import manifest_for
     from forest.gltf import GLB_SUFFIX
     from forest.growth.generate import ForestOptions, generate_forest
-    from forest.growth.skeleton import Wind
+    from forest.growth.wind import Wind
     from forest.usd.files import FORMATS, check_output_path
     from forest.usd.scene import wants_skinned, write_scene
     from schemas.tileset import DEFAULT_MANIFEST

@@ -7,7 +7,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 from forest.growth.generate import ForestOptions
-from forest.growth.skeleton import Wind
+from forest.growth.wind import Wind
 from schemas.jobs import ForestRequest, TreeRequest
 
 

@@ -3,7 +3,7 @@
 A symbol expands into one of its weighted alternatives. An alternative names a piece and,
 for each of the piece's leaf rims in order, a successor (a symbol with scale ranges) or
 ``null`` for an open tip. Cross-field checks that need the piece library (rim counts, unknown
-symbols, termination) live in ``forest.growth.grammar``; this module holds shape and ranges only.
+symbols, termination) live in ``forest.growth.compile``; this module holds shape and ranges only.
 """
 
 from __future__ import annotations

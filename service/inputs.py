@@ -7,7 +7,8 @@ import functools
 
 from forest.cost import forest_cost
 from forest.errors import ForestError, GrammarError
-from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.compile import compile_grammar
+from forest.growth.grammar import CompiledGrammar
 from forest.growth.presets import load_preset
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar

@@ -12,11 +12,12 @@ from pxr import Usd, UsdShade
 
 from forest.bark.tilesets import SETS, mean_colour, set_dir
 from forest.errors import GrammarError
+from forest.growth.compile import compile_grammar
 from forest.growth.generate import ForestOptions, generate_forest
-from forest.growth.grammar import compile_grammar
 from forest.growth.presets import load_preset
+from forest.usd.contract import BARK_TILE_SET
 from forest.usd.read import read_scene
-from forest.usd.scene import BARK_TILE_SET_ATTR, write_scene
+from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from worker.render.textures import tile_images
 
@@ -49,7 +50,7 @@ def test_every_shipped_set_compiles() -> None:
 def test_scene_names_the_set_and_its_mean_colour(birch_scene: Path) -> None:
     stage = Usd.Stage.Open(str(birch_scene))
     mat = stage.GetPrimAtPath("/World/Looks/Bark")
-    assert mat.GetAttribute(BARK_TILE_SET_ATTR).Get() == "birch"
+    assert mat.GetAttribute(BARK_TILE_SET).Get() == "birch"
     surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Bark/Surface"))
     colour = np.array(surface.GetInput("diffuseColor").Get())
     assert np.allclose(colour, mean_colour("birch"), atol=1e-6)

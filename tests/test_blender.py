@@ -24,7 +24,8 @@ from forest.bark.tilesets import default_dir, mean_colour
 from forest.growth.foliage import cloud_models
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.usd.scene import FOLIAGE, PIECES, write_scene
+from forest.usd.contract import FOLIAGE, PIECES
+from forest.usd.scene import write_scene
 from forest.usd.skinned import tree_slices
 
 pytestmark = pytest.mark.slow  # Blender (bpy) imports and renders in a subprocess

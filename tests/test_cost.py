@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from forest.cost import forest_cost
-from forest.growth.grammar import compile_grammar
+from forest.growth.compile import compile_grammar
 from forest.growth.presets import load_preset
 
 ROOT = Path(__file__).parents[1]

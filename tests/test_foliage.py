@@ -26,8 +26,9 @@ from forest.growth.foliage import (
 )
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
+from forest.usd.contract import FOLIAGE, FOLIAGE_CLOUD
 from forest.usd.read import read_scene
-from forest.usd.scene import FOLIAGE, FOLIAGE_CLOUD, write_scene
+from forest.usd.scene import write_scene
 from schemas.grammar import Leaves
 from tests.helpers_skin import usd_skinned_points
 from tests.test_usd import validation_errors

@@ -21,7 +21,7 @@ from forest.gltf import document
 from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
 from forest.growth.generate import Forest
-from forest.usd.scene import tile_udim_st
+from forest.usd.materials import tile_udim_st
 from forest.usd.skinned import tree_slices
 
 ROOT = Path(__file__).resolve().parents[1]

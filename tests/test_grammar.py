@@ -15,10 +15,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from forest.errors import ForestError, GrammarError, LimitError
+from forest.growth.compile import compile_grammar
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.grammar import (
     MAX_GRAMMAR_BYTES,
-    compile_grammar,
     grammar_from_json,
     load_grammar,
     parse_grammar,

@@ -130,7 +130,6 @@ def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
     return found
 
 
-@pytest.mark.xfail(strict=True, reason="forest.growth grammar<->expand, forest.usd scene<->skinned")
 def test_no_import_cycles() -> None:
     # a package's __init__ importing its own modules (to register commands, say) is not a
     # cycle of concepts; every other loop is

@@ -25,9 +25,10 @@ from forest.bark.tileset import TileGeometry, build_tileset, default_classes, wr
 from forest.errors import OutputError
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
+from forest.usd.contract import BARK_TILES
 from forest.usd.files import FORMATS
 from forest.usd.read import read_scene
-from forest.usd.scene import BARK_TILES, write_scene
+from forest.usd.scene import write_scene
 
 STEM = "forest"
 

@@ -8,7 +8,7 @@ import pytest
 from forest.growth import expand, parallel
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.growth.skeleton import Wind
+from forest.growth.wind import Wind
 
 
 @pytest.mark.parametrize("preset", ["oak", "willow"])
@@ -39,7 +39,7 @@ def test_a_failing_block_raises_in_the_caller() -> None:
 
 
 def test_expand_in_groups_equals_one_expand(monkeypatch: pytest.MonkeyPatch) -> None:
-    from forest.growth.grammar import compile_grammar
+    from forest.growth.compile import compile_grammar
     from forest.growth.keyed import GROW, tree_keys
     from forest.settings import get_settings
 

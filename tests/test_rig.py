@@ -24,8 +24,9 @@ from forest.growth.rig import (
     linear_quaternions,
     quaternion_linear,
 )
+from forest.usd.contract import JOINT_ROTATIONS, PIECES
 from forest.usd.read import read_scene
-from forest.usd.scene import JOINT_ROTATIONS, PIECES, write_scene
+from forest.usd.scene import write_scene
 from tests.test_assembly import check_rims
 
 Windy = tuple[Forest, Path]

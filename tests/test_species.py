@@ -12,9 +12,10 @@ from species_ranges import SPECIES, within
 
 from forest.geometry.pieces import HUB as HUB_JOINT
 from forest.geometry.pieces import PIECE_NAMES
+from forest.growth.compile import compile_grammar
 from forest.growth.foliage import YAW_STEPS
 from forest.growth.generate import Forest, ForestOptions, generate_forest
-from forest.growth.grammar import compile_grammar, parse_grammar
+from forest.growth.grammar import parse_grammar
 from forest.growth.measure import fork_pipe_ratios, tip_directions, tree_figures
 from forest.growth.presets import load_preset, preset_names
 

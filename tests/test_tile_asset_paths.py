@@ -14,8 +14,10 @@ from pxr import Ar, Sdf, Usd
 from forest.bark.tilesets import default_dir
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
+from forest.usd.contract import BARK_TILES
+from forest.usd.materials import tile_asset_path
 from forest.usd.read import read_scene
-from forest.usd.scene import BARK_TILES, tile_asset_path, write_scene
+from forest.usd.scene import write_scene
 from schemas.tileset import UDIM_TOKEN
 
 

@@ -18,7 +18,8 @@ from forest.errors import ForestError, LimitError
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.growth.tiling import TilePlan, generate_tile
-from forest.usd.tiled import TILES, tiles_folder, write_root, write_tile
+from forest.usd.contract import TILES
+from forest.usd.tiled import tiles_folder, write_root, write_tile
 
 GRAMMAR = load_preset("almond")
 SCALE = (GRAMMAR.trunk_radius, GRAMMAR.tree_scale)

@@ -17,8 +17,9 @@ from forest.geometry.tolerances import INSTANCE_TRANSFORM_REL
 from forest.growth.foliage import MODELS
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset, preset_names
+from forest.usd.contract import PIECES
 from forest.usd.read import read_scene, select_engine
-from forest.usd.scene import PIECES, write_scene
+from forest.usd.scene import write_scene
 from forest.usd.skinned import dcc_joints, tree_slices
 from tests.helpers_skin import usd_skinned_points
 from tests.test_assembly import forward_kinematics

@@ -10,9 +10,9 @@ import pytest
 from pxr import Kind, Usd, UsdGeom, UsdSkel, UsdValidation
 
 from forest.growth.generate import Forest
+from forest.usd.contract import ENGINE, FOREST, PIECES, POSED, REPRESENTATION, SKINNED, TREES
 from forest.usd.read import select_engine
-from forest.usd.scene import ENGINE, FOREST, PIECES, POSED, REPRESENTATION, SKINNED, write_scene
-from forest.usd.skinned import TREES
+from forest.usd.scene import write_scene
 
 POSED_MAX_REL = 0.03  # measured worst over the presets: 2.9 % of the height (willow), README
 

@@ -7,7 +7,7 @@ import pytest
 
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.growth.skeleton import Wind
+from forest.growth.wind import Wind
 
 
 def forest(name: str, trees: int = 3, frames: int = 48, fps: float = 24.0) -> Forest:

@@ -110,7 +110,7 @@ def decompose_similarity(m: F64) -> tuple[F64, F64, F64]:
             )
         return t, q, s
     lin = m[..., :3, :3]
-    scale = np.cbrt(np.linalg.det(lin))
+    scale = similarity_scale(m)
     rot = lin / scale[..., None, None]
     return m[..., :3, 3].copy(), matrix_to_quat(rot), scale
 

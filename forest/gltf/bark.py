@@ -88,7 +88,7 @@ def make_atlas(slices: NDArray[np.uint8]) -> NDArray[np.uint8]:
 
 def atlas_uv(st: F64, n: int, size: int) -> NDArray[np.float32]:
     """UDIM st ``(q, 4, 2)`` (tile ``1001 + k`` spans u in [k % 10, k % 10 + 1], v in
-    [k // 10, k // 10 + 1], v up, as :func:`forest.usd.scene.tile_udim_st` makes them) ->
+    [k // 10, k // 10 + 1], v up, as :func:`forest.usd.materials.tile_udim_st` makes them) ->
     atlas UVs ``(q, 4, 2)`` float32 (glTF: v down from the image's top row)."""
     cell_xy = np.floor(st.mean(axis=1))  # a quad's centre lies inside its tile
     k = (cell_xy[:, 0] + 10 * cell_xy[:, 1]).astype(np.int64)

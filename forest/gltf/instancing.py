@@ -19,7 +19,7 @@ from forest.geometry.transforms import decompose_similarity
 from forest.gltf.bark import atlas_uv
 from forest.gltf.buffer import Blob
 from forest.growth.generate import Forest
-from forest.usd.scene import tile_udim_st
+from forest.usd.materials import tile_udim_st
 
 EXTENSION = "EXT_mesh_gpu_instancing"
 _QUAD_TRIS = np.array([0, 1, 2, 0, 2, 3], np.uint32)

@@ -13,6 +13,7 @@ from numpy.typing import NDArray
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, piece_library
+from forest.geometry.transforms import similarity_scale
 from forest.growth import keyed
 from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
@@ -121,7 +122,7 @@ def _uniform(u: NDArray[np.float64], lo_hi: NDArray[np.float64]) -> NDArray[np.f
 
 # Each piece draws from its own key (forest.growth.keyed: the tree's key at the root, a hash
 # of the parent's key and rim below), so a tree grows the same whichever trees are expanded
-# beside it. Streams of a key (forest.growth.skeleton's pose takes 16 and up): one hash for
+# beside it. Streams of a key (forest.growth.pose's draws take 16 and up): one hash for
 # the piece (lanes: alternative, taper, twist), one per rim (lanes: radius, length; the whole
 # hash is the key of the child on that rim, whose draws hash it again), and the tree's height
 # on the root's key
@@ -154,7 +155,7 @@ def rim_tables() -> RimTables:
         k = p.n_leaf_rims
         if k:
             lin = p.building[:, :3, :3]
-            sigma[i, :k] = np.cbrt(np.linalg.det(lin))
+            sigma[i, :k] = similarity_scale(p.building)
             rim_y[i, :k] = p.building[:, 1, 3]
             axis = lin[:, :, 1] / np.linalg.norm(lin[:, :, 1], axis=1, keepdims=True)
             tilt[i, :k] = np.arccos(np.clip(axis[:, 1], -1.0, 1.0))

@@ -14,25 +14,20 @@ from forest import __version__
 from forest.bark.tiles import draw_tile_indices
 from forest.errors import LimitError
 from forest.geometry.pieces import HUB, PIECE_NAMES, PieceArrays, piece_library
-from forest.geometry.transforms import F64
+from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
+from forest.growth.compile import compile_grammar
 from forest.growth.expand import PieceGraph
 from forest.growth.foliage import FoliageAnchors, Season, foliage_anchors
-from forest.growth.grammar import CompiledGrammar, compile_grammar
+from forest.growth.grammar import CompiledGrammar
 from forest.growth.keyed import GROW, tree_keys
 from forest.growth.parallel import block_threads, expand_in_groups
+from forest.growth.pose import PoseParams, draw_pose
+from forest.growth.poser import Poser
 from forest.growth.scatter import Placement, place_trees
-from forest.growth.skeleton import (
-    Bones,
-    PoseParams,
-    Poser,
-    Wind,
-    apply_tropisms,
-    build_bones,
-    draw_pose,
-    joints_per_instance,
-    rest_palette,
-)
+from forest.growth.skeleton import Bones, build_bones, joints_per_instance, rest_palette
+from forest.growth.tropism import apply_tropisms
+from forest.growth.wind import Wind
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
@@ -228,7 +223,7 @@ def generate_forest(
     )
     trees = placed.transforms
     note("grow", 1, 5)
-    tree_radius = np.cbrt(np.linalg.det(trees[:, :3, :3]))
+    tree_radius = similarity_scale(trees)
     graph = expand_in_groups(cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius)
     n_bones = int(joints_per_instance(graph, pieces).sum(dtype=np.int64))
     matrices = n_bones * max(options.frames, 1)

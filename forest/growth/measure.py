@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.geometry.pieces import HUB
-from forest.geometry.transforms import F64
+from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.generate import Forest
 
 BREAST_HEIGHT = 1.3  # metres: where foresters measure a trunk's diameter (DBH)
@@ -62,7 +62,7 @@ def piece_points(forest: Forest, palette: F64 | None = None) -> tuple[F64, F64]:
 def rim_radius(forest: Forest, palette: F64 | None = None) -> F64:
     """``(n,)`` posed root-rim radius of every piece in metres."""
     pal = forest.palette() if palette is None else palette
-    return np.cbrt(np.linalg.det(pal[forest.bones.offset, :3, :3]))
+    return similarity_scale(pal[forest.bones.offset])
 
 
 def tree_figures(forest: Forest) -> TreeFigures:

@@ -18,22 +18,55 @@ from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
 from forest.growth.foliage import FAMILIES, LEAF_GREEN, LeafCloud, anchor_positions
 from forest.growth.rig import BoneRig, rest_rows, rest_table
-from forest.usd.scene import (
-    BARK_TILE_SET_ATTR,
+from forest.usd.contract import (
+    BARK_MATERIAL,
+    BARK_TILE_SET,
     BARK_TILES,
     BONE_FORMAT,
+    BONE_FORMAT_VERSION,
+    BONE_OFFSET,
+    BONE_PARENTS,
+    BONE_SCALES,
+    BONE_TRANSLATIONS,
+    BUILDING,
+    DEPTH,
     ENGINE,
     FOLIAGE,
     FOREST,
+    GRAMMAR,
+    INSTANCE,
+    JOINT,
+    JOINT_INDICES,
+    JOINT_PARENTS,
+    JOINT_REST,
     JOINT_ROTATIONS,
-    LOOKS,
+    JOINT_WEIGHTS,
+    LEAF_FAMILY,
+    LEAF_RIMS,
+    LEGACY_BONE_PALETTE,
+    OPTIONS,
+    PARENT,
+    PARENT_RIM,
     PIECES,
     REPRESENTATION,
+    REST_POSITION,
+    ROOT_RIM,
+    ROOT_ROTATIONS,
+    SEED,
+    SYMBOL,
+    TILE_CLASS,
+    TILE_INDICES,
+    TILE_MANIFEST,
+    TREE_ID,
+    TREE_TRANSFORMS,
+    TWIST,
+    VERSION,
+    YAW,
+    primvar,
 )
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
-BARK_MATERIAL = f"{LOOKS}/Bark"
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,21 +204,21 @@ def _read_quads(prim: Usd.Prim, what: str) -> tuple[F64, I32]:
 
 def _read_piece(prim: Usd.Prim) -> PieceArrays:
     pts, quads = _read_quads(prim, "piece prototypes")
-    building = _matrices(prim, "forest:building")
-    leaf = _array(prim, "forest:leafRims", np.int32, (len(building), 6))
+    building = _matrices(prim, BUILDING)
+    leaf = _array(prim, LEAF_RIMS, np.int32, (len(building), 6))
     return PieceArrays(
         name=prim.GetName(),
         positions=pts,
         normals=_array(prim, "normals", np.float64, (-1, 3)),
         quads=quads,
-        tile_class=_array(prim, "primvars:forest:tileClass", np.int32),
-        joint_indices=_array(prim, "primvars:forest:jointIndices", np.int32, (-1, 4)),
-        joint_weights=_array(prim, "primvars:forest:jointWeights", np.float64, (-1, 4)),
-        root_rim=_array(prim, "forest:rootRim", np.int32),
+        tile_class=_array(prim, primvar(TILE_CLASS), np.int32),
+        joint_indices=_array(prim, primvar(JOINT_INDICES), np.int32, (-1, 4)),
+        joint_weights=_array(prim, primvar(JOINT_WEIGHTS), np.float64, (-1, 4)),
+        root_rim=_array(prim, ROOT_RIM, np.int32),
         leaf_rims=leaf,
         building=building,
-        joint_rest=_matrices(prim, "forest:jointRest"),
-        joint_parents=_array(prim, "forest:jointParents", np.int32),
+        joint_rest=_matrices(prim, JOINT_REST),
+        joint_parents=_array(prim, JOINT_PARENTS, np.int32),
     )
 
 
@@ -249,25 +282,23 @@ def read_scene(path: str | Path) -> SceneArrays:
     transforms = compose_similarity(pos, quat, scale[:, 0])
 
     def pv(name: str, width: int = 1) -> I32:
-        return _array(
-            inst_prim, f"primvars:forest:{name}", np.int32, (n, width) if width > 1 else (n,)
-        )
+        return _array(inst_prim, primvar(name), np.int32, (n, width) if width > 1 else (n,))
 
     q_max = max(len(p.quads) for p in pieces)
-    bone_offset = pv("boneOffset")
+    bone_offset = pv(BONE_OFFSET)
     rig = _read_rig(inst_prim, tuple(pieces), proto_idx, bone_offset)
     times, rotations = _read_rotations(stage, inst_prim, rig)
     foliage = _read_foliage(stage, len(rig))
     try:
-        options = json.loads(_get(forest, "forest:options"))
-        manifest = TileSetManifest.model_validate_json(_get(forest, "forest:tileManifest"))
+        options = json.loads(_get(forest, OPTIONS))
+        manifest = TileSetManifest.model_validate_json(_get(forest, TILE_MANIFEST))
     except ValueError as exc:
-        raise SceneError(f"invalid JSON ({exc})", path=f"{FOREST}.forest:options") from None
+        raise SceneError(f"invalid JSON ({exc})", path=f"{FOREST}.{OPTIONS}") from None
     return SceneArrays(
         path=str(path),
-        grammar_json=_get(forest, "forest:grammar"),
-        seed=int(_get(forest, "forest:seed")),
-        version=_get(forest, "forest:version"),
+        grammar_json=_get(forest, GRAMMAR),
+        seed=int(_get(forest, SEED)),
+        version=_get(forest, VERSION),
         options=options,
         manifest=manifest,
         tile_folder=_tile_folder(stage, Path(path)),
@@ -275,15 +306,15 @@ def read_scene(path: str | Path) -> SceneArrays:
         pieces=tuple(pieces),
         proto_indices=proto_idx,
         transforms=transforms,
-        tree=pv("treeId"),
+        tree=pv(TREE_ID),
         bone_offset=bone_offset,
-        tile_indices=pv("tileIndices", q_max),
-        parent=pv("parent"),
-        parent_rim=pv("parentRim"),
-        twist=pv("twist"),
-        depth=pv("depth"),
-        symbol=pv("symbol"),
-        tree_transforms=_matrices(forest, "forest:treeTransforms"),
+        tile_indices=pv(TILE_INDICES, q_max),
+        parent=pv(PARENT),
+        parent_rim=pv(PARENT_RIM),
+        twist=pv(TWIST),
+        depth=pv(DEPTH),
+        symbol=pv(SYMBOL),
+        tree_transforms=_matrices(forest, TREE_TRANSFORMS),
         times=times,
         rig=rig,
         joint_rotations=rotations,
@@ -297,19 +328,19 @@ def _read_rig(
     """The bones' time-independent part (forest.growth.rig), every array checked against the
     others, so forward kinematics reads nothing outside them."""
     where = prim.GetPath()
-    fmt = _get(prim, "forest:boneFormat", required=False)
-    if fmt is None and _has(prim, "forest:bonePalette"):
+    fmt = _get(prim, BONE_FORMAT, required=False)
+    if fmt is None and _has(prim, LEGACY_BONE_PALETTE):
         raise SceneError(
             "this scene stores a matrix per bone per frame (an older version's format): "
             "generate it again (its grammar, seed and options are in /World/Forest)",
-            path=f"{where}.forest:bonePalette",
+            path=f"{where}.{LEGACY_BONE_PALETTE}",
         )
-    if fmt != BONE_FORMAT:
+    if fmt != BONE_FORMAT_VERSION:
         raise SceneError(
-            f"bone format {fmt!r}: this version reads format {BONE_FORMAT}",
-            path=f"{where}.forest:boneFormat",
+            f"bone format {fmt!r}: this version reads format {BONE_FORMAT_VERSION}",
+            path=f"{where}.{BONE_FORMAT}",
         )
-    parent = _array(prim, "forest:boneParents", np.int32)
+    parent = _array(prim, BONE_PARENTS, np.int32)
     b, n = len(parent), len(bone_offset)
     n_joints = np.array([p.n_joints for p in pieces], np.int64)[proto]
     owned = np.diff(np.append(bone_offset.astype(np.int64), b))
@@ -317,36 +348,36 @@ def _read_rig(
     if n and bone_offset[0] != 0:
         raise SceneError(
             f"the first instance's bones start at {bone_offset[0]}, not 0",
-            path=f"{where}.primvars:forest:boneOffset",
+            path=f"{where}.{primvar(BONE_OFFSET)}",
         )
     if len(bad):
         i = int(bad[0])
         raise SceneError(
             f"instance {i} owns {owned[i]} of the {b} bones from {bone_offset[i]}, its piece "
             f"has {n_joints[i]} joints",
-            path=f"{where}.primvars:forest:boneOffset",
+            path=f"{where}.{primvar(BONE_OFFSET)}",
         )
     rig = BoneRig(
         parent=parent,
-        translation=_array(prim, "forest:boneTranslations", np.float64, (b, 3)),
-        scale=_array(prim, "forest:boneScales", np.float64, (b,)),
+        translation=_array(prim, BONE_TRANSLATIONS, np.float64, (b, 3)),
+        scale=_array(prim, BONE_SCALES, np.float64, (b,)),
         root=bone_offset,
-        root_rotation=_array(prim, "forest:rootRotations", np.float64, (n, 4)),
+        root_rotation=_array(prim, ROOT_ROTATIONS, np.float64, (n, 4)),
         rest=rest_rows(proto, bone_offset, b),
         inv_rest=rest_table(pieces),
     )
     for name, arr in (
-        ("forest:boneTranslations", rig.translation),
-        ("forest:boneScales", rig.scale),
-        ("forest:rootRotations", rig.root_rotation),
+        (BONE_TRANSLATIONS, rig.translation),
+        (BONE_SCALES, rig.scale),
+        (ROOT_ROTATIONS, rig.root_rotation),
     ):
         if not np.isfinite(arr).all():
             raise SceneError("non-finite values", path=f"{where}.{name}")
-    _check_unit(rig.root_rotation, f"{where}.forest:rootRotations")
+    _check_unit(rig.root_rotation, f"{where}.{ROOT_ROTATIONS}")
     try:
         rig.levels  # noqa: B018  (parents in range, no cycle: checked once here)
     except ValueError as exc:
-        raise SceneError(str(exc), path=f"{where}.forest:boneParents") from None
+        raise SceneError(str(exc), path=f"{where}.{BONE_PARENTS}") from None
     return rig
 
 
@@ -379,14 +410,14 @@ def _read_rotations(
 
 def _bark_tile_set(stage: Usd.Stage) -> str:
     prim = stage.GetPrimAtPath(BARK_MATERIAL)
-    attr = prim.GetAttribute(BARK_TILE_SET_ATTR) if prim else None
+    attr = prim.GetAttribute(BARK_TILE_SET) if prim else None
     if not attr or not attr.HasAuthoredValue():
         return DEFAULT_SET
     name = attr.Get()
     if not isinstance(name, str) or name not in SETS:
         raise SceneError(
             f"no shipped bark tile set {name!r} (shipped: {', '.join(SETS)})",
-            path=f"{BARK_MATERIAL}.{BARK_TILE_SET_ATTR}",
+            path=f"{BARK_MATERIAL}.{BARK_TILE_SET}",
         )
     return name
 
@@ -412,12 +443,12 @@ def _read_leaf_cloud(prim: Usd.Prim) -> LeafCloud:
             )
     if not (np.isfinite(pts).all() and np.isfinite(normals).all() and np.isfinite(st).all()):
         raise SceneError("non-finite values", path=f"{prim.GetPath()}.points")
-    attr = prim.GetAttribute("forest:leafFamily")
+    attr = prim.GetAttribute(LEAF_FAMILY)
     family = str(attr.Get()) if attr and attr.HasAuthoredValue() else "broadleaf"
     if family not in FAMILIES:
         raise SceneError(
             f"leaf family must be one of {FAMILIES}, got {family!r}",
-            path=f"{prim.GetPath()}.forest:leafFamily",
+            path=f"{prim.GetPath()}.{LEAF_FAMILY}",
         )
     return LeafCloud(positions=pts, normals=normals, st=st, quads=quads, family=family)
 
@@ -453,7 +484,7 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
         out.update(
             foliage_positions=pos,
             foliage_sizes=_array(prim, "widths", np.float64, (k,)),
-            foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
+            foliage_instance=_array(prim, primvar(INSTANCE), np.int32, (k,)),
             foliage_bone=np.full(k, -1, np.int32),
             foliage_rest=pos.copy(),
             foliage_model=np.zeros(k, np.int32),
@@ -470,23 +501,23 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
     pos = _array(prim, "positions", np.float64, (-1, 3))
     k = len(pos)
     scales = _array(prim, "scales", np.float64, (k, 3))
-    offset = _array(prim, "primvars:forest:boneOffset", np.int32, (k,))
-    bone = offset + _array(prim, "primvars:forest:joint", np.int32, (k,))
+    offset = _array(prim, primvar(BONE_OFFSET), np.int32, (k,))
+    bone = offset + _array(prim, primvar(JOINT), np.int32, (k,))
     if k and (bone.min() < 0 or bone.max() >= n_bones):
         raise SceneError(
             f"bones must lie in [0, {n_bones}) of the palette",
-            path=f"{FOLIAGE}.primvars:forest:boneOffset",
+            path=f"{FOLIAGE}.{primvar(BONE_OFFSET)}",
         )
-    rest = _array(prim, "primvars:forest:restPosition", np.float64, (k, 3))
+    rest = _array(prim, primvar(REST_POSITION), np.float64, (k, 3))
     if not (np.isfinite(rest).all() and np.isfinite(scales).all()):
-        raise SceneError("non-finite values", path=f"{FOLIAGE}.primvars:forest:restPosition")
+        raise SceneError("non-finite values", path=f"{FOLIAGE}.{primvar(REST_POSITION)}")
     model = _array(prim, "protoIndices", np.int32, (k,))
     if k and (model.min() < 0 or model.max() >= len(protos)):
         raise SceneError(
             f"prototype indices must lie in [0, {len(protos)})", path=f"{FOLIAGE}.protoIndices"
         )
-    if _has(prim, "primvars:forest:yaw"):
-        yaw = _array(prim, "primvars:forest:yaw", np.float64, (k,))
+    if _has(prim, primvar(YAW)):
+        yaw = _array(prim, primvar(YAW), np.float64, (k,))
     elif _has(prim, "orientationsf") or _has(prim, "orientations"):
         name = "orientationsf" if _has(prim, "orientationsf") else "orientations"
         q = _array(prim, name, np.float64, (k, 4))  # xyzw: a turn about +y
@@ -498,11 +529,11 @@ def _read_foliage(stage: Usd.Stage, n_bones: int) -> dict[str, Any]:
     else:
         color = np.tile(np.array(LEAF_GREEN, np.float32), (k, 1))
     if not (np.isfinite(yaw).all() and np.isfinite(color).all()):
-        raise SceneError("non-finite values", path=f"{FOLIAGE}.primvars:forest:yaw")
+        raise SceneError("non-finite values", path=f"{FOLIAGE}.{primvar(YAW)}")
     out.update(
         foliage_positions=pos,
         foliage_sizes=scales[:, 0].copy(),
-        foliage_instance=_array(prim, "primvars:forest:instance", np.int32, (k,)),
+        foliage_instance=_array(prim, primvar(INSTANCE), np.int32, (k,)),
         foliage_bone=bone.astype(np.int32),
         foliage_rest=rest,
         foliage_clouds=tuple(_read_leaf_cloud(p) for p in protos),

@@ -24,15 +24,27 @@ from forest.geometry.transforms import (
     decompose_similarity,
     invert_similarity,
     rotation_y,
+    similarity_scale,
     transform_points,
     transform_vectors,
 )
 from forest.geometry.weld import close_pairs, weld_labels
 from forest.growth.foliage import FoliageAnchors, anchor_positions, cloud_models
 from forest.growth.generate import Forest
-from forest.usd.scene import FOREST, _time_code, leaf_material, row_major, tile_udim_st
+from forest.usd.contract import (
+    ASSET_SEED,
+    ASSET_TREE,
+    BARK_MESH,
+    LEAVES_MESH,
+    PROXY_MESH,
+    SKELETON,
+    TREES,
+    WIND_ANIMATION,
+    tree_name,
+)
+from forest.usd.materials import leaf_material, tile_udim_st
+from forest.usd.prims import row_major, time_code
 
-TREES = f"{FOREST}/Trees"
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
 Progress = Callable[[str, int, int], None]
 
@@ -341,7 +353,7 @@ def write_skinned_trees(
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
     (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
-    see :func:`forest.usd.scene.leaf_material`). Extents are authored per frame on every
+    see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
     prim whose points or joints move."""
     trees = UsdGeom.Xform.Define(stage, TREES)
     Usd.ModelAPI(trees).SetKind(Kind.Tokens.group)
@@ -350,25 +362,25 @@ def write_skinned_trees(
     binds = frames_of.binds
     # a still forest's pose is one sample at time 0: DCC importers read only samples
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
-    codes = [Usd.TimeCode(0.0) if t is None else _time_code(t, forest.options.fps) for t in times]
+    codes = [Usd.TimeCode(0.0) if t is None else time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
     leaf_materials = (
         None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
     )
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
-        path = f"{TREES}/Tree_{k:05d}"
+        path = f"{TREES}/{tree_name(k)}"
         root = UsdSkel.Root.Define(stage, path)
         model = Usd.ModelAPI(root)
         model.SetKind(Kind.Tokens.component)
-        model.SetAssetName(f"Tree_{k:05d}")
+        model.SetAssetName(tree_name(k))
         model.SetAssetVersion(forest.version)
-        root.GetPrim().SetAssetInfoByKey("forest:seed", int(forest.seed))
-        root.GetPrim().SetAssetInfoByKey("forest:tree", k)
+        root.GetPrim().SetAssetInfoByKey(ASSET_SEED, int(forest.seed))
+        root.GetPrim().SetAssetInfoByKey(ASSET_TREE, k)
         m_tree = forest.tree_transforms[k]
         root.AddTransformOp().Set(Gf.Matrix4d(m_tree.T.tolist()))
         to_tree = invert_similarity(m_tree)
-        skel = UsdSkel.Skeleton.Define(stage, f"{path}/Skeleton")
+        skel = UsdSkel.Skeleton.Define(stage, f"{path}/{SKELETON}")
         joints = joint_paths(forest, inst, bones)
         skel.CreateJointsAttr(joints)
         skel.CreateBindTransformsAttr(row_major(binds[bones]))
@@ -379,7 +391,7 @@ def write_skinned_trees(
                 )
             )
         )
-        anim = UsdSkel.Animation.Define(stage, f"{path}/Skeleton/Wind")
+        anim = UsdSkel.Animation.Define(stage, f"{path}/{SKELETON}/{WIND_ANIMATION}")
         anim.CreateJointsAttr(joints)
         for tc, (_, (t, q, s)) in zip(codes, frames, strict=True):
             anim.CreateTranslationsAttr().Set(Vt.Vec3fArray.FromNumpy(t[bones]), tc)
@@ -391,11 +403,11 @@ def write_skinned_trees(
         pts, nrm, quads, jidx, jw, st = tree_mesh(
             forest, inst, bones, to_tree, frames_of.still, weld=True
         )
-        mesh = _mesh(stage, f"{path}/Bark", pts, nrm, quads, UsdGeom.Tokens.render)
+        mesh = _mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
         _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
         _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
-        proxy = _proxy(stage, f"{path}/Proxy", pts, quads, skel, jidx, jw)
+        proxy = _proxy(stage, f"{path}/{PROXY_MESH}", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
         leaves = (
             None
@@ -404,7 +416,7 @@ def write_skinned_trees(
         )
         if leaves is not None and leaf_materials is not None:
             lp, ln, lq, lst, lj, lc = leaves
-            lm = _mesh(stage, f"{path}/Leaves", lp, ln, lq, UsdGeom.Tokens.default_)
+            lm = _mesh(stage, f"{path}/{LEAVES_MESH}", lp, ln, lq, UsdGeom.Tokens.default_)
             lm.CreateDoubleSidedAttr(True)
             _indexed_st(lm.GetPrim(), lst, UsdGeom.Tokens.vertex)
             lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
@@ -484,16 +496,11 @@ def joint_frames(forest: Forest) -> JointFrames:
     rest = dcc.locals(forest.local_bones(None))
     rest[tree_root] = np.eye(4)
     binds = _bind_transforms(forest, still)[dcc.bone]
-    bind_scale = _scale(binds)
+    bind_scale = similarity_scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
     parent_scale = np.where(dcc.parent >= 0, bind_scale[np.maximum(dcc.parent, 0)], 1.0)
     parent_scale[tree_root] = 1.0
-    return JointFrames(dcc, binds, rest, _scale(rest), parent_scale, tree_root, still)
-
-
-def _scale(m: F64) -> F64:
-    """Uniform scale of similarities ``(n, 4, 4)``."""
-    return np.cbrt(np.linalg.det(m[:, :3, :3]))
+    return JointFrames(dcc, binds, rest, similarity_scale(rest), parent_scale, tree_root, still)
 
 
 def _bind_transforms(forest: Forest, still: F64) -> F64:

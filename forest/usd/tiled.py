@@ -24,10 +24,10 @@ from pxr import Gf, Kind, Sdf, Usd, UsdGeom, Vt
 from forest.atomic import replaced_when_written
 from forest.errors import ForestError
 from forest.growth.generate import Forest
+from forest.usd.contract import TILE_INDEX, TILE_TREES, TILES, TILING, WORLD, tile_name
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
-from forest.usd.scene import define_world
+from forest.usd.prims import define_world, set_frames
 
-TILES = "/World/Tiles"
 TILE_SUFFIX = ".usdc"
 
 
@@ -88,7 +88,7 @@ def write_empty_tile(path: Path) -> Path:
     try:
         UsdGeom.SetStageUpAxis(stage, UsdGeom.Tokens.y)
         UsdGeom.SetStageMetersPerUnit(stage, 1.0)
-        world = UsdGeom.Xform.Define(stage, "/World")
+        world = UsdGeom.Xform.Define(stage, WORLD)
         stage.SetDefaultPrim(world.GetPrim())
         finish(stage, tmp, path)
     finally:
@@ -144,16 +144,13 @@ def write_root(
         )
         if meta is not None:
             group.GetPrim().CreateAttribute(
-                "forest:tiling", Sdf.ValueTypeNames.String, custom=True
+                TILING, Sdf.ValueTypeNames.String, custom=True
             ).Set(json.dumps(meta, sort_keys=True))
         if frames > 0:
-            stage.SetTimeCodesPerSecond(fps)
-            stage.SetFramesPerSecond(fps)
-            stage.SetStartTimeCode(0)
-            stage.SetEndTimeCode(frames - 1)
+            set_frames(stage, frames, fps)
         whole = Gf.Range3d()
         for t in sorted(tiles, key=lambda e: (e.j, e.i)):
-            xf = UsdGeom.Xform.Define(stage, f"{TILES}/T_{t.i}_{t.j}")
+            xf = UsdGeom.Xform.Define(stage, f"{TILES}/{tile_name(t.i, t.j)}")
             prim = xf.GetPrim()
             Usd.ModelAPI(prim).SetKind(Kind.Tokens.assembly)
             prim.GetPayloads().AddPayload(t.asset)
@@ -161,10 +158,10 @@ def write_root(
             UsdGeom.ModelAPI.Apply(prim).SetExtentsHint(
                 Vt.Vec3fArray([Gf.Vec3f(*lo), Gf.Vec3f(*hi)])
             )
-            prim.CreateAttribute("forest:tile", Sdf.ValueTypeNames.Int2, custom=True).Set(
+            prim.CreateAttribute(TILE_INDEX, Sdf.ValueTypeNames.Int2, custom=True).Set(
                 Gf.Vec2i(t.i, t.j)
             )
-            prim.CreateAttribute("forest:trees", Sdf.ValueTypeNames.Int, custom=True).Set(t.trees)
+            prim.CreateAttribute(TILE_TREES, Sdf.ValueTypeNames.Int, custom=True).Set(t.trees)
             if t.trees:
                 whole.UnionWith(Gf.Range3d(Gf.Vec3d(*lo), Gf.Vec3d(*hi)))
         if not whole.IsEmpty():

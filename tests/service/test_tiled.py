@@ -17,7 +17,8 @@ from service_harness import Server, served
 from farm.store import tile_job_id
 from forest.growth.presets import load_preset
 from forest.growth.tiling import TilePlan, generate_tile
-from forest.usd.tiled import TILES, write_tile_file
+from forest.usd.contract import TILES
+from forest.usd.tiled import write_tile_file
 
 TILED = {"preset": "almond", "trees": 12, "seed": 5, "area": [20.0, 10.0], "tile_size": 10.0}
 

@@ -23,8 +23,9 @@ from bench.render import run_render_bench
 from cli import main
 from forest.growth.foliage import MODELS, YAW_STEPS
 from forest.growth.generate import ForestOptions, generate_forest
+from forest.usd.contract import FOLIAGE
 from forest.usd.read import SceneArrays, read_scene
-from forest.usd.scene import FOLIAGE, write_scene
+from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from schemas.metrics import RenderMetrics
 from worker.render.camera import Camera, frame_points

@@ -29,21 +29,30 @@ from pathlib import Path, PurePosixPath
 from typing import Any
 
 from forest.errors import SceneError
+from forest.usd.contract import (
+    BONE_PARENTS,
+    BONE_SCALES,
+    BONE_TRANSLATIONS,
+    JOINT_ROTATIONS,
+    LEGACY_BONE_PALETTE,
+    TILE_INDICES,
+    primvar,
+)
 from schemas.tileset import UDIM_PATTERN, udim_file
 
 MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
 LAYER_SUFFIXES = (".usda", ".usdc", ".usd", ".usdz")
 # one entry per bone (the compact rig, and the older matrix-per-bone palette)
 BONE_ATTRS = {
-    "forest:boneParents",
-    "forest:boneTranslations",
-    "forest:boneScales",
-    "forest:jointRotations",
-    "forest:bonePalette",
+    BONE_PARENTS,
+    BONE_TRANSLATIONS,
+    BONE_SCALES,
+    JOINT_ROTATIONS,
+    LEGACY_BONE_PALETTE,
 }
 # a PointInstancer's per-instance arrays hold one entry per instance, except the tile
 # indices: one per quad of the instance's piece (356 at most, at 8 segments)
-PER_QUAD = {"primvars:forest:tileIndices": 512}
+PER_QUAD = {primvar(TILE_INDICES): 512}
 # any other array (prototype meshes, a skinned tree's meshes) at most this many entries per
 # instance of the cap: a measure of the scene, not of one mesh
 VALUES_PER_INSTANCE = 64

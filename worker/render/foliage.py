@@ -50,8 +50,8 @@ from numpy.typing import NDArray
 from forest.errors import LimitError
 from forest.geometry.transforms import F64
 from forest.growth.foliage import YAW_STEPS, LeafCloud, cloud_models, leaf_texture
+from forest.usd.contract import FOLIAGE
 from forest.usd.read import SceneArrays
-from forest.usd.scene import FOLIAGE
 from worker.render import shaders
 from worker.render.camera import Camera, box_corners
 from worker.render.gl_context import elapsed_ms

@@ -36,15 +36,23 @@ from numpy.typing import NDArray
 from forest.errors import LimitError, SceneError
 from forest.geometry.pieces import QUAD_ST, PieceArrays
 from forest.geometry.transforms import F64, transform_points
+from forest.usd.contract import (
+    BONE_OFFSET,
+    BONE_PARENTS,
+    JOINT_INDICES,
+    JOINT_ROTATIONS,
+    PIECE_PROTOTYPES,
+    PIECES,
+    TILE_INDICES,
+    primvar,
+)
 from forest.usd.read import SceneArrays
-from forest.usd.scene import JOINT_ROTATIONS, PIECES
 from worker.render.bone_kinematics import BONE_DTYPE, MAT4_BYTES, PaletteKinematics
 from worker.render.camera import box_corners
 
 if TYPE_CHECKING:
     import moderngl
 
-PROTOTYPES = f"{PIECES}/Prototypes"
 PATCH_DTYPE = np.dtype(
     [
         ("position", "<f4", 3),
@@ -130,12 +138,12 @@ def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
     n_bones = scene.n_bones
     top = np.zeros(len(scene.pieces), np.int64)
     for i, p in enumerate(scene.pieces):
-        where = f"{PROTOTYPES}/{p.name}"
+        where = f"{PIECE_PROTOTYPES}/{p.name}"
         ji = p.joint_indices
         if ji.size and (ji.min() < 0 or ji.max() >= p.n_joints):
             raise SceneError(
                 f"joint indices must lie in [0, {p.n_joints})",
-                path=f"{where}.primvars:forest:jointIndices",
+                path=f"{where}.{primvar(JOINT_INDICES)}",
             )
         if not np.isfinite(p.positions).all() or not np.isfinite(p.normals).all():
             raise SceneError("non-finite points or normals", path=f"{where}.points")
@@ -145,7 +153,7 @@ def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
     if len(bad):
         raise SceneError(
             f"instance {bad[0]} reaches bone {last[bad[0]]} of a palette of {n_bones}",
-            path=f"{PIECES}.primvars:forest:boneOffset",
+            path=f"{PIECES}.{primvar(BONE_OFFSET)}",
         )
     if not np.isfinite(scene.joint_rotations).all():
         raise SceneError("non-finite rotations", path=f"{PIECES}.{JOINT_ROTATIONS}")
@@ -161,7 +169,7 @@ def check_scene(scene: SceneArrays, n_slices: int | None = None) -> None:
         what = f"the tile set's {n_slices} slices" if n_slices is not None else "int32"
         raise SceneError(
             f"instance {bad[0]} has tile index {value} outside {what}",
-            path=f"{PIECES}.primvars:forest:tileIndices",
+            path=f"{PIECES}.{primvar(TILE_INDICES)}",
         )
 
 
@@ -209,10 +217,10 @@ class SceneBuffers:
         n_bones = scene.n_bones
         limit = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE", 2**27))
         for what, size, path in (
-            ("the palette", n_bones * MAT4_BYTES, "forest:boneParents"),
-            ("the bones", n_bones * BONE_DTYPE.itemsize, "forest:boneParents"),
+            ("the palette", n_bones * MAT4_BYTES, BONE_PARENTS),
+            ("the bones", n_bones * BONE_DTYPE.itemsize, BONE_PARENTS),
             ("the instances", self.layout.records.nbytes, "protoIndices"),
-            ("the tile indices", self.layout.tiles.nbytes, "primvars:forest:tileIndices"),
+            ("the tile indices", self.layout.tiles.nbytes, primvar(TILE_INDICES)),
         ):
             if size > limit:
                 raise LimitError(
