@@ -29,7 +29,8 @@ def input_errors(fn: F) -> F:
         try:
             return fn(*args, **kwargs)
         except ForestError as exc:
-            click.echo(f"error: {exc}", err=True)
+            for line in exc.lines():
+                click.echo(f"error: {line}", err=True)
             sys.exit(EXIT_INPUT)
 
     return wrapper  # type: ignore[return-value]

@@ -9,6 +9,7 @@ import click
 
 from cli.app import bench, input_errors, main, needs, parse_counts
 from forest.errors import ForestError
+from forest.sniff import USD_READERS, require_usd
 
 VIEW_NAMES = ("overview", "side", "eye")  # worker.render.camera.VIEWS, without importing the worker
 
@@ -167,6 +168,7 @@ def render(
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics; staged
     (ground, sun shadows, MSAA, tone map) unless --bare or --ground."""
+    require_usd(scene, USD_READERS["render"])
     # a clip goes through imageio: ffmpeg for mp4 and webm, Pillow for gif and webp
     needs("render", "moderngl", *(("imageio", "imageio_ffmpeg", "PIL") if clip else ()))
     from worker.render.camera import CameraSpec
@@ -248,6 +250,7 @@ def render(
 def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> None:
     """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
     indices, piece types."""
+    require_usd(scene, USD_READERS["inspect"])
     needs("inspect", "pyvista", "vtk")
     from cli.sheets.inspect import contact_sheet
     from forest.errors import OutputError

@@ -40,7 +40,11 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
     manifest.json (classes, sources with checksums, seed, sizes, file names).
     """
     from forest.bark.tileset import TileGeometry, default_classes, make_tileset
+    from forest.sniff import IMAGE_KINDS, require_kind
     from schemas.tileset import MANIFEST_FILE
+
+    for example in examples:
+        require_kind(example, IMAGE_KINDS, "an image", "tiles reads PNG, JPEG, TIFF, EXR or GIF")
 
     ts = make_tileset(examples, output, default_classes(per_class, per_class), size, seed)
     m = ts.manifest

@@ -18,6 +18,10 @@ class ForestError(Exception):
     def __repr__(self) -> str:
         return f"{type(self).__name__}(path={self.path!r}, message={self.message!r})"
 
+    def lines(self) -> list[str]:
+        """One line per error (several where one pass found several)."""
+        return [str(self)]
+
 
 class GrammarError(ForestError):
     """A grammar is malformed or inconsistent; ``path`` is like ``rules.A[2].weight``."""

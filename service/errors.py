@@ -15,6 +15,7 @@ from fastapi.responses import JSONResponse
 from sqlalchemy.exc import DBAPIError
 
 from forest.errors import ForestError, LimitError
+from forest.growth.grammar_errors import GrammarErrors
 
 log = logging.getLogger(__name__)
 RETRY_AFTER_S = 5
@@ -36,8 +37,16 @@ def field_error(
 
 
 def forest_error(exc: ForestError, prefix: list[str | int] | None = None) -> RequestValidationError:
-    kind = "limit_error" if isinstance(exc, LimitError) else "value_error"
-    return field_error([*(prefix or []), *path_loc(exc.path)], exc.message, kind)
+    """A library error as a 422; a grammar with several errors gives one entry each."""
+    errors = exc.errors if isinstance(exc, GrammarErrors) else (exc,)
+    return RequestValidationError([
+        {
+            "loc": ["body", *(prefix or []), *path_loc(e.path)],
+            "msg": e.message,
+            "type": "limit_error" if isinstance(e, LimitError) else "value_error",
+        }
+        for e in errors
+    ])
 
 
 def _finite_json(value: Any) -> Any:

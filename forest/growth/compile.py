@@ -15,6 +15,7 @@ from forest.errors import GrammarError, LimitError
 from forest.geometry.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
 from forest.growth.expand import expand
 from forest.growth.grammar import CompiledGrammar
+from forest.growth.grammar_errors import did_you_mean, raise_all, reference_errors
 from forest.growth.keyed import GROW, tree_keys
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Alternative, Grammar
@@ -26,34 +27,31 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
     _check_size(g, settings)
     symbols = tuple(g.rules)
     sid = {s: i for i, s in enumerate(symbols)}
-    if g.axiom not in sid:
-        raise GrammarError(
-            f"axiom {g.axiom!r} has no rule (rules: {', '.join(symbols)})", path="axiom"
-        )
+    # every cross-reference error of the grammar in one pass, each with its path
+    errors: list[GrammarError] = reference_errors(g.model_dump())
     if g.bark not in BARK_SETS:
-        raise GrammarError(
-            f"no shipped bark tile set {g.bark!r} (shipped: {', '.join(BARK_SETS)})", path="bark"
+        errors.append(
+            GrammarError(
+                f"no shipped bark tile set {g.bark!r} (shipped: {', '.join(BARK_SETS)})"
+                f"{did_you_mean(g.bark, BARK_SETS)}",
+                path="bark",
+            )
         )
-    for i, s in enumerate(g.foliage):
-        if s not in sid:
-            raise GrammarError(f"unknown symbol {s!r}", path=f"foliage[{i}]")
     rims = {name: p.n_leaf_rims for name, p in zip(PIECE_NAMES, piece_library(), strict=True)}
     rows: list[tuple[int, Any]] = []
     for s, alts in g.rules.items():
         for j, alt in enumerate(alts):
             where = f"rules.{s}[{j}]"
             if len(alt.successors) != rims[alt.piece]:
-                raise GrammarError(
-                    f"piece {alt.piece} has {rims[alt.piece]} leaf rim(s) but "
-                    f"{len(alt.successors)} successor(s) are given",
-                    path=f"{where}.successors",
-                )
-            for r, succ in enumerate(alt.successors):
-                if succ is not None and succ.symbol not in sid:
-                    raise GrammarError(
-                        f"unknown symbol {succ.symbol!r}", path=f"{where}.successors[{r}].symbol"
+                errors.append(
+                    GrammarError(
+                        f"piece {alt.piece} has {rims[alt.piece]} leaf rim(s) but "
+                        f"{len(alt.successors)} successor(s) are given",
+                        path=f"{where}.successors",
                     )
+                )
             rows.append((sid[s], alt))
+    raise_all(errors)
     has_cap = "Cap" in PIECE_NAMES
     if has_cap:  # never drawn (weight 0): expansion puts it on every tip it closes
         rows.append((0, Alternative(piece="Cap", weight=1.0, successors=[])))

@@ -14,36 +14,33 @@ from numpy.typing import NDArray
 from pydantic import ValidationError
 
 from forest.errors import GrammarError
+from forest.growth.grammar_errors import raise_all, reference_errors, validation_errors
+from forest.sniff import describe, sniff
 from schemas.grammar import Grammar
 
 # A grammar file is a few KiB; anything this big is not a grammar and would only cost time.
 MAX_GRAMMAR_BYTES = 1 << 20
 
 
-def _loc_to_path(loc: tuple[int | str, ...]) -> str:
-    out = ""
-    for part in loc:
-        if isinstance(part, int):
-            out += f"[{part}]"
-        elif part in ("function-after", "tagged-union") or "[" in str(part):
-            continue  # pydantic's internal validator names, meaningless to a user
-        else:
-            out += f".{part}" if out else str(part)
-    return out
-
-
 def parse_grammar(data: Any) -> Grammar:
-    """Validate already-decoded JSON into a :class:`Grammar`, naming the first bad field."""
+    """Validate already-decoded JSON into a :class:`Grammar`, naming every bad field at once
+    (:class:`~forest.growth.grammar_errors.GrammarErrors`), with "did you mean" for unknown
+    fields."""
     try:
         return Grammar.model_validate(data)
     except ValidationError as exc:
-        err = exc.errors()[0]
-        raise GrammarError(err["msg"], path=_loc_to_path(tuple(err["loc"]))) from None
+        found = validation_errors(exc)
+        seen = {e.path for e in found}
+        raise_all(found + [e for e in reference_errors(data) if e.path not in seen])
+        raise  # unreachable: a ValidationError holds at least one error
 
 
 def load_grammar(path: str | Path) -> Grammar:
     """Read a grammar JSON file; malformed, truncated, huge or missing files get a GrammarError."""
     p = Path(path)
+    kind = sniff(p) if p.exists() else "missing"
+    if kind not in ("json", "text", "missing"):
+        raise GrammarError(f"is {describe(kind)}, not a grammar (JSON)", path=str(p))
     try:
         size = p.stat().st_size
         if size > MAX_GRAMMAR_BYTES:

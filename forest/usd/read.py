@@ -4,6 +4,7 @@ gets a SceneError naming the prim and attribute."""
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,7 @@ from forest.geometry.pieces import PieceArrays
 from forest.geometry.transforms import F64, compose_similarity
 from forest.growth.foliage import FAMILIES, LEAF_GREEN, LeafCloud, anchor_positions
 from forest.growth.rig import BoneRig, rest_rows, rest_table
+from forest.sniff import USD_SUFFIXES, require_usd
 from forest.usd.contract import (
     BARK_MATERIAL,
     BARK_TILE_SET,
@@ -160,6 +162,10 @@ class SceneArrays:
         return np.where((self.foliage_bone >= 0)[:, None], pos, self.foliage_positions)
 
 
+# pxr's diagnostics name the C++ function and file before the reason
+_PXR_ERROR = re.compile(r"Error in '[^']*'(?: at line \d+ in file [^:]*)? : '(.*)'$")
+
+
 def _get(prim: Usd.Prim, name: str, required: bool = True) -> Any:
     attr = prim.GetAttribute(name)
     if not attr or not attr.HasAuthoredValue():
@@ -222,15 +228,28 @@ def _read_piece(prim: Usd.Prim) -> PieceArrays:
     )
 
 
+def pxr_reason(exc: BaseException) -> str:
+    """The reason in a pxr error, without its C++ location: ``Error in 'pxrInternal_..::
+    UsdStage::Open' at line 1287 in file /opt/USD/.../stage.cpp : 'Failed to open layer
+    @a.usda@'`` -> ``Failed to open layer a.usda``."""
+    text = str(exc).strip()
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    last = lines[-1] if lines else type(exc).__name__
+    found = _PXR_ERROR.search(last)
+    reason = found.group(1) if found else last
+    return reason.replace("@", "").strip() or type(exc).__name__
+
+
 def open_stage(path: str | Path) -> Usd.Stage:
     p = Path(path)
     if not p.is_file():
         raise SceneError("no such file", path=str(p))
+    # a file of another kind is named before pxr opens it (pxr prints its own errors)
+    require_usd(p, f"a forest scene is {USD_SUFFIXES}", SceneError)
     try:
         stage = Usd.Stage.Open(str(p))
     except Exception as exc:  # pxr raises Tf.ErrorException for unreadable layers
-        first = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-        raise SceneError(f"not a readable USD file: {first}", path=str(p)) from None
+        raise SceneError(f"not a readable USD file: {pxr_reason(exc)}", path=str(p)) from None
     if stage is None:
         raise SceneError("not a readable USD file", path=str(p))
     return stage
