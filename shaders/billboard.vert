@@ -7,7 +7,7 @@
 // (column: heading, row: model, u_tiles of them). The centre is the cloud's bone applied to
 // its rest point (wind).
 // A cloud larger on screen than u_near_pixels is left out (its real leaf cards are drawn
-// instead, worker.foliage.near_clouds): its four vertices go outside the clip volume.
+// instead, worker.render.foliage.near_clouds): its four vertices go outside the clip volume.
 // Defines accepted: CAPTURE (write every cloud's centre and diameter to a storage buffer).
 
 struct Cloud {

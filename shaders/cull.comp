@@ -1,5 +1,5 @@
 #version 430 core
-// Per-instance culling before the draws (worker/instance_cull.py): one invocation per piece
+// Per-instance culling before the draws (worker/render/instance_cull.py): one invocation per piece
 // instance tests a sphere around its posed skeleton against the view frustum and, with
 // u_min_pixels > 0, drops pieces thinner on screen than that many pixels (a twig far away).
 // Survivors are appended to their piece type's run of ``visible`` and counted straight into

@@ -1,5 +1,5 @@
 #version 430 core
-// The bone palette by forward kinematics (forest/growth/rig.py, worker/bone_kinematics.py):
+// The bone palette by forward kinematics (forest/growth/rig.py, worker/render/bone_kinematics.py):
 // one invocation per bone of one hierarchy level; the levels are dispatched in order, so a
 // bone's parent is done before it. local = Tr(t) R(q) S(s); G = G_parent local; the palette
 // entry is G inv(J). Every bone of a level reads its parent's G as written, so a child's root
@@ -8,7 +8,7 @@
 
 layout(local_size_x = 64) in;
 
-// Bones in level order (the order of ``globals``), as worker.bone_kinematics.BONE_DTYPE.
+// Bones in level order (the order of ``globals``), as worker.render.bone_kinematics.BONE_DTYPE.
 struct Bone {
     vec4 translation_scale;  // local translation (xyz) and uniform scale (w)
     vec4 fixed_rotation;     // xyzw, the rotation where ``rotation`` < 0 (an instance's root)

@@ -3,7 +3,7 @@
 // paper 5.1), a sun and a sky, distance fog.
 // Defines accepted: ID_OUTPUT (second colour output: tile, instance id, patch, 1); STAGED (sun
 // shadows from a depth map with 3x3 bilinear PCF, a stronger sky fill, and the colour left
-// unclamped for the tone-map pass: see worker.staging).
+// unclamped for the tone-map pass: see worker.render.staging).
 
 in Surface {
     vec3 position;

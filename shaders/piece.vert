@@ -1,6 +1,6 @@
 #version 430 core
 // Piece patches: one vertex of a quad patch, skinned by linear blend skinning (paper 4.3).
-// Defines accepted (inserted after the #version line by worker.shaders): none.
+// Defines accepted (inserted after the #version line by worker.render.shaders): none.
 
 layout(location = 0) in vec3 in_position;  // prototype (model) space
 layout(location = 1) in vec3 in_normal;
@@ -21,7 +21,7 @@ layout(std430, binding = 0) readonly buffer Instances { Instance instances[]; };
 // The forest's bone palette: skinning matrices mapping prototype space straight to world.
 layout(std430, binding = 1) readonly buffer Palette { mat4 bones[]; };
 
-// With u_culled, the instances kept by the cull pass (worker.instance_cull): a draw's
+// With u_culled, the instances kept by the cull pass (worker.render.instance_cull): a draw's
 // instance k is instances[visible[u_base_instance + k]].
 layout(std430, binding = 7) readonly buffer Visible { int visible[]; };
 

@@ -83,7 +83,8 @@ class ForestOptions:
 
 @dataclass(frozen=True, eq=False)
 class Forest:
-    """Everything a scene holds, as numpy arrays (see DESIGN.md, "USD scene contract").
+    """Everything a scene holds, as numpy arrays (written in the USD layout that
+    forest/usd/contract.py names).
 
     tree_transforms : (t, 4, 4)   transforms : (n, 4, 4) topological world transforms
     tree_ids : (t,) int64 each tree's stable identity (its global placement cell): a tree's
