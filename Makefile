@@ -2,7 +2,8 @@
 #   make demo   -> creates .venv, installs the package with its renderer (extra render), runs
 #                  the main job (`forest demo`)
 #   make test   -> creates .venv, installs the package with every extra and the test tools
-#                  (extra dev), runs lint, type checks and the whole test suite
+#                  (extra dev), runs lint, type checks, the docs build (mkdocs --strict) and
+#                  the whole test suite
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
@@ -11,7 +12,7 @@ SUM := $(shell cksum < pyproject.toml | cut -d' ' -f1)
 RENDER := $(VENV)/.installed-render-$(SUM)
 DEV := $(VENV)/.installed-dev-$(SUM)
 
-.PHONY: demo test lint bench schemas web clean
+.PHONY: demo test lint docs bench schemas web clean
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -33,14 +34,19 @@ demo: $(RENDER)
 	@echo "(or, without activating it: $(BIN)/forest presets)"
 
 lint: $(DEV)
-	$(BIN)/ruff check forest schemas farm worker service cli bench tests
+	$(BIN)/ruff check forest schemas farm worker service cli bench tests docs/hooks
 	$(BIN)/mypy
 
-test: $(DEV) lint
+test: $(DEV) lint docs
 	bash tests/setup_node.sh
 	bash tests/setup_blender_venv.sh
 	bash tests/setup_validator_venv.sh
 	$(BIN)/python -m pytest -n 2 --dist loadfile
+
+# the documentation site (docs/, mkdocs.yml) into build/site: a broken link or anchor fails it;
+# `$(BIN)/mkdocs serve` shows it while you edit
+docs: $(DEV)
+	$(BIN)/mkdocs build --strict -d build/site
 
 bench: $(RENDER)
 	$(BIN)/forest bench generate

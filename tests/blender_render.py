@@ -6,7 +6,7 @@ venv's Python (``bash tests/setup_blender_venv.sh`` makes it):
 
 The camera frames the imported meshes' evaluated (skinned) geometry at the first frame from
 the side, a little above. tests/test_blender.py renders a tree with it and checks the
-pixels; the README's Blender gallery was made with it.
+pixels; the Blender gallery (docs/gallery.md) was made with it.
 """
 
 from __future__ import annotations

@@ -29,12 +29,12 @@ pytestmark = pytest.mark.slow  # NVIDIA's validator in its own venv
 ROOT = Path(__file__).resolve().parents[1]
 VALIDATE = ROOT / ".venv-validator" / "bin" / "nvidia_usd_validate"
 SETUP = "bash tests/setup_validator_venv.sh"
-# Warnings that stay (README "Validators"): the prototypes' faceVarying st and the foliage's
+# Warnings that stay (docs/usd.md, "Validators"): the prototypes' faceVarying st and the foliage's
 # forest:* primvars are read flat by the reader and the renderer (IndexedPrimvarChecker); the
 # leaves' per-vertex displayColor likewise; caps meet their parent at a rim ring shared by
 # more than two quads (ManifoldChecker, the decimated proxy and a few bark vertices).
 ALLOWED_WARNINGS = {"IndexedPrimvarChecker", "ManifoldChecker"}
-# The one failure a .usda gets: its large arrays in ASCII (README: .usda is for reading).
+# The one failure a .usda gets: its large arrays in ASCII (docs/usd.md: .usda is for reading).
 USDA_FAILURE = "UsdAsciiPerformanceChecker"
 # ARKit (usdchecker --arkit, ARKitPrimTypeChecker / ARKitShaderChecker): the prim types and
 # shader ids Quick Look draws

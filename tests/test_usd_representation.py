@@ -14,7 +14,7 @@ from forest.usd.contract import ENGINE, FOREST, PIECES, POSED, REPRESENTATION, S
 from forest.usd.read import select_engine
 from forest.usd.scene import write_scene
 
-POSED_MAX_REL = 0.03  # measured worst over the presets: 2.9 % of the height (willow), README
+POSED_MAX_REL = 0.03  # measured worst over the presets: 2.9 % of the height (willow), docs/usd.md
 
 
 def _selected(path: Path, variant: str | None = None) -> Usd.Stage:
