@@ -38,7 +38,7 @@ from forest.usd.prims import define_world, row_major, set_attr, set_frames
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
-# per piece, README "Representations"): a skinned tree costs 2.5x the file and 9-19x the
+# per piece, docs/usd.md "Representations"): a skinned tree costs 2.5x the file and 9-19x the
 # write time of its instanced pieces (4 oaks, 14k pieces, 24 frames: 374 MB, 64 s).
 SKINNED_MAX_TREES = 64
 SKINNED_MAX_PIECES = 20_000
