@@ -1,12 +1,11 @@
-"""The ``forest`` command group, shared error handling and progress bars. The commands live
-in the sibling modules, one per concern, and register themselves on import."""
+"""The ``forest`` command group and shared error handling. The commands live in the sibling
+modules, one per concern, and register themselves on import (progress: cli.progress)."""
 
 from __future__ import annotations
 
 import functools
 import sys
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from collections.abc import Callable
 from typing import Any, TypeVar
 
 import click
@@ -17,8 +16,6 @@ from forest.extras import require
 
 F = TypeVar("F", bound=Callable[..., Any])
 EXIT_INPUT = 2
-# forests at least this big get a progress bar on stderr
-PROGRESS_TREES = 200
 
 
 def input_errors(fn: F) -> F:
@@ -46,32 +43,6 @@ def needs(extra: str, *modules: str) -> None:
         names.append(ctx.info_name or "")
         ctx = ctx.parent
     require(extra, *modules, path=" ".join(["forest", *reversed(names)]))
-
-
-@contextmanager
-def stage_progress(enabled: bool, label: str) -> Iterator[Callable[[str, int, int], None]]:
-    """A progress callback ``(stage, done, total)`` drawing one bar per stage on stderr."""
-    if not enabled:
-        yield lambda stage, done, total: None
-        return
-    bars: dict[str, Any] = {}
-
-    def update(stage: str, done: int, total: int) -> None:
-        bar = bars.get(stage)
-        if bar is None:
-            for old in bars.values():
-                old.render_finish()
-            bar = bars[stage] = click.progressbar(
-                length=total, label=f"{label}: {stage:<14}", file=sys.stderr
-            )
-            bar.__enter__()
-        bar.update(done - bar.pos)
-
-    try:
-        yield update
-    finally:
-        for bar in bars.values():
-            bar.__exit__(None, None, None)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})

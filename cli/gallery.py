@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.app import input_errors, main, needs
+from cli.progress import quiet_option, show_progress
 from forest.errors import ForestError
 
 
@@ -28,9 +29,15 @@ from forest.errors import ForestError
 )
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option("--stand-trees", type=int, default=16, show_default=True, help="Trees in each stand.")
+@quiet_option
 @input_errors
 def gallery(
-    output: Path, presets_text: str | None, size_text: str, seed: int, stand_trees: int
+    output: Path,
+    presets_text: str | None,
+    size_text: str,
+    seed: int,
+    stand_trees: int,
+    quiet: bool = False,
 ) -> None:
     """Render every preset as one tree (side view on the ground, with a scale bar and its
     height) and as a small stand (overview), into DIR/<preset>.png, DIR/<preset>_stand.png
@@ -43,13 +50,12 @@ def gallery(
         presets = tuple(p.strip() for p in presets_text.split(",") if p.strip())
         if not presets:
             raise ForestError("name at least one preset", path="presets")
-    make_gallery(
-        GalleryOptions(
-            output=output,
-            presets=presets,
-            size=parse_size(size_text),
-            seed=seed,
-            stand_trees=stand_trees,
-        ),
-        echo=click.echo,
+    options = GalleryOptions(
+        output=output,
+        presets=presets,
+        size=parse_size(size_text),
+        seed=seed,
+        stand_trees=stand_trees,
     )
+    with show_progress("gallery", quiet) as bar:
+        make_gallery(options, echo=bar.echo, progress=bar)

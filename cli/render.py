@@ -8,6 +8,7 @@ from typing import Any
 import click
 
 from cli.app import bench, input_errors, main, needs, parse_counts
+from cli.progress import quiet_option, show_progress
 from forest.errors import ForestError
 from forest.sniff import USD_READERS, require_usd
 
@@ -135,6 +136,7 @@ def camera_options(fn: Any) -> Any:
 @click.option("--orbit", is_flag=True, help="Turn the camera once about its target over the clip.")
 @click.option("--fps", type=float, help="The clip's frame rate (default: the scene's).")
 @camera_options
+@quiet_option
 @input_errors
 def render(
     scene: Path,
@@ -165,6 +167,7 @@ def render(
     clip: Path | None = None,
     orbit: bool = False,
     fps: float | None = None,
+    quiet: bool = False,
 ) -> None:
     """Render a forest scene offscreen (EGL) to a preview PNG, with frame-time metrics; staged
     (ground, sun shadows, MSAA, tone map) unless --bare or --ground."""
@@ -187,31 +190,31 @@ def render(
         tree=tree_index,
     )
 
-    m = render_file(
-        RenderRequest(
-            scene=scene,
-            output=output,
-            metrics=metrics,
-            width=width,
-            height=height,
-            tess_max=tess_max,
-            alpha=alpha,
-            lod_half=lod_half,
-            frame=frame,
-            frames=frames,
-            tiles=tiles_dir,
-            per_instance=per_instance,
-            cull=not no_cull,
-            lod_pixels=lod_pixels,
-            foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
-            camera=spec,
-            ground=ground,
-            staged=not (bare or ground),
-            clip=clip,
-            orbit=orbit,
-            fps=fps,
-        )
+    request = RenderRequest(
+        scene=scene,
+        output=output,
+        metrics=metrics,
+        width=width,
+        height=height,
+        tess_max=tess_max,
+        alpha=alpha,
+        lod_half=lod_half,
+        frame=frame,
+        frames=frames,
+        tiles=tiles_dir,
+        per_instance=per_instance,
+        cull=not no_cull,
+        lod_pixels=lod_pixels,
+        foliage=None if no_foliage else "geometry" if foliage_geometry else "impostor",
+        camera=spec,
+        ground=ground,
+        staged=not (bare or ground),
+        clip=clip,
+        orbit=orbit,
+        fps=fps,
     )
+    with show_progress("render", quiet) as bar:
+        m = render_file(request, progress=bar)
     med = m.median
     gpu = f", GPU {med.gpu_ms:.2f} ms" if med.gpu_ms is not None else ""
     click.echo(

@@ -7,6 +7,7 @@ from pathlib import Path
 import click
 
 from cli.app import bench, input_errors, main, needs
+from cli.progress import quiet_option, show_progress
 
 
 @main.command()
@@ -31,8 +32,16 @@ from cli.app import bench, input_errors, main, needs
     "--size", type=click.IntRange(16, 4096), default=256, show_default=True, help="Tile side, px."
 )
 @click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
+@quiet_option
 @input_errors
-def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, seed: int) -> None:
+def tiles(
+    examples: tuple[Path, ...],
+    output: Path,
+    per_class: int,
+    size: int,
+    seed: int,
+    quiet: bool = False,
+) -> None:
     """Build a bark tile set from example images by image quilting (paper 5.2).
 
     Writes bark.<UDIM>.png per texture-array slice, bark_array.tif (all slices as subimages),
@@ -46,7 +55,9 @@ def tiles(examples: tuple[Path, ...], output: Path, per_class: int, size: int, s
     for example in examples:
         require_kind(example, IMAGE_KINDS, "an image", "tiles reads PNG, JPEG, TIFF, EXR or GIF")
 
-    ts = make_tileset(examples, output, default_classes(per_class, per_class), size, seed)
+    classes = default_classes(per_class, per_class)
+    with show_progress("tiles", quiet) as bar:
+        ts = make_tileset(examples, output, classes, size, seed, progress=bar)
     m = ts.manifest
     assert m.files is not None
     counts = ", ".join(f"{c.count} {c.name}" for c in m.classes)

@@ -8,7 +8,8 @@ from typing import Any
 
 import click
 
-from cli.app import PROGRESS_TREES, bench, input_errors, main, stage_progress
+from cli.app import bench, input_errors, main
+from cli.progress import Quiet, quiet_option, show_progress
 from forest.errors import ForestError
 
 
@@ -23,6 +24,7 @@ class FiniteRange(click.FloatRange):
         if not math.isfinite(out):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return out
+
 
 @main.command()
 @input_errors
@@ -124,6 +126,7 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     help="OUT.usda, OUT.usdc, OUT.usdz, or OUT.glb (glTF 2.0 binary: skinned trees, wind "
     "animation, textures inside, for game engines and web viewers)",
 )
+@quiet_option
 @input_errors
 def generate(
     preset: str | None,
@@ -141,6 +144,7 @@ def generate(
     tiles_dir: str | None,
     tile_size: float | None,
     output: Path,
+    quiet: bool = False,
 ) -> None:
     """Generate a forest from a grammar and a seed and write it as USD or glTF (by the
     output's suffix)."""
@@ -172,7 +176,7 @@ def generate(
                 "--tile-size writes a USD root layer (.usda or .usdc) and no --tiles",
                 path="tile_size",
             )
-        _generate_tiled(g, seed, options, tile_size, bool(skinned), output)
+        _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
     if skinned is False and output.suffix.lower() == ".usdz":
         raise ForestError(
@@ -180,9 +184,9 @@ def generate(
             "or write .usdc",
             path="skinned",
         )
-    heavy = trees >= PROGRESS_TREES or (skinned is not False and trees > 20)
-    with stage_progress(heavy, "forest") as bar:
-        forest = generate_forest(g, seed, options, manifest=manifest, progress=bar)
+    with show_progress("forest", quiet) as bar:
+        grow = bar.steps(f"generate {trees} tree(s)")
+        forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
         if glb:
             from forest.gltf.document import write_glb
 
@@ -199,7 +203,7 @@ def generate(
 
 
 def _generate_tiled(
-    g: Any, seed: int, options: Any, tile_size: float, skinned: bool, output: Path
+    g: Any, seed: int, options: Any, tile_size: float, skinned: bool, output: Path, quiet: bool
 ) -> None:
     """``forest generate --tile-size``: every tile in turn (each its own forest), then the
     root layer."""
@@ -213,7 +217,8 @@ def _generate_tiled(
     entries = []
     pieces = 0
     n = plan.nx * plan.nz
-    with stage_progress(n > 1, "tiles") as bar:
+    with show_progress("forest", quiet) as bar:
+        bar("tiles", 0, n)
         for k, (i, j) in enumerate(plan.tiles()):
             forest = generate_tile(g, plan, i, j, options, threshold=threshold)
             pieces += 0 if forest is None else forest.n_instances
@@ -235,8 +240,9 @@ def _generate_tiled(
     show_default=True,
     help="Folder to write into.",
 )
+@quiet_option
 @input_errors
-def demo(output: Path) -> None:
+def demo(output: Path, quiet: bool = False) -> None:
     """Write a small forest (and one skinned, animated tree) into a folder, and render a
     preview of the forest where an EGL driver is present."""
     from forest.growth.generate import ForestOptions, generate_forest
@@ -255,15 +261,18 @@ def demo(output: Path) -> None:
         ("birches.usdc", "birch", ForestOptions(trees=2, area=(8.0, 8.0)), True),
         ("almond_skinned.usdz", "almond", ForestOptions(trees=1, frames=48), True),
     ]
-    for name, preset, options, skinned in jobs:
-        forest = generate_forest(load_preset(preset), 1, options)
-        path = write_scene(forest, output / name, skinned=skinned)
-        kind = "skinned + instanced" if skinned else "posed + instanced"
-        click.echo(
-            f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
-            f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
-        )
-    _demo_preview(output)
+    with show_progress("demo", quiet) as bar:
+        for k, (name, preset, options, skinned) in enumerate(jobs):
+            bar.report("scenes", k, len(jobs), name)
+            forest = generate_forest(load_preset(preset), 1, options)
+            path = write_scene(forest, output / name, skinned=skinned)
+            kind = "skinned + instanced" if skinned else "posed + instanced"
+            bar.echo(
+                f"{path}  {path.stat().st_size / 1e6:7.2f} MB  {preset}: {options.trees} "
+                f"tree(s), {forest.n_instances} pieces, {options.frames} wind frame(s), {kind}"
+            )
+        bar("scenes", len(jobs), len(jobs))
+        _demo_preview(output, bar)
     click.echo("open the scenes in usdview, Blender (File > Import > USD) or any USD tool")
     click.echo(
         "next: `forest presets` lists the species; `forest generate --preset oak --trees 3 "
@@ -271,7 +280,7 @@ def demo(output: Path) -> None:
     )
 
 
-def _demo_preview(folder: Path) -> None:
+def _demo_preview(folder: Path, bar: Quiet) -> None:
     """Render the demo forest with the worker's renderer; without the render extra or an EGL
     driver the scenes still stand, so say what is missing and go on."""
     from forest.extras import require
@@ -286,12 +295,13 @@ def _demo_preview(folder: Path) -> None:
         m = render_file(
             RenderRequest(
                 scene=folder / "forest.usdc", output=png, metrics=metrics, frames=1, staged=True
-            )
+            ),
+            progress=bar,
         )
     except ForestError as exc:
-        click.echo(f"preview skipped: {exc}")
+        bar.echo(f"preview skipped: {exc}")
         return
-    click.echo(
+    bar.echo(
         f"{png}  {m.width}x{m.height} staged, on {m.renderer}: {m.median.cpu_ms:.1f} ms per "
         f"frame (after a warm-up frame); figures in {metrics}"
     )

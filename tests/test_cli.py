@@ -72,12 +72,38 @@ def test_generate_writes_a_forest(tmp_path: Path) -> None:
     assert len(stage.GetPrimAtPath("/World/Forest/Trees").GetChildren()) == 3
 
 
+def test_generate_shows_progress_lines_unless_quiet(tmp_path: Path) -> None:
+    """stderr is a pipe here, as in a CI log: plain lines with counts, not redrawn bars;
+    ``--quiet`` leaves only the result line. The files are the same either way."""
+    args = ["generate", "--preset", "alternating", "--trees", "30", "--skinned"]
+    out = forest(*args, "-o", "a.usdc", cwd=tmp_path)
+    assert out.returncode == 0, out.stderr
+    lines = out.stderr.splitlines()
+    assert "\r" not in out.stderr and "\x1b" not in out.stderr
+    assert all(line.startswith("forest: ") for line in lines), lines
+    assert lines[0] == "forest: generate 30 tree(s) [place] 0/5 (0%)"
+    assert "forest: skinned trees 0/30 (0%)" in lines
+    assert any(line.startswith("forest: skinned trees 3/30 (10%), ") for line in lines)
+    assert any(line.startswith("forest: skinned trees 30/30 (100%) in ") for line in lines)
+    assert lines[-1].startswith("forest: save 1/1 (100%) in ")
+    assert len(lines) < 40  # every tenth, not every tree
+    quiet = forest(*args, "--quiet", "-o", "b.usdc", cwd=tmp_path)
+    assert quiet.returncode == 0 and quiet.stderr == ""
+    assert quiet.stdout == out.stdout.replace("a.usdc", "b.usdc")
+    assert (tmp_path / "a.usdc").read_bytes() == (tmp_path / "b.usdc").read_bytes()
+
+
 def test_demo_says_what_it_wrote(tmp_path: Path) -> None:
     out = forest("demo", "-o", "d", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     written = sorted(p.name for p in (tmp_path / "d").iterdir())
-    assert written == ["almond_skinned.usdz", "birches.usdc", "forest.usdc", "metrics.json",
-                       "preview.png"]
+    assert written == [
+        "almond_skinned.usdz",
+        "birches.usdc",
+        "forest.usdc",
+        "metrics.json",
+        "preview.png",
+    ]
     for name in written:
         assert name in out.stdout
 

@@ -74,6 +74,9 @@ def photo_set(photos: list[Path], tmp_path_factory: pytest.TempPathFactory) -> P
     assert result.exit_code == 0, result.output
     assert result.stdout.startswith(f"wrote {folder}: 12 tiles of 256 px (6 bark, 6 fork)")
     assert "note:" not in result.stderr  # 12 disjoint interiors fit in three 512 px photos
+    # progress on stderr, plain lines (not a terminal): the tiles chosen, stitched, written
+    for line in ("patches 12/12 (100%) in ", "stitch 12/12 (100%) in ", "write 13/13 (100%) in "):
+        assert f"tiles: {line}" in result.stderr, result.stderr
     return folder
 
 

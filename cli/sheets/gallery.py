@@ -46,6 +46,7 @@ if TYPE_CHECKING:
     from PIL import Image as PILImage
 
 Echo = Callable[[str], None]
+Progress = Callable[[str, int, int], None]  # (stage, done, total), as forest.growth.generate's
 SINGLE_SIZE = (480, 640)  # width, height: portrait for one tree, llvmpipe-friendly
 STAND_TREES = 16
 AZIMUTH = 35.0  # the overview's, so a tree and its stand are seen from the same side
@@ -269,9 +270,14 @@ class GalleryEntry:
     stand_trees: int
 
 
-def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEntry]:
+def make_gallery(
+    options: GalleryOptions, echo: Echo = print, progress: Progress | None = None
+) -> list[GalleryEntry]:
     """Write ``<preset>.png``, ``<preset>_stand.png`` for each preset and
-    ``contact_sheet.png`` into ``options.output``; echo a line per file."""
+    ``contact_sheet.png`` into ``options.output``; echo a line per file. ``progress`` hears
+    ``("images", done, total)`` as each picture is written (a staged stand on a CPU
+    rasteriser takes seconds)."""
+    note = progress or (lambda stage, done, total: None)
     options.check()
     from PIL import Image
 
@@ -280,10 +286,12 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
     names = list(options.presets) if options.presets is not None else preset_names()
     w, h = options.size
     entries: list[GalleryEntry] = []
+    n_images = 2 * len(names) + 1  # each preset's two, then the contact sheet
     ctx = create_context()
     try:
         with tempfile.TemporaryDirectory() as tmp:
-            for name in names:
+            note("images", 0, n_images)
+            for k, name in enumerate(names):
                 grammar = load_preset(name)
                 one = ForestOptions(trees=1, area=(1.0, 1.0))
                 scene = _scene(grammar, options.seed, one, Path(tmp) / f"{name}.usdc")
@@ -293,6 +301,7 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
                 _scale_bar(image, shot)
                 _caption(image, f"{name}: {shot.height:.1f} m tall, {scene.n_instances} pieces")
                 single = write_png(out / f"{name}.png", np.asarray(image))
+                note("images", 2 * k + 1, n_images)
                 echo(
                     f"wrote {single}: {name}, one tree {shot.height:.1f} m tall, "
                     f"{scene.n_instances} pieces, side view, {shot.bar_metres:g} m bar"
@@ -311,6 +320,7 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
                 image = Image.fromarray(_render(ctx, stand, cam, (h, w))[..., :3])
                 _caption(image, f"{name}: {n} trees on {side:.0f} m x {side:.0f} m")
                 stand_path = write_png(out / f"{name}_stand.png", np.asarray(image))
+                note("images", 2 * k + 2, n_images)
                 echo(
                     f"wrote {stand_path}: {name}, {n} trees, {stand.n_instances} pieces, "
                     f"{side:.0f} m square, overview"
@@ -321,6 +331,7 @@ def make_gallery(options: GalleryOptions, echo: Echo = print) -> list[GalleryEnt
     finally:
         ctx.release()
     sheet = write_png(out / "contact_sheet.png", contact_sheet(entries))
+    note("images", n_images, n_images)
     echo(f"wrote {sheet}: {len(entries)} preset(s)")
     return entries
 

@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import itertools
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -68,6 +68,7 @@ from schemas.tileset import (
 )
 
 U8 = NDArray[np.uint8]
+Progress = Callable[[str, int, int], None]  # (stage, done, total), as forest.growth.generate's
 CORNER_FILE = "corner.png"
 # Image quilting's patch choice: any candidate whose overlap error is within 10 % of the best
 # is as good (Efros and Freeman use the same 0.1); choosing among them at random keeps tiles
@@ -415,10 +416,13 @@ def build_tileset(
     classes: Sequence[ClassSpec],
     geom: TileGeometry,
     seed: int,
+    progress: Progress | None = None,
 ) -> TileSet:
     """Cut edge patterns and a corner pattern from the examples, then stitch an interior patch
     into every tile of every class. The same examples, classes, geometry and seed give the same
-    tiles on every machine (integer errors, seeded choices)."""
+    tiles on every machine (integer errors, seeded choices). ``progress`` hears ``(stage,
+    tiles done, tiles)`` as patches are chosen (``patches``), then stitched (``stitch``)."""
+    note = progress or (lambda stage, done, total: None)
     axes = _check_classes(classes)
     _check_size(sum(c.count for c in classes), geom)
     if not examples:
@@ -494,6 +498,8 @@ def build_tileset(
     chosen: list[tuple[int, int, int]] = []
     slice_class: list[int] = []
     first_slice = reused = 0
+    n = sum(c.count for c in classes)
+    note("patches", 0, n)
     for c in classes:
         tile_classes.append(
             TileClass(name=c.name, id=c.id, first=first_slice, count=c.count, edges=c.edges)
@@ -509,14 +515,16 @@ def build_tileset(
                     slice=first_slice + i, class_id=c.id, source=at[0], y=at[1], x=at[2], error=err
                 )
             )
+            note("patches", len(chosen), n)
         first_slice += c.count
-    n = len(chosen)
     tiles = np.empty((n, s, s, 3), np.uint8)
     step = geom.chunk
+    note("stitch", 0, n)
     for i in range(0, n, step):
         frames = np.stack([frames_by_class[cid] for cid in slice_class[i : i + step]])
         patches = _crops(pix, chosen[i : i + step], s, s)
         tiles[i : i + step] = stitch_tiles(frames, patches, geom)[0]
+        note("stitch", min(i + step, n), n)
 
     manifest = TileSetManifest(
         classes=tile_classes,
@@ -564,12 +572,14 @@ def build_tileset(
 _UDIM_FILE = re.compile(re.escape(UDIM_PATTERN).replace(re.escape(UDIM_TOKEN), r"1\d{3}"))
 
 
-def write_tileset(tileset: TileSet, folder: Path) -> list[Path]:
+def write_tileset(tileset: TileSet, folder: Path, progress: Progress | None = None) -> list[Path]:
     """Write the slices (``bark.<UDIM>.png``), the texture array, the edge and corner patterns
     and, last, ``manifest.json``; remove ``bark.<UDIM>.png`` files of an earlier, larger set.
     Every file is written into a private staging folder first and renamed into ``folder``
     only once all are complete, so a failed write leaves the old set whole. Returns the files
-    written."""
+    written. ``progress`` hears ``("write", images written, images)``: the slices, then the
+    texture array."""
+    note = progress or (lambda stage, done, total: None)
     m = tileset.manifest
     assert m.files is not None and m.corner is not None
     try:
@@ -578,11 +588,15 @@ def write_tileset(tileset: TileSet, folder: Path) -> list[Path]:
         raise OutputError(f"cannot create folder: {exc.strerror}", path=str(folder)) from None
     with folder_updated_when_written(folder, last=[MANIFEST_FILE]) as staging:
         names = list(m.files.slices)
-        for name, t in zip(m.files.slices, tileset.tiles, strict=True):
+        images = len(names) + bool(m.files.array)  # the edge and corner patterns are small
+        note("write", 0, images)
+        for k, (name, t) in enumerate(zip(m.files.slices, tileset.tiles, strict=True)):
             write_png(staging / name, t)
+            note("write", k + 1, images)
         if m.files.array:
             names.append(m.files.array)
             write_texture_array(staging / m.files.array, tileset.tiles)
+            note("write", images, images)
         for p in m.edge_patterns:
             names.append(p.file)
             write_png(staging / p.file, tileset.patterns[p.name])
@@ -603,13 +617,14 @@ def make_tileset(
     classes: Sequence[ClassSpec],
     size: int,
     seed: int,
+    progress: Progress | None = None,
 ) -> TileSet:
     """``forest tiles``: read the examples, build ``classes``, write the set into
-    ``folder``."""
+    ``folder`` (``progress``: see :func:`build_tileset` and :func:`write_tileset`)."""
     geom = TileGeometry.for_size(size)
     _check_classes(classes)
     _check_size(sum(c.count for c in classes), geom)
     examples = [read_example(Path(p), min_size=size) for p in paths]
-    tileset = build_tileset(examples, classes, geom, seed)
-    write_tileset(tileset, folder)
+    tileset = build_tileset(examples, classes, geom, seed, progress)
+    write_tileset(tileset, folder, progress)
     return tileset

@@ -125,6 +125,8 @@ def forest_gltf(
     anchor_tree = forest.graph.tree[anchors.instance] if anchors is not None else None
     skins: list[tuple[TreeSkin, slice]] = []
     slices_ = tree_slices(forest)
+    if progress:
+        progress("glTF trees", 0, len(slices_))
     for k, (inst, bones) in enumerate(slices_):
         skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones)
         skins.append((skin, bones))
@@ -160,10 +162,16 @@ def write_glb(
 ) -> Path:
     """Write ``forest`` to ``path`` (.glb) atomically; returns the path."""
     out = Path(path)
-    data = glb_bytes(forest_gltf(forest, tiles, progress))
+    gltf = forest_gltf(forest, tiles, progress)
+    # one step: pygltflib encodes the whole document in one call
+    if progress:
+        progress("save", 0, 1)
+    data = glb_bytes(gltf)
     try:
         with replaced_when_written(out) as tmp:
             tmp.write_bytes(data)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror}", path=str(out)) from None
+    if progress:
+        progress("save", 1, 1)
     return out

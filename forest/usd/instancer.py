@@ -128,6 +128,9 @@ def write_instancer(
     ``targets[POSED]`` the best-fit posed similarities per palette sample
     (:mod:`forest.usd.posed`)."""
     g = forest.graph
+    times = forest.frame_times()
+    if progress:  # the instance arrays before the first sample take a while on big forests
+        progress("palette", 0, len(times))
     inst = UsdGeom.PointInstancer.Define(stage, PIECES)
     prim = inst.GetPrim()
     protos = UsdGeom.Scope.Define(stage, PIECE_PROTOTYPES)
@@ -170,7 +173,6 @@ def write_instancer(
         )
     set_attr(prim, SYMBOLS, Sdf.ValueTypeNames.TokenArray, list(forest.grammar.rules))
     write_rig(prim, forest_rig(forest))  # the rig's arrays go as soon as they are in the layer
-    times = forest.frame_times()
     for i, time in enumerate(times):
         palette = _row_palette(forest, time)
         code = time_code(time, forest.options.fps)

@@ -141,7 +141,12 @@ def write_scene(
                     if stage.GetPrimAtPath(where):
                         stage.GetPrimAtPath(where).SetActive(False)
         vset.SetVariantSelection(SKINNED if skinned else POSED)
+        # one step: the layer is encoded and written in one call that holds the GIL
+        if progress:
+            progress("save", 0, 1)
         finish(stage, tmp, out)
+        if progress:
+            progress("save", 1, 1)
     finally:
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it

@@ -355,6 +355,8 @@ def write_skinned_trees(
     (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
     see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
     prim whose points or joints move."""
+    if progress:  # the joint frames first, then a tree of a big species takes seconds
+        progress("skinned trees", 0, forest.options.trees)
     trees = UsdGeom.Xform.Define(stage, TREES)
     Usd.ModelAPI(trees).SetKind(Kind.Tokens.group)
     times = forest.frame_times()

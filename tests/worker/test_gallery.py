@@ -219,14 +219,17 @@ def test_single_tree_framing_and_bar(mixed_scene: SceneArrays) -> None:
 @pytest.mark.slow  # a tree and a stand per preset, staged; 11 s on llvmpipe
 def test_gallery_writes_images_of_trees_on_the_ground(gl43: Any, tmp_path: Path) -> None:
     lines: list[str] = []
+    reports: list[tuple[str, int, int]] = []
     out = tmp_path / "gallery"
     entries = make_gallery(
         GalleryOptions(output=out, presets=PRESETS, size=(120, 160), seed=3, stand_trees=4),
         echo=lines.append,
+        progress=lambda *report: reports.append(report),
     )
     names = [f"{p}{s}.png" for p in PRESETS for s in ("", "_stand")] + ["contact_sheet.png"]
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
     assert len(lines) == len(names) and all(line.startswith("wrote ") for line in lines)
+    assert reports == [("images", k, len(names)) for k in range(len(names) + 1)]
     assert [e.preset for e in entries] == list(PRESETS)
     for e in entries:
         assert e.height > 0.5

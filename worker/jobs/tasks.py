@@ -191,7 +191,11 @@ def run_render(ctx: JobContext) -> Outcome:
         if name == "render" and ctx.test_hook.startswith("hold-gil:"):
             _hold_gil(float(ctx.test_hook.split(":", 1)[1]))
 
-    metrics = render_file(req, on_stage=stage)
+    def frames(name: str, done: int, total: int) -> None:
+        if name == "frames":  # per frame, from 0.3 (scene read) up to 0.95
+            ctx.report(f"render {done}/{total} frames", 0.3 + 0.65 * done / max(total, 1))
+
+    metrics = render_file(req, on_stage=stage, progress=frames)
     # metrics.json names the scene by its artifact name and the bark by its set, never by a
     # server path
     metrics = metrics.model_copy(

@@ -37,6 +37,7 @@ MAX_SIZE = 8192
 MAX_TESS = 64.0  # GL_MAX_TESS_GEN_LEVEL is at least 64 on every GL 4 driver
 MAX_FRAMES = 10_000
 MAX_LOD_PIXELS = 64.0
+Progress = Callable[[str, int, int], None]  # (stage, done, total), as forest.growth.generate's
 
 
 @dataclass(frozen=True)
@@ -202,9 +203,17 @@ def frames_to_draw(req: RenderRequest, scene: SceneArrays) -> tuple[int, str | N
     return req.frames, None
 
 
-def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = None) -> RenderMetrics:
+def render_file(
+    req: RenderRequest,
+    on_stage: Callable[[str], None] | None = None,
+    progress: Progress | None = None,
+) -> RenderMetrics:
     """Render ``req``; ``on_stage`` hears ``read`` before the scene is read and ``render``
-    after (a supervisor tells a reader crash from a renderer crash by it)."""
+    after (a supervisor tells a reader crash from a renderer crash by it). ``progress`` hears
+    ``(stage, done, total)`` as frames are drawn (a staged frame on a CPU rasteriser takes
+    seconds): ``warm-up`` and ``frames``, then ``write`` (the files, with the clip's
+    encoding)."""
+    note = progress or (lambda stage, done, total: None)
     req.check()
     if on_stage is not None:
         on_stage("read")
@@ -253,10 +262,13 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
                 for eye in orbit_camera_eyes(camera.eye, camera.target, n_draw)
             ]
         lod = req.lod_pixels  # Renderer.draw leaves it out where the cull pass cannot run
-        for _ in range(req.warmup):
+        for i in range(req.warmup):
+            note("warm-up", i, req.warmup)
             renderer.draw(camera, tess, req.frame, req.per_instance, cull=req.cull, lod_pixels=lod)
+            note("warm-up", i + 1, req.warmup)
         stats = []
         clip_frames = []
+        note("frames", 0, n_draw)
         for k in range(n_draw):
             stats.append(
                 renderer.draw(
@@ -267,6 +279,7 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
                 preview = renderer.read_color()
             if req.clip is not None:
                 clip_frames.append(renderer.read_color()[..., :3])
+            note("frames", k + 1, n_draw)
         raise_gl_error(ctx, "rendering")
         metrics = render_metrics(
             renderer,
@@ -281,6 +294,7 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
         if req.clip is not None:
             outputs.append(req.clip)
+        note("write", 0, 1)
         with all_replaced_when_written(outputs) as tmps:
             write_png(tmps[0], preview)
             if req.metrics is not None:
@@ -288,6 +302,7 @@ def render_file(req: RenderRequest, on_stage: Callable[[str], None] | None = Non
             if req.clip is not None:
                 fps = req.fps if req.fps is not None else scene_fps(scene)
                 write_clip(tmps[-1], clip_frames, fps)
+        note("write", 1, 1)
         renderer.release()
         return metrics
     finally:
