@@ -49,11 +49,8 @@ def tiles(
     manifest.json (classes, sources with checksums, seed, sizes, file names).
     """
     from forest.bark.tileset import TileGeometry, default_classes, make_tileset
-    from forest.sniff import IMAGE_KINDS, require_kind
     from schemas.tileset import MANIFEST_FILE
 
-    for example in examples:
-        require_kind(example, IMAGE_KINDS, "an image", "tiles reads PNG, JPEG, TIFF, EXR or GIF")
 
     classes = default_classes(per_class, per_class)
     with show_progress("tiles", quiet) as bar:

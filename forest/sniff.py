@@ -55,6 +55,10 @@ USD_KINDS = frozenset({"usda", "usdc", "usdz"})
 USD_SUFFIXES = ".usd/.usda/.usdc/.usdz"
 USD_READERS = {c: f"{c} reads {USD_SUFFIXES}" for c in ("render", "inspect")}
 IMAGE_KINDS = frozenset({"png", "jpeg", "tiff", "exr", "gif", "riff"})
+# kinds that are surely no image (OpenImageIO reads many formats this module does not name)
+NOT_IMAGE_KINDS = frozenset(
+    {"usdc", "usda", "usdz", "glb", "gltf", "json", "zip", "pdf", "gzip", "elf", "mp4", "webm"}
+)
 HEAD_BYTES = 512
 
 

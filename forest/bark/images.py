@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from forest.atomic import replaced_when_written
 from forest.errors import ForestError, OutputError
+from forest.sniff import HEAD_BYTES, NOT_IMAGE_KINDS, describe, sniff_bytes
 
 U8 = NDArray[np.uint8]
 # An example larger than this is almost surely a mistake (a 64 Mpx photo is 192 MB as RGB
@@ -95,6 +96,9 @@ def read_example(path: Path, min_size: int = 2) -> ExampleImage:
         raise ForestError(f"cannot read file: {exc.strerror}", path=where) from None
     if not data:
         raise ForestError("file is empty", path=where)
+    kind = sniff_bytes(data[:HEAD_BYTES])
+    if kind in NOT_IMAGE_KINDS:
+        raise ForestError(f"is {describe(kind)}, not an image", path=where)
     inp = oiio.ImageInput.open(where)
     if inp is None:
         raise ForestError(f"not a readable image ({_oiio_message(oiio.geterror())})", path=where)
