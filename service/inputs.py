@@ -8,7 +8,7 @@ import functools
 from forest.cost import forest_cost
 from forest.errors import ForestError, GrammarError
 from forest.growth.grammar import CompiledGrammar, compile_grammar
-from forest.growth.presets import load_preset
+from forest.growth.presets import grammar_of
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest
@@ -30,18 +30,15 @@ def _library_settings(max_pieces: int, max_frames: int) -> ForestSettings:
 def resolve_grammar(
     req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
 ) -> tuple[Grammar, CompiledGrammar]:
-    if (req.preset is None) == (req.grammar is None):
-        raise field_error(["preset"], "give exactly one of preset (a name) or grammar (an object)")
+    try:
+        grammar = grammar_of(req.preset, req.grammar)
+    except GrammarError as exc:  # not exactly one of the two, or no such preset
+        raise forest_error(exc) from None
     if req.frames > settings.max_frames:
         raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
+    # a grammar object's errors name its fields under "grammar"; a preset's name the preset
+    prefix: list[str | int] = ["grammar"] if req.grammar is not None else []
     try:
-        if req.preset is not None:
-            grammar = load_preset(req.preset)
-            prefix: list[str | int] = []
-        else:
-            assert req.grammar is not None
-            grammar = req.grammar
-            prefix = ["grammar"]
         cg = compile_grammar(grammar, library_settings(settings, max_pieces))
     except GrammarError as exc:
         raise forest_error(exc, [] if exc.path == "preset" else prefix) from None
