@@ -235,8 +235,25 @@ class Server:
         return f"http://127.0.0.1:{self.port}"
 
     def start(self) -> Server:
+        try:
+            return self._start()
+        except BaseException:  # pytest.fail included: leave no process behind
+            self.stop()
+            raise
+
+    def _start(self) -> Server:
         self.data.mkdir(parents=True, exist_ok=True)
         self.port = free_port()
+        if self.hooks is not None:
+            # as ``forest serve`` does for its own: the table first (once: the workers and the
+            # API would race to make it), then the workers, starting beside the API
+            from farm.db import migrate
+            from farm.settings import FarmSettings
+
+            db = self.env.get("FOREST_DATABASE_URL")
+            migrate(FarmSettings(data_dir=self.data, database_url=db).db_url)
+            self.pool = HookedWorkers(self.data / "run", self.workers, self.env, self.hooks)
+            self.pool.start()
         log = open(self.data / "serve.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
             [
@@ -262,10 +279,6 @@ class Server:
                 pytest.fail(f"forest serve exited: {self.log()}")
             try:
                 if httpx.get(f"{self.url}/readyz", timeout=2).status_code == 200:
-                    if self.hooks is not None:  # the job table is there: workers may start
-                        self.pool = HookedWorkers(
-                            self.data / "run", self.workers, self.env, self.hooks
-                        ).start()
                     return self
             except httpx.HTTPError:
                 pass
