@@ -86,7 +86,7 @@ def join(store: JobStore, dispatcher: Dispatcher, artifacts: ArtifactStore, clai
 
     job_id, params = claim.job_id, claim.params
     tiles = tile_job_ids(job_id, params)
-    specs = [(t, {**params, "parent": job_id, "tile": [i, j]}) for i, j, t in tiles]
+    specs = [(t, {**params, "parent": job_id, "tile": [i, j]}) for i, j, t in tiles]  # TileJob
     new = store.create_children(claim, TILE_KIND, specs)
     if new:
         dispatcher.send_group(new, TILE_KIND)

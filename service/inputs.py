@@ -8,7 +8,7 @@ import functools
 from forest.cost import forest_cost
 from forest.errors import ForestError, GrammarError
 from forest.growth.grammar import CompiledGrammar, compile_grammar
-from forest.growth.presets import grammar_of
+from forest.growth.presets import PresetOrGrammarError, grammar_of
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest
@@ -27,15 +27,22 @@ def _library_settings(max_pieces: int, max_frames: int) -> ForestSettings:
     return ForestSettings(max_pieces_per_forest=max_pieces, max_frames=max_frames)
 
 
+def check_frames(req: TreeRequest, settings: ServiceSettings) -> None:
+    if req.frames > settings.max_frames:
+        raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
+
+
 def resolve_grammar(
     req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
 ) -> tuple[Grammar, CompiledGrammar]:
     try:
         grammar = grammar_of(req.preset, req.grammar)
-    except GrammarError as exc:  # not exactly one of the two, or no such preset
+    except PresetOrGrammarError as exc:
         raise forest_error(exc) from None
-    if req.frames > settings.max_frames:
-        raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
+    except GrammarError as exc:  # no such preset: named after the frame cap, as always
+        check_frames(req, settings)
+        raise forest_error(exc) from None
+    check_frames(req, settings)
     # a grammar object's errors name its fields under "grammar"; a preset's name the preset
     prefix: list[str | int] = ["grammar"] if req.grammar is not None else []
     try:
