@@ -1,5 +1,5 @@
 """``forest bench forest``: a tiled forest generated and written by 1, 2, ... worker processes,
-each tile as the farm makes it (:func:`worker.jobs.tasks.run_tile`'s work: ``generate_tile`` then
+each tile as the farm makes it (:func:`worker.jobs.tile.run_tile`'s work: ``generate_tile`` then
 ``write_tile_file``), then the root layer. Workers are a process pool over that tile
 function, not Celery workers on a broker: the figures are the tiles' own work, with no
 queueing or artifact copies in them.

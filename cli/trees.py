@@ -40,12 +40,14 @@ def presets() -> None:
 
 
 def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
-    from forest.growth.grammar import load_grammar
-    from forest.growth.presets import load_preset
+    from forest.growth.presets import PresetOrGrammarError, grammar_of
 
-    if (preset is None) == (grammar is None):
-        raise ForestError("give exactly one of --preset NAME or --grammar FILE", path="grammar")
-    return load_preset(preset) if preset is not None else load_grammar(grammar)  # type: ignore[arg-type]
+    try:
+        return grammar_of(preset, grammar)
+    except PresetOrGrammarError:  # said with the command's flags
+        raise ForestError(
+            "give exactly one of --preset NAME or --grammar FILE", path="grammar"
+        ) from None
 
 
 @main.command()
@@ -149,15 +151,15 @@ def generate(
     """Generate a forest from a grammar and a seed and write it as USD or glTF (by the
     output's suffix)."""
     from forest.bark.tiles import manifest_for
-    from forest.gltf import GLB_SUFFIX
+    from forest.export import SCENE_SUFFIXES, is_glb, write_forest
     from forest.growth.generate import ForestOptions, generate_forest
     from forest.growth.wind import Wind
-    from forest.usd.files import FORMATS, check_output_path
-    from forest.usd.scene import wants_skinned, write_scene
+    from forest.usd.files import check_output_path
+    from forest.usd.scene import wants_skinned
     from schemas.tileset import DEFAULT_MANIFEST
 
-    check_output_path(output, (*FORMATS, GLB_SUFFIX))
-    glb = output.suffix.lower() == GLB_SUFFIX
+    check_output_path(output, SCENE_SUFFIXES)
+    glb = is_glb(output)
     g = _load_grammar(preset, grammar)
     manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
     options = ForestOptions(
@@ -187,13 +189,7 @@ def generate(
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
         forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
-        if glb:
-            from forest.gltf.document import write_glb
-
-            tiles = output.parent / tiles_dir if tiles_dir else None
-            write_glb(forest, output, tiles=tiles, progress=bar)
-        else:
-            write_scene(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+        write_forest(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

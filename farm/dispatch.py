@@ -1,7 +1,7 @@
 """Celery as delivery only: the task carries a job id; the job table holds everything else.
 
 Task kinds map to queues (CPU work on ``default``, renders on ``gpu``); the worker's registry
-(``worker/tasks.py``) maps kinds to code. The service sends tasks by name and never imports
+(``worker/jobs/registry.py``) maps kinds to code. The service sends tasks by name and never imports
 worker code.
 """
 

@@ -66,13 +66,6 @@ class FarmSettings(BaseSettings):
     max_attempts: int = Field(3, ge=1, le=100)
     retry_delay_s: float = Field(2.0, ge=0)
 
-    test_hook: str = ""
-    """Test hook of a job's process: ``abort-on-read`` (the reader crashes),
-    ``hold-gil:SECONDS`` (a C call holding the GIL before drawing). Empty in production."""
-    test_pause_s: float = Field(0.0, ge=0)
-    """Test hook: a job's first attempt pauses this long after it is claimed (heartbeating,
-    checking cancel), so a test can kill or cancel it mid-task. 0 in production."""
-
     @model_validator(mode="after")
     def _reaper_recovers_first(self) -> FarmSettings:
         floor = self.lease_s + self.requeue_after_s + self.reaper_interval_s

@@ -20,8 +20,10 @@ from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from farm.db import JobRow, engine_for, utcnow
+from schemas.jobs import JobState
 
-FINISHED = ("completed", "failed", "canceled")
+FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
+UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
 
 
 class IdempotencyConflict(Exception):
@@ -37,24 +39,9 @@ def scoped_key(tenant: str, key: str) -> str:
     return hashlib.sha256(f"{tenant}\0{key}".encode()).hexdigest()
 
 
-def tile_job_id(parent: str, i: int, j: int) -> str:
-    """The job id of tile ``(i, j)`` of a tiled forest job: derived, so the parent finds its
-    tiles (and a second delivery of the parent creates none twice)."""
-    return hashlib.md5(f"{parent}:tile:{i}_{j}".encode(), usedforsecurity=False).hexdigest()
+class ChildState(NamedTuple):
+    """Where a job made by another job (a tile of a tiled forest) stands."""
 
-
-def tile_job_ids(parent: str, params: dict[str, Any]) -> list[tuple[int, int, str]]:
-    """``(i, j, job id)`` of every tile of a forest job's ``params`` (none if not tiled)."""
-    from schemas.tiles import tile_grid
-
-    size = params.get("tile_size")
-    if not size:
-        return []
-    nx, nz = tile_grid(tuple(params["area"]), float(size))
-    return [(i, j, tile_job_id(parent, i, j)) for j in range(nz) for i in range(nx)]
-
-
-class TileState(NamedTuple):
     id: str
     state: str
     progress: float
@@ -116,12 +103,12 @@ class JobStore:
             id=uuid.uuid4().hex,
             kind=kind,
             tenant=tenant,
-            state="queued",
+            state=JobState.QUEUED,
             params=params,
             attempts=0,
             max_attempts=max_attempts,
             progress=0.0,
-            stage="queued",
+            stage=JobState.QUEUED,
             cancel_requested=False,
             idempotency_key=stored,
             request_hash=digest,
@@ -175,27 +162,25 @@ class JobStore:
             ).all()
         return rows, total
 
-    def cancel(self, job_id: str, tenant: str | None = None) -> JobRow | None:
-        """Queued jobs are canceled at once; active ones get the flag their worker reads (and
-        kill the job's process). With ``tenant``, another tenant's job is None, untouched."""
-        row = self.get(job_id, tenant)
-        if row is None:
-            return None
-        # a tiled forest's tiles are canceled with it
-        ids = [job_id] + [t for _, _, t in tile_job_ids(job_id, dict(row.params or {}))]
+    def cancel_jobs(self, ids: list[str]) -> None:
+        """Cancel these jobs: queued ones at once; active ones get the flag their worker reads
+        (and kill the job's process). A job and the jobs it made go together:
+        :func:`farm.tiles.cancel`."""
         now = utcnow()
         with self.session() as s, s.begin():
             s.execute(
                 update(JobRow)
-                .where(JobRow.id.in_(ids), JobRow.state == "queued")
-                .values(state="canceled", cancel_requested=True, finished_at=now, stage="canceled")
+                .where(JobRow.id.in_(ids), JobRow.state == JobState.QUEUED)
+                .values(
+                    state=JobState.CANCELED, cancel_requested=True, finished_at=now,
+                    stage=JobState.CANCELED,
+                )
             )
             s.execute(
                 update(JobRow)
-                .where(JobRow.id.in_(ids), JobRow.state == "active")
+                .where(JobRow.id.in_(ids), JobRow.state == JobState.ACTIVE)
                 .values(cancel_requested=True)
             )
-        return self.get(job_id)
 
     def abandon(self, job_id: str, error: str) -> JobRow | None:
         """A job that never reached the broker is failed with ``error`` and its idempotency
@@ -205,9 +190,11 @@ class JobStore:
         with self.session() as s, s.begin():
             res = s.execute(
                 update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == "queued", JobRow.attempts == 0)
+                .where(
+                    JobRow.id == job_id, JobRow.state == JobState.QUEUED, JobRow.attempts == 0
+                )
                 .values(
-                    state="failed", stage="failed", error=error, finished_at=utcnow(),
+                    state=JobState.FAILED, stage=JobState.FAILED, error=error, finished_at=utcnow(),
                     idempotency_key=None,
                 )
                 .execution_options(synchronize_session=False)
@@ -260,29 +247,32 @@ class JobStore:
         with self.session() as s:
             rows = s.execute(
                 select(JobRow.kind, JobRow.started_at, JobRow.finished_at, JobRow.result)
-                .where(JobRow.state == "completed")
+                .where(JobRow.state == JobState.COMPLETED)
                 .order_by(JobRow.finished_at.desc())
                 .limit(limit)
             ).all()
         return [FinishedJob(*r) for r in rows]
 
-    # -- tiled forests ---------------------------------------------------------------------
+    # -- jobs that make jobs (a tiled forest's tiles: farm.tiles) ----------------------------
 
-    def create_tiles(self, parent: Claim, tiles: list[tuple[str, dict[str, Any]]]) -> list[str]:
-        """Insert the tile jobs ``(id, params)`` of ``parent`` not yet there; their ids."""
-        ids = [t for t, _ in tiles]
+    def create_children(
+        self, parent: Claim, kind: str, children: list[tuple[str, dict[str, Any]]]
+    ) -> list[str]:
+        """Insert the jobs ``(id, params)`` of ``kind`` that ``parent`` makes, those not yet
+        there (the parent's tenant and attempt cap); their ids."""
+        ids = [t for t, _ in children]
         with self.session() as s:
             have = set(s.scalars(select(JobRow.id).where(JobRow.id.in_(ids))).all())
             tenant = s.scalar(select(JobRow.tenant).where(JobRow.id == parent.job_id))
         now = utcnow()
         rows = [
             JobRow(
-                id=t, kind="forest_tile", tenant=tenant or "local", state="queued", params=p,
-                attempts=0, max_attempts=parent.max_attempts, progress=0.0, stage="queued",
-                cancel_requested=False, request_hash=request_hash("forest_tile", p),
+                id=t, kind=kind, tenant=tenant or "local", state=JobState.QUEUED, params=p,
+                attempts=0, max_attempts=parent.max_attempts, progress=0.0,
+                stage=JobState.QUEUED, cancel_requested=False, request_hash=request_hash(kind, p),
                 artifacts=[], created_at=now, enqueued_at=now,
             )
-            for t, p in tiles
+            for t, p in children
             if t not in have
         ]  # fmt: skip
         if rows:
@@ -290,23 +280,23 @@ class JobStore:
                 s.add_all(rows)
         return [r.id for r in rows]
 
-    def tile_states(self, ids: list[str]) -> list[TileState]:
-        """The tiles' states in the order of ``ids`` (one query)."""
+    def child_states(self, ids: list[str]) -> list[ChildState]:
+        """The jobs' states in the order of ``ids`` (one query)."""
         with self.session() as s:
             got = s.execute(
                 select(JobRow.id, JobRow.state, JobRow.progress, JobRow.error, JobRow.result)
                 .where(JobRow.id.in_(ids))
             ).all()
-        by_id = {r[0]: TileState(*r) for r in got}
-        return [by_id.get(t) or TileState(t, "missing", 0.0, None, None) for t in ids]
+        by_id = {r[0]: ChildState(*r) for r in got}
+        return [by_id.get(t) or ChildState(t, "missing", 0.0, None, None) for t in ids]
 
     def park(self, claim: Claim, progress: float, stage: str) -> bool:
-        """Back to the queue while its tiles run (a poll, not an attempt: the attempt
+        """Back to the queue while the jobs it made run (a poll, not an attempt: the attempt
         count is given back); False if the lease was lost."""
         return self._finish(
             claim,
             {
-                "state": "queued",
+                "state": JobState.QUEUED,
                 "stage": stage[:64],
                 "progress": max(0.0, min(1.0, progress)),
                 "lease_owner": None,
@@ -328,11 +318,11 @@ class JobStore:
                 .where(
                     JobRow.id == job_id,
                     JobRow.cancel_requested.is_(False),
-                    (JobRow.state == "queued")
-                    | ((JobRow.state == "active") & (JobRow.lease_expires < now)),
+                    (JobRow.state == JobState.QUEUED)
+                    | ((JobRow.state == JobState.ACTIVE) & (JobRow.lease_expires < now)),
                 )
                 .values(
-                    state="active",
+                    state=JobState.ACTIVE,
                     lease_owner=owner,
                     lease_expires=now + timedelta(seconds=lease_s),
                     heartbeat_at=now,
@@ -373,7 +363,7 @@ class JobStore:
     def finish(
         self,
         claim: Claim,
-        state: str,
+        state: JobState,
         *,
         artifacts: list[str] | None = None,
         result: dict[str, Any] | None = None,
@@ -388,7 +378,7 @@ class JobStore:
             "lease_expires": None,
             "error": error,
         }
-        if state == "completed":
+        if state == JobState.COMPLETED:
             values |= {"progress": 1.0, "artifacts": artifacts or [], "result": result}
         return self._finish(claim, values)
 
@@ -397,7 +387,7 @@ class JobStore:
         return self._finish(
             claim,
             {
-                "state": "queued",
+                "state": JobState.QUEUED,
                 "stage": "retrying",
                 "progress": 0.0,  # the next attempt starts over
                 "lease_owner": None,
@@ -425,7 +415,7 @@ class JobStore:
     def _held(claim: Claim) -> tuple[Any, ...]:
         return (
             JobRow.id == claim.job_id,
-            JobRow.state == "active",
+            JobRow.state == JobState.ACTIVE,
             JobRow.lease_owner == claim.owner,
             JobRow.attempts == claim.attempt,
         )
@@ -443,7 +433,7 @@ class JobStore:
                     s.scalars(
                         select(JobRow.id).where(
                             JobRow.id.in_(ids[i : i + 500]),
-                            JobRow.state.in_(("queued", "active")),
+                            JobRow.state.in_(UNFINISHED),
                         )
                     )
                 )
@@ -458,37 +448,42 @@ class JobStore:
         failed: list[JobRow] = []
         with self.session() as s:
             expired = s.scalars(
-                select(JobRow).where(JobRow.state == "active", JobRow.lease_expires < now)
+                select(JobRow).where(
+                    JobRow.state == JobState.ACTIVE, JobRow.lease_expires < now
+                )
             ).all()
             lost = s.scalars(
                 select(JobRow).where(
-                    JobRow.state == "queued",
+                    JobRow.state == JobState.QUEUED,
                     (JobRow.enqueued_at.is_(None) & (JobRow.created_at < stale))
                     | (JobRow.enqueued_at < stale),
                 )
             ).all()
         for row in expired:
             if row.cancel_requested:
-                values: dict[str, Any] = {"state": "canceled", "stage": "canceled"}
+                values: dict[str, Any] = {
+                    "state": JobState.CANCELED, "stage": JobState.CANCELED
+                }
             elif row.attempts >= row.max_attempts:
                 values = {
-                    "state": "failed",
-                    "stage": "failed",
+                    "state": JobState.FAILED,
+                    "stage": JobState.FAILED,
                     "error": f"worker lost {row.attempts} time(s) (lease expired)",
                 }
             else:
                 # the next attempt starts over: a queued job shows none of a dead one's progress
                 values = {
-                    "state": "queued", "stage": "requeued", "progress": 0.0, "enqueued_at": now
+                    "state": JobState.QUEUED, "stage": "requeued", "progress": 0.0,
+                    "enqueued_at": now,
                 }
-            if values["state"] != "queued":
+            if values["state"] != JobState.QUEUED:
                 values["finished_at"] = now
             with self.session() as s, s.begin():
                 res = s.execute(
                     update(JobRow)
                     .where(
                         JobRow.id == row.id,
-                        JobRow.state == "active",
+                        JobRow.state == JobState.ACTIVE,
                         JobRow.lease_owner == row.lease_owner,
                         JobRow.attempts == row.attempts,
                         JobRow.lease_expires < now,
@@ -497,7 +492,7 @@ class JobStore:
                     .execution_options(synchronize_session=False)
                 )
             if res.rowcount == 1:  # type: ignore[attr-defined]
-                (resend if values["state"] == "queued" else failed).append(row)
+                (resend if values["state"] == JobState.QUEUED else failed).append(row)
         for row in lost:  # claimed by one reaper only: every API process and worker runs one
             sent_at = (
                 JobRow.enqueued_at.is_(None)
@@ -507,7 +502,7 @@ class JobStore:
             with self.session() as s, s.begin():
                 res = s.execute(
                     update(JobRow)
-                    .where(JobRow.id == row.id, JobRow.state == "queued", sent_at)
+                    .where(JobRow.id == row.id, JobRow.state == JobState.QUEUED, sent_at)
                     .values(enqueued_at=now)
                     .execution_options(synchronize_session=False)
                 )

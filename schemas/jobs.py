@@ -8,15 +8,35 @@ from __future__ import annotations
 
 import math
 from datetime import datetime
+from enum import StrEnum
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, GetCoreSchemaHandler, model_validator
+from pydantic_core import core_schema
 
 from schemas.base import StrictModel
 from schemas.grammar import Grammar
 from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
 
-JobState = Literal["queued", "active", "completed", "failed", "canceled"]
+
+class JobState(StrEnum):
+    """A job's state. Members equal their strings: the job table and the wire hold the strings."""
+
+    QUEUED = "queued"
+    ACTIVE = "active"
+    COMPLETED = "completed"
+    FAILED = "failed"
+    CANCELED = "canceled"
+
+    @classmethod
+    def __get_pydantic_core_schema__(
+        cls, source: Any, handler: GetCoreSchemaHandler
+    ) -> core_schema.CoreSchema:
+        # published as an inline string enum (as a Literal is), not a $defs entry of its own
+        literal = core_schema.literal_schema([state.value for state in cls])
+        return core_schema.no_info_after_validator_function(cls, literal)
+
+
 JobKind = Literal["forest", "render", "forest_tile"]
 """``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job."""
 MAX_UNTILED_TREES = 200_000
@@ -160,6 +180,24 @@ class RenderRequest(FiniteModel):
             name = "width" if self.width % 2 else "height"
             raise ValueError(f"{name}: {self.clip} needs an even width and height")
         return self
+
+
+class TileJob(ForestRequest):
+    """A ``forest_tile`` job's parameters: its forest job's request, that job's id and the
+    tile's grid cell ``(i, j)``."""
+
+    parent: str
+    tile: tuple[int, int]
+
+
+class RenderJob(RenderRequest):
+    """A render job's parameters: the request plus the scene's artifact name. An uploaded
+    scene's job has no forest job (the scene is its own artifact), carries the upload's
+    digest and takes only the upload form's settings (the rest keep their defaults)."""
+
+    forest_job: Annotated[str, Field(min_length=1, max_length=64)] | None  # type: ignore[assignment]
+    scene: str
+    scene_sha256: str | None = None
 
 
 class Artifact(StrictModel):

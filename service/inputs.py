@@ -9,7 +9,7 @@ from forest.cost import forest_cost
 from forest.errors import ForestError, GrammarError
 from forest.growth.compile import compile_grammar
 from forest.growth.grammar import CompiledGrammar
-from forest.growth.presets import load_preset
+from forest.growth.presets import PresetOrGrammarError, grammar_of
 from forest.settings import ForestSettings
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest
@@ -28,21 +28,25 @@ def _library_settings(max_pieces: int, max_frames: int) -> ForestSettings:
     return ForestSettings(max_pieces_per_forest=max_pieces, max_frames=max_frames)
 
 
+def check_frames(req: TreeRequest, settings: ServiceSettings) -> None:
+    if req.frames > settings.max_frames:
+        raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
+
+
 def resolve_grammar(
     req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
 ) -> tuple[Grammar, CompiledGrammar]:
-    if (req.preset is None) == (req.grammar is None):
-        raise field_error(["preset"], "give exactly one of preset (a name) or grammar (an object)")
-    if req.frames > settings.max_frames:
-        raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
     try:
-        if req.preset is not None:
-            grammar = load_preset(req.preset)
-            prefix: list[str | int] = []
-        else:
-            assert req.grammar is not None
-            grammar = req.grammar
-            prefix = ["grammar"]
+        grammar = grammar_of(req.preset, req.grammar)
+    except PresetOrGrammarError as exc:
+        raise forest_error(exc) from None
+    except GrammarError as exc:  # no such preset: named after the frame cap, as always
+        check_frames(req, settings)
+        raise forest_error(exc) from None
+    check_frames(req, settings)
+    # a grammar object's errors name its fields under "grammar"; a preset's name the preset
+    prefix: list[str | int] = ["grammar"] if req.grammar is not None else []
+    try:
         cg = compile_grammar(grammar, library_settings(settings, max_pieces))
     except GrammarError as exc:
         raise forest_error(exc, [] if exc.path == "preset" else prefix) from None

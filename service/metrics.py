@@ -45,9 +45,9 @@ class JobCollector(Collector):
         jobs = GaugeMetricFamily("forest_jobs", "Jobs per kind and state", labels=["kind", "state"])
         depth = GaugeMetricFamily("forest_queue_depth", "Queued jobs per kind", labels=["kind"])
         for kind in get_args(JobKind):
-            for state in get_args(JobState):
-                jobs.add_metric([kind, state], counts.get((kind, state), 0))
-            depth.add_metric([kind], counts.get((kind, "queued"), 0))
+            for state in JobState:
+                jobs.add_metric([kind, state.value], counts.get((kind, state), 0))
+            depth.add_metric([kind], counts.get((kind, JobState.QUEUED), 0))
         yield jobs
         yield depth
         rows = self.store.recent_finished()

@@ -339,6 +339,22 @@ def test_unknown_preset() -> None:
     assert exc.value.path == "preset"
 
 
+def test_grammar_of_takes_exactly_one_of_preset_and_grammar(tmp_path: Path) -> None:
+    from forest.growth.presets import PresetOrGrammarError, grammar_of
+
+    good = parse_grammar(GOOD)
+    for preset, named in ((None, None), ("almond", good)):
+        with pytest.raises(PresetOrGrammarError) as exc:
+            grammar_of(preset, named)
+        assert exc.value.path == "preset"
+    assert grammar_of("almond", None) == load_preset("almond")
+    assert grammar_of(None, good) is good
+    (tmp_path / "g.json").write_text(json.dumps(GOOD))
+    assert grammar_of(None, tmp_path / "g.json") == good
+    with pytest.raises(GrammarError, match="unknown preset"):
+        grammar_of("nope", None)
+
+
 def test_presets_include_the_papers_algorithms() -> None:
     assert {"alternating", "uniform"} <= set(preset_names())
 

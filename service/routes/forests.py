@@ -7,8 +7,8 @@ import math
 from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
+from farm.tiles import tile_count
 from schemas.jobs import ForestRequest, Job
-from schemas.tiles import tile_grid
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.inputs import check_cost, resolve_grammar
@@ -27,8 +27,7 @@ def create_forest(
 ) -> JSONResponse:
     s = services.settings
     # a tiled forest: the caps hold per tile (each tile is a job of its own), on average
-    n_tiles = math.prod(tile_grid(req.area, req.tile_size)) if req.tile_size else 1
-    per_tile = math.ceil(req.trees / n_tiles)
+    per_tile = math.ceil(req.trees / tile_count(req))
     if per_tile > s.max_forest_trees:
         where = " per tile" if req.tile_size else ""
         raise field_error(["trees"], f"at most {s.max_forest_trees} trees{where}", "limit_error")

@@ -7,6 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, HTTPException, Query
 from fastapi.responses import FileResponse
 
+from farm import tiles
 from farm.reaper import delete_artifacts
 from farm.store import FINISHED
 from schemas.jobs import Job, JobKind, JobPage, JobState
@@ -55,7 +56,7 @@ def get_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
 def cancel_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
     """Cancel: a queued job is canceled at once; a running one's process is killed at the
     worker's next heartbeat (within seconds)."""
-    row = services.store.cancel(job_id, caller.scope)
+    row = tiles.cancel(services.store, job_id, caller.scope)
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)

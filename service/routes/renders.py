@@ -9,7 +9,7 @@ from typing import Annotated
 from fastapi import APIRouter, File, Form, UploadFile
 from fastapi.responses import JSONResponse
 
-from schemas.jobs import Job, RenderRequest
+from schemas.jobs import Job, JobState, RenderRequest
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.security import CallerDep, Tenant
@@ -41,7 +41,7 @@ def create_render(
     row = services.store.get(req.forest_job, who.scope)
     if row is None or row.kind != "forest":
         raise field_error(["forest_job"], "no such forest job")
-    if row.state != "completed":
+    if row.state != JobState.COMPLETED:
         raise field_error(["forest_job"], f"the forest job is {row.state}, not completed")
     scene = (row.result or {}).get("scene")
     if not scene or services.artifacts.path(row.id, scene) is None:
@@ -50,7 +50,7 @@ def create_render(
         raise field_error(
             ["forest_job"], "the forest job wrote glTF (.glb); the renderer reads USD formats"
         )
-    params = req.model_dump(mode="json") | {"scene": scene}
+    params = req.model_dump(mode="json") | {"scene": scene}  # schemas.jobs.RenderJob
     return submit(services, "render", params, idempotency_key, tenant)
 
 
@@ -78,7 +78,7 @@ def upload_render(
     if suffix is None:
         raise field_error(["scene"], "not a USD file (.usda, .usdc or .usdz)")
     name = f"upload{suffix}"
-    params = {
+    params = {  # schemas.jobs.RenderJob
         "forest_job": None, "scene": name, "scene_sha256": hashlib.sha256(data).hexdigest(),
         "width": width, "height": height, "tess_max": tess_max, "frame": frame, "frames": frames,
         "staged": staged,

@@ -11,9 +11,8 @@ from fastapi.responses import Response
 
 from farm.requests import options_from_request
 from forest.errors import ForestError
-from forest.gltf.document import write_glb
+from forest.export import write_forest
 from forest.growth.generate import generate_forest
-from forest.usd.scene import write_scene
 from schemas.jobs import SceneFormat, TreeRequest
 from service.deps import ServicesDep
 from service.errors import forest_error
@@ -48,11 +47,7 @@ def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Resp
                 grammar, req.seed, options, settings=library_settings(s, s.max_tree_pieces),
                 compiled=cg,
             )
-            out = Path(tmp) / f"tree.{req.format}"
-            if req.format == "glb":
-                path = write_glb(forest, out)
-            else:
-                path = write_scene(forest, out, skinned=req.skinned)
+            path = write_forest(forest, Path(tmp) / f"tree.{req.format}", skinned=req.skinned)
         except ForestError as exc:
             raise forest_error(exc) from None
         data = path.read_bytes()

@@ -7,6 +7,7 @@ starts them."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -141,6 +142,67 @@ def redis_redeliver_now(prefix: str) -> int:
         return len(tags)
 
 
+def _die_with_parent() -> None:
+    """Linux: a worker gets SIGKILL when the thread that started it ends (the test's)."""
+    with contextlib.suppress(OSError, AttributeError):
+        import ctypes
+
+        ctypes.CDLL("libc.so.6").prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
+class HookedWorkers:
+    """``n`` job workers with a test's hooks in their kinds (:mod:`job_hooks`), kept alive as
+    ``forest serve`` keeps its own (one that dies is started again); pid files and logs in
+    ``<data>/run/`` as ``forest serve`` writes them."""
+
+    def __init__(self, run_dir: Path, n: int, env: dict[str, str], hooks: dict[str, float]):
+        import job_hooks
+
+        here = str(Path(__file__).parent)
+        path = os.pathsep.join(p for p in (here, env.get("PYTHONPATH", "")) if p)
+        self.env = env | {"PYTHONPATH": path, job_hooks.HOOKS_ENV: json.dumps(hooks)}
+        self.run_dir, self.n = run_dir, n
+        self.procs: list[subprocess.Popen[bytes]] = []
+        self.stopping = threading.Event()
+        self.thread = threading.Thread(target=self._watch, daemon=True)
+
+    def _spawn(self, i: int) -> subprocess.Popen[bytes]:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.run_dir / f"worker-{i}.log", "ab") as log:
+            proc = subprocess.Popen(
+                [sys.executable, "-c", "import job_hooks; job_hooks.main()",
+                 "-Q", "default,gpu", "--name", f"w{i}-{time.time_ns()}@%h"],
+                env=self.env, stdout=log, stderr=subprocess.STDOUT,
+                preexec_fn=_die_with_parent,
+            )  # fmt: skip
+        (self.run_dir / f"worker-{i}.pid").write_text(str(proc.pid))
+        return proc
+
+    def start(self) -> HookedWorkers:
+        self.procs = [self._spawn(i) for i in range(self.n)]
+        self.thread.start()
+        return self
+
+    def _watch(self) -> None:
+        while not self.stopping.wait(0.5):
+            for i, proc in enumerate(self.procs):
+                if proc.poll() is not None and not self.stopping.is_set():
+                    self.procs[i] = self._spawn(i)
+
+    def stop(self) -> None:
+        self.stopping.set()
+        self.thread.join()
+        for proc in self.procs:
+            if proc.poll() is None:
+                proc.terminate()
+        for proc in self.procs:
+            try:
+                proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait()
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -148,12 +210,20 @@ def free_port() -> int:
 
 
 class Server:
-    """``forest serve`` in a subprocess; ``stop()`` leaves no process behind."""
+    """``forest serve`` in a subprocess; ``stop()`` leaves no process behind. With ``hooks``
+    (:mod:`job_hooks`) its workers are the test's own, their kinds with those hooks."""
 
     def __init__(
-        self, data: Path, env: dict[str, str], workers: int = 2, api_workers: int = 1
+        self,
+        data: Path,
+        env: dict[str, str],
+        workers: int = 2,
+        api_workers: int = 1,
+        hooks: dict[str, float] | None = None,
     ) -> None:
         self.data, self.workers, self.api_workers = data, workers, api_workers
+        self.hooks = hooks
+        self.pool: HookedWorkers | None = None
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
         self.env |= {"FOREST_DATA_DIR": str(data)} | FAST | env
         self.proc: subprocess.Popen[bytes] | None = None
@@ -165,8 +235,25 @@ class Server:
         return f"http://127.0.0.1:{self.port}"
 
     def start(self) -> Server:
+        try:
+            return self._start()
+        except BaseException:  # pytest.fail included: leave no process behind
+            self.stop()
+            raise
+
+    def _start(self) -> Server:
         self.data.mkdir(parents=True, exist_ok=True)
         self.port = free_port()
+        if self.hooks is not None:
+            # as ``forest serve`` does for its own: the table first (once: the workers and the
+            # API would race to make it), then the workers, starting beside the API
+            from farm.db import migrate
+            from farm.settings import FarmSettings
+
+            db = self.env.get("FOREST_DATABASE_URL")
+            migrate(FarmSettings(data_dir=self.data, database_url=db).db_url)
+            self.pool = HookedWorkers(self.data / "run", self.workers, self.env, self.hooks)
+            self.pool.start()
         log = open(self.data / "serve.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(
             [
@@ -177,7 +264,7 @@ class Server:
                 "--port",
                 str(self.port),
                 "--workers",
-                str(self.workers),
+                str(self.workers if self.hooks is None else 0),
                 "--api-workers",
                 str(self.api_workers),
             ],
@@ -208,6 +295,9 @@ class Server:
         return [int(p.read_text()) for p in sorted((self.data / "run").glob("worker-*.pid"))]
 
     def stop(self) -> None:
+        if self.pool is not None:
+            self.pool.stop()
+            self.pool = None
         if self.proc is None:
             return
         self.proc.send_signal(signal.SIGTERM)
@@ -246,9 +336,11 @@ class Server:
         pytest.fail(f"job {job_id} still {job.get('state')} after {timeout}s: {job}\n{self.log()}")
 
 
-def served(data: Path, env: dict[str, str]) -> Iterator[Server]:
+def served(
+    data: Path, env: dict[str, str], hooks: dict[str, float] | None = None
+) -> Iterator[Server]:
     """A started server for a fixture (``yield from served(...)``), stopped afterwards."""
-    server = Server(data, env).start()
+    server = Server(data, env, hooks=hooks).start()
     try:
         yield server
     finally:

@@ -138,11 +138,18 @@ def loc(r: object) -> list[object]:
     return list(detail[0]["loc"])
 
 
+GRAMMAR_OF_ONE = {"axiom": "A", "rules": {"A": [{"piece": "I", "successors": [None]}]}}
+
+
 def test_client_errors_name_the_field(server: Server) -> None:
     r = server.post("/v1/trees", {"preset": "nope"})
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
-    r = server.post("/v1/trees", {})
-    assert (r.status_code, loc(r)) == (422, ["body", "preset"])
+    for body in ({}, {"preset": "almond", "grammar": GRAMMAR_OF_ONE}):
+        r = server.post("/v1/trees", body)
+        assert (r.status_code, r.json()["detail"]) == (422, [{
+            "loc": ["body", "preset"], "type": "value_error",
+            "msg": "give exactly one of preset (a name) or grammar (an object)",
+        }]), r.text  # fmt: skip
     bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/hazel.json").read_text())
     first = next(iter(bad["rules"]))
     bad["rules"][first][0]["successors"] = [{"symbol": "Nowhere"}] * len(

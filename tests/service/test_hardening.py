@@ -17,6 +17,7 @@ import re
 import time
 import zipfile
 from collections.abc import Iterator
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -35,15 +36,15 @@ ENV = {
     # a lease of 1 s: the render's 3.5 s C call outlasts three of them
     "FOREST_LEASE_S": "1",
     "FOREST_HEARTBEAT_S": "0.25",
-    "FOREST_TEST_HOOK": f"hold-gil:{HOLD_S}",
     "FOREST_JOB_MEMORY_MB": "3072",
 }
+HOOKS = {"hold_gil_s": HOLD_S}  # job_hooks: each render holds its GIL as it starts drawing
 RENDER = {"width": "48", "height": "32", "frames": "1"}
 
 
 @pytest.fixture(scope="module")
 def server(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    for s in served(tmp_path_factory.mktemp("serve"), backend | ENV):
+    for s in served(tmp_path_factory.mktemp("serve"), backend | ENV, HOOKS):
         s.headers = dict(A)
         yield s
 
@@ -146,6 +147,8 @@ def test_long_gil_holding_render_keeps_its_lease_and_cancel_stops_one(server: Se
     r = server.post("/v1/renders", body)
     job = server.wait(r.json()["id"], timeout=90)
     assert (job["state"], job["attempts"]) == ("completed", 1), job
+    took = datetime.fromisoformat(job["finished_at"]) - datetime.fromisoformat(job["started_at"])
+    assert took.total_seconds() >= HOLD_S, job  # the GIL was held (HOOKS)
 
     r = server.post("/v1/renders", body | {"width": 40})
     job_id = r.json()["id"]

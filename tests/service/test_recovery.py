@@ -1,9 +1,10 @@
 """Work survives: a worker killed with SIGKILL mid-task (its job completes once, with the same
 output) and a canceled running job stops.
-``FOREST_TEST_PAUSE_S`` holds each job's first attempt in a cancel-checking, heartbeating sleep
-so the test can act while it runs. On Redis the killed worker's message waits unacknowledged
-until the visibility timeout (an hour): the reaper recovered the job long before, and when
-Redis does hand the message out again it is skipped. (The API restart is in
+The workers' kinds pause on each job's first attempt (``job_hooks``: a sleep in the job's
+process, its worker heartbeating and reading cancel) so the test can act while it runs. On
+Redis the killed worker's message waits unacknowledged until the visibility timeout (an
+hour): the reaper recovered the job long before, and when Redis does hand the message out
+again it is skipped. (The API restart is in
 ``test_restart.py``: a module of its own gets a database and queues of its own, away from this
 module's pausing workers.)"""
 
@@ -34,7 +35,7 @@ BODY = {"preset": "hazel", "trees": 4, "seed": 31, "format": "usdc"}
 
 @pytest.fixture(scope="module")
 def paused(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    yield from served(tmp_path_factory.mktemp("paused"), backend | {"FOREST_TEST_PAUSE_S": "60"})
+    yield from served(tmp_path_factory.mktemp("paused"), backend, {"pause_first_s": 60})
 
 
 def wait_running(server: Server, job_id: str) -> dict[str, Any]:

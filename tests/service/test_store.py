@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from farm import tiles
 from farm.db import migrate
 from farm.store import IdempotencyConflict, JobStore
 
@@ -82,16 +83,16 @@ def test_a_new_attempt_starts_at_progress_zero(store: JobStore) -> None:
 
 def test_cancel(store: JobStore) -> None:
     queued, _ = store.create("forest", {"seed": 3}, max_attempts=3)
-    after = store.cancel(queued.id)
+    after = tiles.cancel(store, queued.id)
     assert after is not None and after.state == "canceled"
     assert store.claim(queued.id, "a", 60) is None
     active, _ = store.create("forest", {"seed": 4}, max_attempts=3)
     claim = store.claim(active.id, "a", 60)
     assert claim is not None
-    flagged = store.cancel(active.id)
+    flagged = tiles.cancel(store, active.id)
     assert flagged is not None and flagged.state == "active" and flagged.cancel_requested
     assert store.heartbeat(claim, 60) is True
-    assert store.cancel("0" * 32) is None
+    assert tiles.cancel(store, "0" * 32) is None
 
 
 def test_idempotency_key(store: JobStore) -> None:

@@ -15,14 +15,17 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from job_hooks import hold_gil as hold_gil_for
 
+from farm import tiles
 from farm.db import migrate
 from farm.settings import FarmSettings, override_settings
 from farm.store import JobStore
 from forest.errors import ForestError
 from worker.jobs import tasks
+from worker.jobs.context import JobContext, Outcome
 from worker.jobs.supervise import scrub_paths
-from worker.jobs.tasks import JobContext, Outcome, execute
+from worker.jobs.tasks import execute
 
 
 @pytest.fixture
@@ -65,13 +68,13 @@ def hog_memory(ctx: JobContext) -> Outcome:
 
 
 def hold_gil(ctx: JobContext) -> Outcome:
-    tasks._hold_gil(4.0)  # four lease periods in one C call that keeps the GIL
+    hold_gil_for(4.0)  # four lease periods in one C call that keeps the GIL
     return write_one(ctx)
 
 
 def sleep_long(ctx: JobContext) -> Outcome:
     ctx.report("render", 0.3)
-    tasks._hold_gil(60.0)
+    hold_gil_for(60.0)
     return write_one(ctx)
 
 
@@ -155,7 +158,7 @@ def test_cancel_kills_the_child_within_seconds(store: JobStore) -> None:
 
     def cancel_soon() -> None:
         time.sleep(1.0)
-        store.cancel(row.id)
+        tiles.cancel(store, row.id)
 
     threading.Thread(target=cancel_soon).start()
     t0 = time.monotonic()

@@ -14,7 +14,7 @@ import pytest
 from pxr import Usd
 from service_harness import Server, served
 
-from farm.store import tile_job_id
+from farm.tiles import tile_job_id
 from forest.growth.presets import load_preset
 from forest.growth.tiling import TilePlan, generate_tile
 from forest.usd.contract import TILES

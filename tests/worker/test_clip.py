@@ -127,7 +127,8 @@ def test_render_job_clip_artifact_and_missing_bark_warning(windy: Path, tmp_path
     from schemas.jobs import RenderRequest
     from schemas.metrics import RenderMetrics
     from service.routes.jobs import ARTIFACT_TYPES
-    from worker.jobs.tasks import JobContext, run_render
+    from worker.jobs.context import JobContext
+    from worker.jobs.render import run_render
 
     # the scene's material names a tile folder beside it that is not there (an upload's)
     forest = generate_forest(
@@ -157,7 +158,8 @@ def test_render_job_of_a_still_scene_draws_one_frame(tmp_path: Path) -> None:
     from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
     from schemas.metrics import RenderMetrics
-    from worker.jobs.tasks import JobContext, run_render
+    from worker.jobs.context import JobContext
+    from worker.jobs.render import run_render
 
     still = generate_forest(load_preset("alternating"), 2, ForestOptions(trees=1))
     store = ArtifactStore(tmp_path / "artifacts")
@@ -204,7 +206,8 @@ def test_render_job_camera(windy: Path, tmp_path: Path, cam: dict[str, object]) 
     ``forest render`` does."""
     from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
-    from worker.jobs.tasks import JobContext, run_render
+    from worker.jobs.context import JobContext
+    from worker.jobs.render import run_render
     from worker.render.render_file import RenderRequest as Job
     from worker.render.render_file import render_file
 

@@ -58,7 +58,8 @@ def test_render_job_reports_every_frame(gl_session: Any, tiny: Path, tmp_path: P
     """The job's progress (GET /v1/jobs/{id}: progress and stage) moves with each frame."""
     from farm.artifacts import ArtifactStore
     from schemas.jobs import RenderRequest
-    from worker.jobs.tasks import JobContext, run_render
+    from worker.jobs.context import JobContext
+    from worker.jobs.render import run_render
 
     store = ArtifactStore(tmp_path / "artifacts")
     store.publish("a" * 32, tiny, "scene.usdc")

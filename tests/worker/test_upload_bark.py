@@ -17,7 +17,8 @@ from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
 from schemas.metrics import RenderMetrics
-from worker.jobs.tasks import JobContext, Outcome, run_render
+from worker.jobs.context import JobContext, Outcome
+from worker.jobs.render import run_render
 
 JOB = "d" * 32
 

@@ -73,7 +73,7 @@ def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: boo
         require("service", "celery", "sqlalchemy", "alembic", path="forest worker")
         if list_kinds:
             from farm.dispatch import KIND_QUEUES
-            from worker.jobs.tasks import KINDS
+            from worker.jobs.registry import KINDS
 
             for kind in KINDS:
                 click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}")

@@ -31,7 +31,8 @@ from pathlib import Path
 from typing import Any
 
 PRELOAD = [
-    "forest.usd.scene", "forest.growth.generate", "worker.render.render_file", "worker.jobs.tasks"
+    "forest.usd.scene", "forest.growth.generate", "forest.export", "worker.render.render_file",
+    "worker.jobs.tasks",
 ]
 STAGE_BYTES = 64
 _CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}

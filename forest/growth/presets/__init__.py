@@ -4,10 +4,15 @@ from __future__ import annotations
 
 from functools import cache
 from importlib import resources
+from pathlib import Path
 
 from forest.errors import GrammarError
-from forest.growth.grammar import grammar_from_json
+from forest.growth.grammar import grammar_from_json, load_grammar
 from schemas.grammar import Grammar
+
+
+class PresetOrGrammarError(GrammarError):
+    """Not exactly one of a preset name and a grammar was given."""
 
 
 def preset_names() -> list[str]:
@@ -23,3 +28,19 @@ def load_preset(name: str) -> Grammar:
         )
     text = resources.files(__name__).joinpath(f"{name}.json").read_text(encoding="utf-8")
     return grammar_from_json(text, source=f"preset {name}")
+
+
+def grammar_of(preset: str | None, grammar: Grammar | Path | None) -> Grammar:
+    """The grammar a request or command names: exactly one of a preset name or a grammar (an
+    object, or a JSON file to read). Neither or both: :class:`PresetOrGrammarError`, which
+    the CLI words with its flags."""
+    if (preset is None) == (grammar is None):
+        raise PresetOrGrammarError(
+            "give exactly one of preset (a name) or grammar (an object)", path="preset"
+        )
+    if preset is not None:
+        return load_preset(preset)
+    if isinstance(grammar, Grammar):
+        return grammar
+    assert grammar is not None
+    return load_grammar(grammar)

@@ -1,0 +1,13 @@
+"""The task kinds a worker runs: job kind -> the code that runs it (``forest worker --list``).
+
+Each kind's module imports the library inside its function, so the registry is cheap to
+import; the kinds' queues are the farm's (:data:`farm.dispatch.KIND_QUEUES`)."""
+
+from __future__ import annotations
+
+from worker.jobs.context import TaskKind
+from worker.jobs.forest import run_forest
+from worker.jobs.render import run_render
+from worker.jobs.tile import run_tile
+
+KINDS: dict[str, TaskKind] = {"forest": run_forest, "render": run_render, "forest_tile": run_tile}
