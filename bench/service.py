@@ -20,6 +20,8 @@ from pathlib import Path
 import httpx
 import numpy as np
 
+from schemas.jobs import JobState
+
 
 def _free_port() -> int:
     with socket.socket() as s:
@@ -113,15 +115,15 @@ def job_throughput(url: str, body: dict[str, object], jobs: int) -> dict[str, fl
             return int(c.get("/v1/jobs", params={"state": state, "limit": 1}).json()["total"])
 
         # a job store of its own may hold earlier runs' jobs: count from what is there
-        done0, bad0 = count("completed"), count("failed")
+        done0, bad0 = count(JobState.COMPLETED), count(JobState.FAILED)
         start = time.perf_counter()
         ids = [
             c.post("/v1/forests", json=body | {"seed": 1000 + i}).json()["id"] for i in range(jobs)
         ]
         while True:
-            if count("failed") > bad0:
-                raise RuntimeError(f"{count('failed') - bad0} job(s) failed")
-            if count("completed") - done0 >= len(ids):
+            if count(JobState.FAILED) > bad0:
+                raise RuntimeError(f"{count(JobState.FAILED) - bad0} job(s) failed")
+            if count(JobState.COMPLETED) - done0 >= len(ids):
                 break
             time.sleep(0.1)
         wall = time.perf_counter() - start

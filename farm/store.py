@@ -409,7 +409,8 @@ class JobStore:
             .values(**values)
             .execution_options(synchronize_session=False)
         )
-        return res.rowcount == 1  # type: ignore[attr-defined]
+        updated: int = res.rowcount  # type: ignore[attr-defined]  # (a CursorResult's)
+        return updated == 1
 
     @staticmethod
     def _held(claim: Claim) -> tuple[Any, ...]:

@@ -185,7 +185,7 @@ def caller(
     """The caller (401 without a live key, 403 off loopback when the API is open, 429 over the
     rate limit)."""
     services = request.app.state.services
-    who = services.keys.caller(key)
+    who: Caller | None = services.keys.caller(key)
     if who is None:
         raise HTTPException(
             401, "a valid X-API-Key header is required", headers={"WWW-Authenticate": "ApiKey"}
