@@ -35,6 +35,7 @@ demo: $(RENDER)
 
 lint: $(DEV)
 	$(BIN)/ruff check forest schemas farm worker service cli bench tests docs/hooks
+	$(BIN)/ruff format --check forest schemas farm worker service cli bench tests docs/hooks
 	$(BIN)/mypy
 
 test: $(DEV) lint docs

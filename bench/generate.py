@@ -49,9 +49,7 @@ def baseline_generate(
     g = cg.grammar
     crown = g.crown
     close = g.close_tips and cg.cap_alt >= 0
-    trees = tree_transforms(
-        n_trees, (20.0, 20.0), g.trunk_radius, g.tree_scale, seed, "grid"
-    )
+    trees = tree_transforms(n_trees, (20.0, 20.0), g.trunk_radius, g.tree_scale, seed, "grid")
     total = 0
 
     def tilt_toward(m: np.ndarray, d: np.ndarray, k: float) -> tuple[float, float]:

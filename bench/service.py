@@ -42,9 +42,10 @@ def embedded_server(
     env.update(backends or {})
     log = open(data.parent / f"{data.name}.log", "ab")  # noqa: SIM115
     proc = subprocess.Popen(
-        [sys.executable, "-m", "cli", "serve", "--port", str(port),
-         "--workers", str(workers)],
-        env=env, stdout=log, stderr=subprocess.STDOUT,
+        [sys.executable, "-m", "cli", "serve", "--port", str(port), "--workers", str(workers)],
+        env=env,
+        stdout=log,
+        stderr=subprocess.STDOUT,
     )
     log.close()
     url = f"http://127.0.0.1:{port}"
@@ -152,19 +153,24 @@ def run_service_bench(
     broker = (broker_url or "sqla+sqlite").split(":", 1)[0]
     store = (database_url or "sqlite").split(":", 1)[0].split("+", 1)[0]
     with tempfile.TemporaryDirectory(prefix="forest-bench-") as tmp:
-        echo(f"POST /v1/trees (preset {preset}, usdc), {requests} requests per level, "
-             "embedded server")
+        echo(
+            f"POST /v1/trees (preset {preset}, usdc), {requests} requests per level, "
+            "embedded server"
+        )
         echo(f"{'clients':>8} {'p50 ms':>9} {'p99 ms':>9} {'req/s':>8}")
         with embedded_server(Path(tmp) / "api", 0) as url:
             for c in concurrency:
                 r = tree_latency(url, {"preset": preset, "format": "usdc"}, c, max(requests, c))
                 echo(f"{c:>8} {r['p50_ms']:>9.1f} {r['p99_ms']:>9.1f} {r['rps']:>8.1f}")
-        echo(f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), "
-             f"job store {store}, broker {broker}")
+        echo(
+            f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), "
+            f"job store {store}, broker {broker}"
+        )
         echo(f"{'workers':>8} {'seconds':>9} {'jobs/s':>8} {'trees/s':>9}")
         for w in workers:
             with embedded_server(Path(tmp) / f"jobs{w}", w, backends) as url:
                 body: dict[str, object] = {"preset": preset, "trees": trees, "format": "usdc"}
                 r = job_throughput(url, body, jobs)
-                echo(f"{w:>8} {r['seconds']:>9.2f} {r['jobs_per_s']:>8.2f} "
-                     f"{r['trees_per_s']:>9.1f}")
+                echo(
+                    f"{w:>8} {r['seconds']:>9.2f} {r['jobs_per_s']:>8.2f} {r['trees_per_s']:>9.1f}"
+                )

@@ -51,7 +51,6 @@ def tiles(
     from forest.bark.tileset import TileGeometry, default_classes, make_tileset
     from schemas.tileset import MANIFEST_FILE
 
-
     classes = default_classes(per_class, per_class)
     with show_progress("tiles", quiet) as bar:
         ts = make_tileset(examples, output, classes, size, seed, progress=bar)

@@ -64,7 +64,6 @@ class JobRow(Base):
     """When the job's artifacts were deleted (on request or past ``artifact_ttl_s``)."""
 
 
-
 class ApiKeyRow(Base):
     """An API key (``farm.keys``): only its SHA-256 digest is stored, never the key."""
 
@@ -77,6 +76,7 @@ class ApiKeyRow(Base):
     admin: Mapped[bool] = mapped_column(Boolean, default=False)
     created_at: Mapped[datetime] = mapped_column(DateTime)
     revoked_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+
 
 _engines: dict[str, Engine] = {}
 _lock = Lock()

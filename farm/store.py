@@ -172,7 +172,9 @@ class JobStore:
                 update(JobRow)
                 .where(JobRow.id.in_(ids), JobRow.state == JobState.QUEUED)
                 .values(
-                    state=JobState.CANCELED, cancel_requested=True, finished_at=now,
+                    state=JobState.CANCELED,
+                    cancel_requested=True,
+                    finished_at=now,
                     stage=JobState.CANCELED,
                 )
             )
@@ -190,11 +192,12 @@ class JobStore:
         with self.session() as s, s.begin():
             res = s.execute(
                 update(JobRow)
-                .where(
-                    JobRow.id == job_id, JobRow.state == JobState.QUEUED, JobRow.attempts == 0
-                )
+                .where(JobRow.id == job_id, JobRow.state == JobState.QUEUED, JobRow.attempts == 0)
                 .values(
-                    state=JobState.FAILED, stage=JobState.FAILED, error=error, finished_at=utcnow(),
+                    state=JobState.FAILED,
+                    stage=JobState.FAILED,
+                    error=error,
+                    finished_at=utcnow(),
                     idempotency_key=None,
                 )
                 .execution_options(synchronize_session=False)
@@ -208,9 +211,10 @@ class JobStore:
             s.execute(
                 update(JobRow)
                 .where(JobRow.id == job_id, JobRow.state.in_(FINISHED))
-                .values(artifacts=[], artifacts_deleted_at=func.coalesce(
-                    JobRow.artifacts_deleted_at, utcnow()
-                ))
+                .values(
+                    artifacts=[],
+                    artifacts_deleted_at=func.coalesce(JobRow.artifacts_deleted_at, utcnow()),
+                )
                 .execution_options(synchronize_session=False)
             )
         row = self.get(job_id)
@@ -284,8 +288,9 @@ class JobStore:
         """The jobs' states in the order of ``ids`` (one query)."""
         with self.session() as s:
             got = s.execute(
-                select(JobRow.id, JobRow.state, JobRow.progress, JobRow.error, JobRow.result)
-                .where(JobRow.id.in_(ids))
+                select(JobRow.id, JobRow.state, JobRow.progress, JobRow.error, JobRow.result).where(
+                    JobRow.id.in_(ids)
+                )
             ).all()
         by_id = {r[0]: ChildState(*r) for r in got}
         return [by_id.get(t) or ChildState(t, "missing", 0.0, None, None) for t in ids]
@@ -337,9 +342,7 @@ class JobStore:
                 return None
             row = s.get(JobRow, job_id)
             assert row is not None
-            return Claim(
-                job_id, owner, row.attempts, row.kind, dict(row.params), row.max_attempts
-            )
+            return Claim(job_id, owner, row.attempts, row.kind, dict(row.params), row.max_attempts)
 
     def heartbeat(
         self, claim: Claim, lease_s: float, progress: float | None = None, stage: str | None = None
@@ -449,9 +452,7 @@ class JobStore:
         failed: list[JobRow] = []
         with self.session() as s:
             expired = s.scalars(
-                select(JobRow).where(
-                    JobRow.state == JobState.ACTIVE, JobRow.lease_expires < now
-                )
+                select(JobRow).where(JobRow.state == JobState.ACTIVE, JobRow.lease_expires < now)
             ).all()
             lost = s.scalars(
                 select(JobRow).where(
@@ -462,9 +463,7 @@ class JobStore:
             ).all()
         for row in expired:
             if row.cancel_requested:
-                values: dict[str, Any] = {
-                    "state": JobState.CANCELED, "stage": JobState.CANCELED
-                }
+                values: dict[str, Any] = {"state": JobState.CANCELED, "stage": JobState.CANCELED}
             elif row.attempts >= row.max_attempts:
                 values = {
                     "state": JobState.FAILED,
@@ -474,7 +473,9 @@ class JobStore:
             else:
                 # the next attempt starts over: a queued job shows none of a dead one's progress
                 values = {
-                    "state": JobState.QUEUED, "stage": "requeued", "progress": 0.0,
+                    "state": JobState.QUEUED,
+                    "stage": "requeued",
+                    "progress": 0.0,
                     "enqueued_at": now,
                 }
             if values["state"] != JobState.QUEUED:
@@ -510,4 +511,3 @@ class JobStore:
             if res.rowcount == 1:  # type: ignore[attr-defined]
                 resend.append(row)
         return resend, failed
-

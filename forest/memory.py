@@ -26,6 +26,7 @@ def keep_freed_memory() -> bool:
     try:  # the process's own symbols: glibc's mallopt without find_library's ldconfig run
         libc = ctypes.CDLL(None)
         return bool(libc.mallopt(_M_MMAP_THRESHOLD, _KEEP)) and bool(
-            libc.mallopt(_M_TRIM_THRESHOLD, _KEEP))
+            libc.mallopt(_M_TRIM_THRESHOLD, _KEEP)
+        )
     except (OSError, AttributeError):  # not glibc
         return False

@@ -142,9 +142,10 @@ class Crown(StrictModel):
     base: Annotated[float, Field(ge=0, lt=1)] = 0.0
     """Fraction of the tree's height below which no branch grows (a bare trunk) and no
     leaf cloud sits."""
-    height: tuple[
-        Annotated[float, Field(gt=0, le=150)], Annotated[float, Field(gt=0, le=150)]
-    ] = (10.0, 10.0)
+    height: tuple[Annotated[float, Field(gt=0, le=150)], Annotated[float, Field(gt=0, le=150)]] = (
+        10.0,
+        10.0,
+    )
     """Range of each tree's height in metres: the trunk's axis stops growing there."""
 
     @model_validator(mode="after")

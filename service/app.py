@@ -32,8 +32,13 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     store = JobStore(settings.db_url)
     metrics = Metrics(store)
     services = Services(
-        settings, store, ArtifactStore(settings.artifacts), Dispatcher(settings), metrics,
-        Keys(settings, KeyStore(settings.db_url)), RateLimit(settings),
+        settings,
+        store,
+        ArtifactStore(settings.artifacts),
+        Dispatcher(settings),
+        metrics,
+        Keys(settings, KeyStore(settings.db_url)),
+        RateLimit(settings),
     )
 
     @asynccontextmanager
@@ -48,8 +53,12 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
         thread = None
         if reaper:
             thread = Reaper(
-                store, services.dispatcher, settings.reaper_interval_s, settings.requeue_after_s,
-                artifacts=services.artifacts, housekeeping_s=settings.housekeeping_s,
+                store,
+                services.dispatcher,
+                settings.reaper_interval_s,
+                settings.requeue_after_s,
+                artifacts=services.artifacts,
+                housekeeping_s=settings.housekeeping_s,
                 artifact_ttl_s=settings.artifact_ttl_s,
             )
             thread.start()

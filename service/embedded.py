@@ -41,8 +41,15 @@ class Workers:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         log_file = open(self.run_dir / f"worker-{i}.log", "ab")  # noqa: SIM115
         proc = subprocess.Popen(
-            [sys.executable, "-m", "worker", "-Q", self.queues,
-             "--name", f"w{i}-{time.time_ns()}@%h"],
+            [
+                sys.executable,
+                "-m",
+                "worker",
+                "-Q",
+                self.queues,
+                "--name",
+                f"w{i}-{time.time_ns()}@%h",
+            ],
             stdout=log_file,
             stderr=subprocess.STDOUT,
             preexec_fn=_die_with_parent if sys.platform == "linux" else None,
@@ -99,7 +106,8 @@ def serve(
         else:
             from service.app import create_app
 
-            run_server(create_app(settings), host, port, settings.header_timeout_s,
-                       settings.keep_alive_s)
+            run_server(
+                create_app(settings), host, port, settings.header_timeout_s, settings.keep_alive_s
+            )
     finally:
         pool.stop()

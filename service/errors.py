@@ -39,14 +39,16 @@ def field_error(
 def forest_error(exc: ForestError, prefix: list[str | int] | None = None) -> RequestValidationError:
     """A library error as a 422; a grammar with several errors gives one entry each."""
     errors = exc.errors if isinstance(exc, GrammarErrors) else (exc,)
-    return RequestValidationError([
-        {
-            "loc": ["body", *(prefix or []), *path_loc(e.path)],
-            "msg": e.message,
-            "type": "limit_error" if isinstance(e, LimitError) else "value_error",
-        }
-        for e in errors
-    ])
+    return RequestValidationError(
+        [
+            {
+                "loc": ["body", *(prefix or []), *path_loc(e.path)],
+                "msg": e.message,
+                "type": "limit_error" if isinstance(e, LimitError) else "value_error",
+            }
+            for e in errors
+        ]
+    )
 
 
 def _finite_json(value: Any) -> Any:
@@ -69,8 +71,9 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
 
 async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
     """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection."""
-    log.warning("database unavailable on %s %s: %s", request.method, request.url.path,
-                type(exc).__name__)
+    log.warning(
+        "database unavailable on %s %s: %s", request.method, request.url.path, type(exc).__name__
+    )
     return JSONResponse(
         {"detail": "the job store is unavailable; retry later"},
         status_code=503,

@@ -37,10 +37,12 @@ class BodyLimitMiddleware:
             {
                 "type": "http.response.start",
                 "status": refused.status,
-                "headers": [(b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode()),
-                            # the rest of the body is never read: the connection cannot be reused
-                            (b"connection", b"close")],
+                "headers": [
+                    (b"content-type", b"application/json"),
+                    (b"content-length", str(len(body)).encode()),
+                    # the rest of the body is never read: the connection cannot be reused
+                    (b"connection", b"close"),
+                ],
             }
         )
         await send({"type": "http.response.body", "body": body})

@@ -179,9 +179,7 @@ def public(request: Request) -> None:
     _loopback_when_open(request)
 
 
-def caller(
-    request: Request, key: Annotated[str | None, Depends(api_key_header)] = None
-) -> Caller:
+def caller(request: Request, key: Annotated[str | None, Depends(api_key_header)] = None) -> Caller:
     """The caller (401 without a live key, 403 off loopback when the API is open, 429 over the
     rate limit)."""
     services = request.app.state.services
@@ -220,19 +218,23 @@ class SameSiteWrites:
             origin = headers.get(b"origin", b"").decode("latin-1")
             fetch_site = headers.get(b"sec-fetch-site", b"").decode("latin-1")
             host = headers.get(b"host", b"").decode("latin-1")
-            foreign = bool(origin) and origin not in self.allowed and (
-                origin.split("://", 1)[-1] != host
+            foreign = (
+                bool(origin) and origin not in self.allowed and (origin.split("://", 1)[-1] != host)
             )
             if foreign or (fetch_site == "cross-site" and origin not in self.allowed):
                 body = json.dumps(
                     {"detail": "cross-site requests that change state are refused"}
                 ).encode()
-                await send({
-                    "type": "http.response.start",
-                    "status": 403,
-                    "headers": [(b"content-type", b"application/json"),
-                                (b"content-length", str(len(body)).encode())],
-                })
+                await send(
+                    {
+                        "type": "http.response.start",
+                        "status": 403,
+                        "headers": [
+                            (b"content-type", b"application/json"),
+                            (b"content-length", str(len(body)).encode()),
+                        ],
+                    }
+                )
                 await send({"type": "http.response.body", "body": body})
                 return
         await self.app(scope, receive, send)

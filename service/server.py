@@ -26,8 +26,11 @@ from typing import Any
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
 TIMEOUT_BODY = json.dumps(
-    {"detail": [{"loc": ["header"], "msg": "request headers not received in time",
-                 "type": "timeout"}]}
+    {
+        "detail": [
+            {"loc": ["header"], "msg": "request headers not received in time", "type": "timeout"}
+        ]
+    }
 ).encode()
 TIMEOUT_RESPONSE = (
     b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"

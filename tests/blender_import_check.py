@@ -273,9 +273,7 @@ def tile_images(expected: int) -> tuple[dict[str, Any], list[str]]:
     im = tiled[0]
     numbers = sorted(t.number for t in im.tiles)
     path = bpy.path.abspath(im.filepath, library=im.library)
-    missing = [
-        n for n in numbers if not Path(path.replace("<UDIM>", str(n))).is_file()
-    ]
+    missing = [n for n in numbers if not Path(path.replace("<UDIM>", str(n))).is_file()]
     n_pixels = len(im.pixels)  # reading the pixels loads the image buffer
     # each tile's size comes from its decoded file: 0 x 0 where Blender could not read it
     unread = [t.number for t in im.tiles if t.size[0] <= 0 or t.channels <= 0]

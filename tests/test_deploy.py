@@ -89,8 +89,11 @@ def test_kubernetes_manifests() -> None:
         ("ScaledObject", "forest-worker"),
         ("ScaledObject", "forest-gpu-worker"),
     } <= kinds
-    gpu = next(d for d in docs if d["metadata"].get("name") == "forest-gpu-worker"
-               and d["kind"] == "Deployment")
+    gpu = next(
+        d
+        for d in docs
+        if d["metadata"].get("name") == "forest-gpu-worker" and d["kind"] == "Deployment"
+    )
     limits = gpu["spec"]["template"]["spec"]["containers"][0]["resources"]["limits"]
     assert limits["nvidia.com/gpu"] == 1
     scaled = [d for d in docs if d["kind"] == "ScaledObject"]

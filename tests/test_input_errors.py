@@ -54,8 +54,12 @@ def test_sniff_names_the_kind(head: bytes, kind: str) -> None:
 
 def forest(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "cli", *args], cwd=cwd, capture_output=True, text=True,
-        timeout=120, env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
+        [sys.executable, "-m", "cli", *args],
+        cwd=cwd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )
 
 
@@ -95,8 +99,10 @@ def test_unreadable_usd_has_no_pxr_internals(tmp_path: Path) -> None:
 
 
 def test_pxr_reason_drops_the_cpp_location() -> None:
-    raw = ("\tError in 'pxrInternal_v0_26_11__pxrReserved__::UsdStage::Open' at line 1287 in "
-           "file /opt/USD/pxr/usd/usd/stage.cpp : 'Failed to open layer @b.usda@'")
+    raw = (
+        "\tError in 'pxrInternal_v0_26_11__pxrReserved__::UsdStage::Open' at line 1287 in "
+        "file /opt/USD/pxr/usd/usd/stage.cpp : 'Failed to open layer @b.usda@'"
+    )
     assert pxr_reason(RuntimeError(raw)) == "Failed to open layer b.usda"
     assert pxr_reason(RuntimeError("")) == "RuntimeError"
 
@@ -121,23 +127,30 @@ def test_every_grammar_error_at_once_with_suggestions() -> None:
 
 
 def test_cross_references_are_all_reported_by_compile() -> None:
-    g = parse_grammar({
-        "axiom": "Trunk",
-        "rules": {
-            "Trunk": [{"piece": "I", "successors": [{"symbol": "Brnch"}]}],
-            "Branch": [{"piece": "I", "successors": [{"symbol": "Trunk"}]}],
-        },
-        "foliage": ["Leaf"],
-        "bark": "oka",
-    })
+    g = parse_grammar(
+        {
+            "axiom": "Trunk",
+            "rules": {
+                "Trunk": [{"piece": "I", "successors": [{"symbol": "Brnch"}]}],
+                "Branch": [{"piece": "I", "successors": [{"symbol": "Trunk"}]}],
+            },
+            "foliage": ["Leaf"],
+            "bark": "oka",
+        }
+    )
     with pytest.raises(GrammarErrors) as info:
         compile_grammar(g)
     lines = info.value.lines()
-    assert "rules.Trunk[0].successors[0].symbol: unknown symbol 'Brnch'; did you mean " \
+    assert (
+        "rules.Trunk[0].successors[0].symbol: unknown symbol 'Brnch'; did you mean "
         "'Branch'?" in lines
+    )
     assert "foliage[0]: unknown symbol 'Leaf'" in lines
-    assert any(line.startswith("bark: no shipped bark tile set 'oka'") and
-               line.endswith("did you mean 'oak'?") for line in lines)
+    assert any(
+        line.startswith("bark: no shipped bark tile set 'oka'")
+        and line.endswith("did you mean 'oak'?")
+        for line in lines
+    )
 
 
 def test_a_single_error_stays_a_plain_grammar_error() -> None:

@@ -38,9 +38,7 @@ def _visible_gprims(stage: Usd.Stage) -> list[str]:
 
 
 @pytest.mark.parametrize("skinned", [False, True])
-def test_default_shows_each_tree_once(
-    windy_forest: Forest, tmp_path: Path, skinned: bool
-) -> None:
+def test_default_shows_each_tree_once(windy_forest: Forest, tmp_path: Path, skinned: bool) -> None:
     path = write_scene(windy_forest, tmp_path / "f.usdc", skinned=skinned)
     stage = Usd.Stage.Open(str(path))
     vset = stage.GetPrimAtPath(FOREST).GetVariantSet(REPRESENTATION)

@@ -62,7 +62,7 @@ def test_tree_mesh_welds_every_rim(preset: str) -> None:
     a tenth of a millimetre: a chain of vertices each within the tolerance of the next joins
     as one group, as a KD-tree's pairs and connected components joined them too)."""
     f = generate_forest(load_preset(preset), 2, ForestOptions(trees=1))
-    (inst, bones), = tree_slices(f)
+    ((inst, bones),) = tree_slices(f)
     raw = tree_mesh(f, inst, bones, np.eye(4), f.palette())
     pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), f.palette(), weld=True)
     assert len(pts) < len(raw[0])
@@ -72,7 +72,7 @@ def test_tree_mesh_welds_every_rim(preset: str) -> None:
 
 def test_proxy_vertices_take_skin_from_what_collapsed_into_them() -> None:
     f = generate_forest(load_preset("oak"), 2, ForestOptions(trees=1))
-    (inst, bones), = tree_slices(f)
+    ((inst, bones),) = tree_slices(f)
     pts, _, quads, *_ = tree_mesh(f, inst, bones, np.eye(4), f.palette(), weld=True)
     tris = np.concatenate([quads[:, [0, 1, 2]], quads[:, [0, 2, 3]]])
     pts32 = pts.astype(np.float32)

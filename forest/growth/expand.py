@@ -303,9 +303,11 @@ def expand(
             keyed.lane(h_rim, 1), np.take(cg.alt_length.reshape(-1, 2), alt_rim, axis=0)
         )
         lateral = np.arange(MAX_LEAF_RIMS) > 0
-        c_h = f.h[:, None] + np.where(
-            lateral, np.take(hub_y_t, piece)[:, None], np.take(rim_y_t, piece, axis=0)
-        ) * span[:, None]
+        c_h = (
+            f.h[:, None]
+            + np.where(lateral, np.take(hub_y_t, piece)[:, None], np.take(rim_y_t, piece, axis=0))
+            * span[:, None]
+        )
         first_order = (f.order == 0)[:, None] & lateral & has_rim
         pruned = np.zeros_like(has_rim)
         if crown:

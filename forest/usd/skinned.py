@@ -366,9 +366,7 @@ def write_skinned_trees(
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
     codes = [Usd.TimeCode(0.0) if t is None else time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
-    leaf_materials = (
-        None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
-    )
+    leaf_materials = None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
     slices = tree_slices(forest)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/{tree_name(k)}"

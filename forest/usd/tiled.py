@@ -143,9 +143,9 @@ def write_root(
             f"interlocking-forest tiled forest: {len(tiles)} tile payloads under {TILES}"
         )
         if meta is not None:
-            group.GetPrim().CreateAttribute(
-                TILING, Sdf.ValueTypeNames.String, custom=True
-            ).Set(json.dumps(meta, sort_keys=True))
+            group.GetPrim().CreateAttribute(TILING, Sdf.ValueTypeNames.String, custom=True).Set(
+                json.dumps(meta, sort_keys=True)
+            )
         if frames > 0:
             set_frames(stage, frames, fps)
         whole = Gf.Range3d()

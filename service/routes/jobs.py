@@ -83,15 +83,15 @@ def delete_job_artifacts(job_id: str, services: ServicesDep, caller: CallerDep) 
     responses={
         200: {
             "description": "The artifact",
-            "content": {t: {"schema": {"type": "string", "format": "binary"}}
-                        for t in sorted(set(ARTIFACT_TYPES.values()))},
+            "content": {
+                t: {"schema": {"type": "string", "format": "binary"}}
+                for t in sorted(set(ARTIFACT_TYPES.values()))
+            },
         },
         **ERRORS,
     },
 )
-def get_artifact(
-    job_id: str, name: str, services: ServicesDep, caller: CallerDep
-) -> FileResponse:
+def get_artifact(job_id: str, name: str, services: ServicesDep, caller: CallerDep) -> FileResponse:
     row = services.store.get(job_id, caller.scope)
     if row is None or name not in (row.artifacts or []):
         raise HTTPException(404, "no such artifact")

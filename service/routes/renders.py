@@ -79,8 +79,14 @@ def upload_render(
         raise field_error(["scene"], "not a USD file (.usda, .usdc or .usdz)")
     name = f"upload{suffix}"
     params = {  # schemas.jobs.RenderJob
-        "forest_job": None, "scene": name, "scene_sha256": hashlib.sha256(data).hexdigest(),
-        "width": width, "height": height, "tess_max": tess_max, "frame": frame, "frames": frames,
+        "forest_job": None,
+        "scene": name,
+        "scene_sha256": hashlib.sha256(data).hexdigest(),
+        "width": width,
+        "height": height,
+        "tess_max": tess_max,
+        "frame": frame,
+        "frames": frames,
         "staged": staged,
     }
     # the scene is in place before the job is sent, so no worker can see the job without it

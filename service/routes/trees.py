@@ -44,7 +44,10 @@ def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Resp
     with tempfile.TemporaryDirectory(prefix="forest-tree-") as tmp:
         try:
             forest = generate_forest(
-                grammar, req.seed, options, settings=library_settings(s, s.max_tree_pieces),
+                grammar,
+                req.seed,
+                options,
+                settings=library_settings(s, s.max_tree_pieces),
                 compiled=cg,
             )
             path = write_forest(forest, Path(tmp) / f"tree.{req.format}", skinned=req.skinned)

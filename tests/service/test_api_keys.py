@@ -108,7 +108,10 @@ def test_cli_names_an_unreachable_job_store() -> None:
 
 def _app(db_url: str, tmp_path: Path, **settings: object) -> tuple[FastAPI, ServiceSettings]:
     s = ServiceSettings(
-        data_dir=tmp_path, database_url=db_url, rate_limit="", **settings  # type: ignore[arg-type]
+        data_dir=tmp_path,
+        database_url=db_url,
+        rate_limit="",
+        **settings,  # type: ignore[arg-type]
     )
     s.artifacts.mkdir(parents=True, exist_ok=True)
     return create_app(s, reaper=False), s
@@ -156,18 +159,21 @@ def test_tenants_apart_admin_sees_all_and_revocation_holds(db_url: str, tmp_path
     (s.artifacts / b_job.id / "scene.usda").write_text("#usda 1.0\n")
     b = f"/v1/jobs/{b_job.id}"
 
-    r = _call(app, [
-        ("GET", "/v1/jobs", None),
-        ("GET", "/v1/jobs", alpha),
-        ("GET", b, alpha),
-        ("GET", f"{b}/artifacts/scene.usda", alpha),
-        ("DELETE", b, alpha),
-        ("GET", b, beta),
-        ("GET", "/v1/jobs", admin),
-        ("GET", "/v1/jobs", "boot-key"),
-        ("GET", f"{b}/artifacts/scene.usda", admin),
-        ("DELETE", f"/v1/jobs/{a_job.id}", admin),
-    ])
+    r = _call(
+        app,
+        [
+            ("GET", "/v1/jobs", None),
+            ("GET", "/v1/jobs", alpha),
+            ("GET", b, alpha),
+            ("GET", f"{b}/artifacts/scene.usda", alpha),
+            ("DELETE", b, alpha),
+            ("GET", b, beta),
+            ("GET", "/v1/jobs", admin),
+            ("GET", "/v1/jobs", "boot-key"),
+            ("GET", f"{b}/artifacts/scene.usda", admin),
+            ("DELETE", f"/v1/jobs/{a_job.id}", admin),
+        ],
+    )
     assert r[0].status_code == 401
     assert [j["id"] for j in r[1].json()["items"]] == [a_job.id]
     assert [x.status_code for x in r[2:5]] == [404, 404, 404]  # another tenant's: no such job

@@ -55,7 +55,10 @@ def test_redis_visibility_timeout_must_outlast_the_reaper(tmp_path: Path) -> Non
     with pytest.raises(ValidationError, match="broker_visibility_timeout_s"):  # 30 + 60 + 5
         FarmSettings(data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60)
     ok = FarmSettings(
-        data_dir=tmp_path, broker_url=redis, broker_visibility_timeout_s=60, lease_s=5,
+        data_dir=tmp_path,
+        broker_url=redis,
+        broker_visibility_timeout_s=60,
+        lease_s=5,
         requeue_after_s=15,
     )
     assert ok.broker_visibility_timeout_s == 60
@@ -79,6 +82,7 @@ def test_each_kind_reaches_its_own_queue_only(tmp_path: Path, broker: str) -> No
             d.send("a" * 32, "forest")
             d.send("b" * 32, "forest")
             d.send("c" * 32, "render")
+
             # (Redis has no empty queue to find passively: declare again, which counts too)
             def counts() -> dict[str, int]:
                 passive = broker == "RabbitMQ"

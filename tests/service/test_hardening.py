@@ -187,8 +187,7 @@ def test_tenants_are_apart(server: Server) -> None:
 
 def test_rate_limit_429(server: Server) -> None:
     codes = [
-        httpx.delete(f"{server.url}/v1/jobs/{'0' * 32}", headers=C, timeout=10)
-        for _ in range(70)
+        httpx.delete(f"{server.url}/v1/jobs/{'0' * 32}", headers=C, timeout=10) for _ in range(70)
     ]
     assert {r.status_code for r in codes} == {404, 429}
     limited = next(r for r in codes if r.status_code == 429)
@@ -205,8 +204,10 @@ def test_non_finite_is_422(server: Server, text: str) -> None:
         f'"weight": {text}}}]}}}}',
     ):
         r = httpx.post(
-            f"{server.url}/v1/forests", content=body,
-            headers=A | {"content-type": "application/json"}, timeout=10,
+            f"{server.url}/v1/forests",
+            content=body,
+            headers=A | {"content-type": "application/json"},
+            timeout=10,
         )
         assert r.status_code == 422, (body, r.text)
         r.json()  # the body serialises

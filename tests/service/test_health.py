@@ -37,7 +37,9 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
     listed = runner.invoke(main, ["worker", "--list"])
     assert listed.exit_code == 0
     assert listed.output.splitlines() == [
-        "forest\tqueue default", "render\tqueue gpu", "forest_tile\tqueue default"
+        "forest\tqueue default",
+        "render\tqueue gpu",
+        "forest_tile\tqueue default",
     ]
     bad = runner.invoke(main, ["worker", "-Q", "default,cpu"])
     assert bad.exit_code == 2

@@ -34,7 +34,8 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
 
 def series(server: Server) -> list[str]:
     return [
-        line for line in server.get("/metrics").text.splitlines()
+        line
+        for line in server.get("/metrics").text.splitlines()
         if line.startswith("forest_http_requests_total{")
     ]
 
@@ -76,15 +77,25 @@ def test_chunked_body_over_the_cap_is_413(server: Server) -> None:
         ("/v1/forests", "application/json", json_head, json_tail),
         ("/v1/renders/upload", "multipart/form-data; boundary=b0undary", part_head, part_tail),
     ):
-        r = httpx.post(f"{server.url}{path}", content=body(head, tail),
-                       headers={"content-type": ctype}, timeout=30)
+        r = httpx.post(
+            f"{server.url}{path}",
+            content=body(head, tail),
+            headers={"content-type": ctype},
+            timeout=30,
+        )
         assert r.status_code == 413, (path, r.text)
         assert r.json()["detail"][0] == {
-            "loc": ["body"], "msg": f"body over {MAX_BODY} bytes", "type": "too_large"
+            "loc": ["body"],
+            "msg": f"body over {MAX_BODY} bytes",
+            "type": "too_large",
         }
     # under the cap, chunked, the same route answers as usual
-    r = httpx.post(f"{server.url}/v1/forests", content=iter([b'{"preset": "nope"}']),
-                   headers={"content-type": "application/json"}, timeout=30)
+    r = httpx.post(
+        f"{server.url}/v1/forests",
+        content=iter([b'{"preset": "nope"}']),
+        headers={"content-type": "application/json"},
+        timeout=30,
+    )
     assert r.status_code == 422, r.text
 
 

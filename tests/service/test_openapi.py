@@ -50,14 +50,20 @@ def test_openapi_contract(server: Server, tmp_path: Path) -> None:
     st_bin = Path(sys.executable).with_name("schemathesis")
     proc = subprocess.run(
         [
-            str(st_bin), "run", f"{server.url}/openapi.json",
-            "--header", f"X-API-Key: {KEY['X-API-Key']}",
-            "--max-examples", "20",
-            "--seed", "7",
+            str(st_bin),
+            "run",
+            f"{server.url}/openapi.json",
+            "--header",
+            f"X-API-Key: {KEY['X-API-Key']}",
+            "--max-examples",
+            "20",
+            "--seed",
+            "7",
             "--checks",
             "not_a_server_error,response_schema_conformance,content_type_conformance,"
             "status_code_conformance",
-            "--request-timeout", "30",
+            "--request-timeout",
+            "30",
         ],
         capture_output=True,
         text=True,
@@ -104,7 +110,10 @@ def spoil_numbers(op: Any, client: httpx.Client, sent: dict[str, int]) -> None:
     each must be 422 naming that number's field."""
 
     @settings(
-        max_examples=20, derandomize=True, deadline=None, database=None,
+        max_examples=20,
+        derandomize=True,
+        deadline=None,
+        database=None,
         suppress_health_check=list(HealthCheck),
         phases=[Phase.explicit, Phase.generate],  # no shrinking: the case is printed
     )
@@ -117,7 +126,9 @@ def spoil_numbers(op: Any, client: httpx.Client, sent: dict[str, int]) -> None:
         token = data.draw(st.sampled_from(NON_FINITE), label="token")
         text = with_token(case.body, path, token)
         r = client.request(
-            op.method.upper(), case.formatted_path, content=text,
+            op.method.upper(),
+            case.formatted_path,
+            content=text,
             headers={"content-type": "application/json"},
         )
         assert r.status_code == 422, (op.path, path, token, text[:2000], r.text[:2000])
@@ -167,9 +178,12 @@ def test_non_finite_form_numbers_are_422(server: Server) -> None:
     for method, path, name in fields:
         for token in ["nan", "NaN", "inf", "-Infinity", "1e400"]:
             r = httpx.request(
-                method.upper(), f"{server.url}{path}", files=scene, data={name: token},
-                headers=KEY, timeout=30,
+                method.upper(),
+                f"{server.url}{path}",
+                files=scene,
+                data={name: token},
+                headers=KEY,
+                timeout=30,
             )
             assert r.status_code == 422, (path, name, token, r.text)
             assert r.json()["detail"][0]["loc"] == ["body", name], r.text
-

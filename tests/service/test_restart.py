@@ -20,12 +20,15 @@ def test_api_restart_loses_nothing(
 ) -> None:
     data = tmp_path / "data"
     api_only = make_server(backend, workers=0, data=data)
-    queued = [api_only.post("/v1/forests", BODY | {"trees": 1, "seed": 40 + i}).json()["id"]
-              for i in range(2)]
+    queued = [
+        api_only.post("/v1/forests", BODY | {"trees": 1, "seed": 40 + i}).json()["id"]
+        for i in range(2)
+    ]
     api_only.stop()
     full = make_server(backend, workers=2, data=data)
-    more = [full.post("/v1/forests", BODY | {"trees": 2, "seed": 50 + i}).json()["id"]
-            for i in range(3)]
+    more = [
+        full.post("/v1/forests", BODY | {"trees": 2, "seed": 50 + i}).json()["id"] for i in range(3)
+    ]
     full.wait(more[0], states=("active", "completed"))
     full.stop()  # mid-flight: some jobs running, some queued
     again = make_server(backend, workers=2, data=data)

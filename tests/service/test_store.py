@@ -32,7 +32,9 @@ def test_one_lease_holder_finishes(store: JobStore) -> None:
     assert store.claim(row.id, "b", lease_s=60) is None  # done: never again
     done = store.get(row.id)
     assert done is not None and (done.state, done.progress, done.artifacts) == (
-        "completed", 1.0, ["scene.usdc"]
+        "completed",
+        1.0,
+        ["scene.usdc"],
     )
 
 

@@ -31,7 +31,11 @@ from worker.jobs.tasks import execute
 @pytest.fixture
 def store(tmp_path: Path) -> Iterator[JobStore]:
     settings = FarmSettings(
-        data_dir=tmp_path, max_attempts=2, retry_delay_s=0, lease_s=1.0, heartbeat_s=0.2,
+        data_dir=tmp_path,
+        max_attempts=2,
+        retry_delay_s=0,
+        lease_s=1.0,
+        heartbeat_s=0.2,
         job_memory_mb=1024,
     )
     override_settings(settings)
@@ -83,9 +87,9 @@ def test_retries_then_fails_with_the_error(
 ) -> None:
     sent: list[tuple[str, str]] = []
     monkeypatch.setattr(
-        tasks.runtime().dispatcher, "send", lambda job_id, kind, countdown=None: sent.append(
-            (job_id, kind)
-        )
+        tasks.runtime().dispatcher,
+        "send",
+        lambda job_id, kind, countdown=None: sent.append((job_id, kind)),
     )
     row, _ = store.create("forest", {}, max_attempts=2)
     assert execute(row.id, {"forest": broken}) == "retry"

@@ -38,8 +38,10 @@ def _require_browser() -> None:
     if not PLAYWRIGHT.is_dir():
         missing.append(f"{PLAYWRIGHT} (cd web && npm ci)")
     if missing:
-        pytest.fail("the browser tests need " + ", ".join(missing) + "; .ci/run installs them",
-                    pytrace=False)
+        pytest.fail(
+            "the browser tests need " + ", ".join(missing) + "; .ci/run installs them",
+            pytrace=False,
+        )
 
 
 @pytest.fixture(scope="module")
@@ -57,15 +59,27 @@ def seen(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
         out = ROOT / "tests" / "output" / "web"
         out.mkdir(parents=True, exist_ok=True)
         run = subprocess.run(
-            ["node", str(Path(__file__).with_name("page.mjs")), server.url, "key-alpha",
-             other.json()["id"], str(out)],
-            capture_output=True, text=True, timeout=240, check=False,
+            [
+                "node",
+                str(Path(__file__).with_name("page.mjs")),
+                server.url,
+                "key-alpha",
+                other.json()["id"],
+                str(out),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=240,
+            check=False,
         )
         assert run.returncode == 0, run.stderr[-4000:]
         result: dict[str, Any] = json.loads(run.stdout.strip().splitlines()[-1])
         if result.get("error"):
-            pytest.fail(f"page.mjs: {result['error']}\nsteps: {result['steps']}\n"
-                        f"console: {result['console']}\n{server.log()}", pytrace=False)
+            pytest.fail(
+                f"page.mjs: {result['error']}\nsteps: {result['steps']}\n"
+                f"console: {result['console']}\n{server.log()}",
+                pytrace=False,
+            )
         yield result
     finally:
         server.stop()

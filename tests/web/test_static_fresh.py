@@ -13,8 +13,15 @@ ROOT = Path(__file__).resolve().parents[2]
 WEB = ROOT / "web"
 STATIC = ROOT / "service" / "static"
 # web/scripts/stamp.mjs's roots, relative to web/ (keep the two in step)
-ROOTS = ["../schemas/json/grammar.schema.json", "index.html", "package.json",
-         "package-lock.json", "vite.config.js", "src", "scripts"]
+ROOTS = [
+    "../schemas/json/grammar.schema.json",
+    "index.html",
+    "package.json",
+    "package-lock.json",
+    "vite.config.js",
+    "src",
+    "scripts",
+]
 
 
 def source_digest() -> tuple[str, int]:
@@ -42,9 +49,14 @@ def test_build_matches_sources() -> None:
 
 
 def test_build_has_page_and_docs() -> None:
-    for rel in ["index.html", "assets/index.js", "assets/index.css",
-                "vendor/swagger-ui/swagger-ui-bundle.js", "vendor/swagger-ui/swagger-ui.css",
-                "vendor/redoc/redoc.standalone.js"]:
+    for rel in [
+        "index.html",
+        "assets/index.js",
+        "assets/index.css",
+        "vendor/swagger-ui/swagger-ui-bundle.js",
+        "vendor/swagger-ui/swagger-ui.css",
+        "vendor/redoc/redoc.standalone.js",
+    ]:
         assert (STATIC / rel).is_file(), rel
     html = (STATIC / "index.html").read_text()
     assert "http://" not in html and "https://" not in html  # nothing from a CDN

@@ -186,10 +186,12 @@ def test_frames_to_draw() -> None:
         return RenderRequest(scene=Path("s.usdc"), output=Path("p.png"), **kw)
 
     assert frames_to_draw(req(frames=5), still) == (
-        1, "the scene is still (no wind frames): rendering 1 frame instead of 5"
+        1,
+        "the scene is still (no wind frames): rendering 1 frame instead of 5",
     )
     assert frames_to_draw(req(frames=3), posed) == (
-        1, "the scene has one wind frame: rendering 1 frame instead of 3"
+        1,
+        "the scene has one wind frame: rendering 1 frame instead of 3",
     )
     assert frames_to_draw(req(), still) == (1, None)
     assert frames_to_draw(req(frames=5), windy) == (5, None)

@@ -40,8 +40,12 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     # a worker killed mid-job (this one's predecessor, say) left its scratch folder behind
     tidy_once(rt.store, rt.artifacts)
     reaper = Reaper(
-        rt.store, rt.dispatcher, settings.reaper_interval_s, settings.requeue_after_s,
-        artifacts=rt.artifacts, housekeeping_s=settings.housekeeping_s,
+        rt.store,
+        rt.dispatcher,
+        settings.reaper_interval_s,
+        settings.requeue_after_s,
+        artifacts=rt.artifacts,
+        housekeeping_s=settings.housekeeping_s,
         artifact_ttl_s=settings.artifact_ttl_s,
     )
     reaper.start()
@@ -49,10 +53,14 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     app.worker_main(
         [
             "worker",
-            "-Q", ",".join(settings.queue(q) for q in queues),
-            "--pool", "solo",
-            "-n", node,
-            "-l", loglevel,
+            "-Q",
+            ",".join(settings.queue(q) for q in queues),
+            "--pool",
+            "solo",
+            "-n",
+            node,
+            "-l",
+            loglevel,
             "--without-gossip",
             "--without-mingle",
             "--without-heartbeat",

@@ -31,7 +31,10 @@ from pathlib import Path
 from typing import Any
 
 PRELOAD = [
-    "forest.usd.scene", "forest.growth.generate", "forest.export", "worker.render.render_file",
+    "forest.usd.scene",
+    "forest.growth.generate",
+    "forest.export",
+    "worker.render.render_file",
     "worker.jobs.tasks",
 ]
 STAGE_BYTES = 64
@@ -226,5 +229,3 @@ def under(root: Path, path: Path) -> bool:
     except ValueError:
         return False
     return True
-
-

@@ -80,7 +80,11 @@ def run_attempt(
     """The child's side of an attempt: run ``kind``; its files (names -> paths in the scratch
     folder) and result."""
     ctx = JobContext(
-        job_id, params, scratch, ArtifactStore(artifacts_root), on_report=report,
+        job_id,
+        params,
+        scratch,
+        ArtifactStore(artifacts_root),
+        on_report=report,
         upload_caps=upload_caps,
     )
     ctx.report("started", 0.0)
@@ -119,7 +123,12 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
         end = supervise(
             run_attempt,
             (
-                kind, job_id, claim.params, scratch, rt.artifacts.root, upload_caps(s),
+                kind,
+                job_id,
+                claim.params,
+                scratch,
+                rt.artifacts.root,
+                upload_caps(s),
             ),
             job_limits(s.job_memory_mb, s.job_cpu_s),
             heartbeat,

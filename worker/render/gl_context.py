@@ -54,8 +54,7 @@ def create_context(require: int = REQUIRED_VERSION) -> moderngl.Context:
         import moderngl
     except ImportError:
         raise GLUnavailableError(
-            "moderngl is not installed; it comes with the render extra: "
-            f"{install_line('render')}",
+            f"moderngl is not installed; it comes with the render extra: {install_line('render')}",
             path="gl",
         ) from None
     create: Any = moderngl.create_context  # its stub types ``backend`` wrongly

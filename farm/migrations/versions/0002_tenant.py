@@ -18,9 +18,7 @@ depends_on = None
 
 def upgrade() -> None:
     with op.batch_alter_table("jobs") as batch:  # batch: SQLite cannot alter in place
-        batch.add_column(
-            sa.Column("tenant", sa.String(64), nullable=False, server_default="local")
-        )
+        batch.add_column(sa.Column("tenant", sa.String(64), nullable=False, server_default="local"))
         batch.create_index("ix_jobs_tenant", ["tenant"])
 
 
