@@ -6,16 +6,19 @@ from __future__ import annotations
 import logging
 import math
 import re
+from collections.abc import Sequence
 from typing import Any
 
 from fastapi import FastAPI, Request
 from fastapi.encoders import jsonable_encoder
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic import BaseModel
 from sqlalchemy.exc import DBAPIError
 
 from forest.errors import ForestError, LimitError
-from forest.growth.grammar_errors import GrammarErrors
+from forest.growth.grammar_errors import GrammarErrors, did_you_mean, fields_at
+from schemas.jobs import ForestRequest, RenderRequest, TreeRequest
 
 log = logging.getLogger(__name__)
 RETRY_AFTER_S = 5
@@ -65,8 +68,39 @@ def _finite_json(value: Any) -> Any:
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     """FastAPI's 422 body, made serialisable whatever the input held (NaN, 1e400, bytes)."""
     assert isinstance(exc, RequestValidationError)
-    body = {"detail": _finite_json(jsonable_encoder(_finite_json(exc.errors())))}
+    errors = suggest_fields(request.url.path, exc.errors())
+    body = {"detail": _finite_json(jsonable_encoder(_finite_json(errors)))}
     return JSONResponse(body, status_code=422)
+
+
+# the JSON bodies the API reads, by route: an unknown field gets "did you mean" from its model
+BODY_MODELS: dict[str, type[BaseModel]] = {
+    "/v1/trees": TreeRequest,
+    "/v1/forests": ForestRequest,
+    "/v1/renders": RenderRequest,
+}
+
+
+def suggest_fields(route: str, errors: Sequence[Any]) -> list[Any]:
+    """``errors`` with "did you mean" added to unknown fields of a known body (a grammar's
+    too: ``body.grammar.rules.A[0].wieght``)."""
+    model = BODY_MODELS.get(route.rstrip("/"))
+    out = []
+    for err in errors:
+        loc = err.get("loc") if isinstance(err, dict) else None
+        if (
+            model is not None
+            and err.get("type") == "extra_forbidden"
+            and isinstance(loc, list | tuple)
+            and len(loc) >= 2
+            and loc[0] == "body"
+            and isinstance(loc[-1], str)
+        ):
+            hint = did_you_mean(loc[-1], fields_at(tuple(loc[1:-1]), root=model))
+            if hint:
+                err = {**err, "msg": f"{err['msg']}{hint}"}
+        out.append(err)
+    return out
 
 
 async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:

@@ -190,3 +190,26 @@ def test_suggestions_come_from_the_right_object() -> None:
     assert "bend" in fields_at(("rules", "A", 0, "pose"))
     assert "weight" not in fields_at(("rules", "A", 0, "pose"))
     assert did_you_mean("zzz", ["weight"]) == ""
+
+
+def test_the_api_suggests_misspelt_body_fields() -> None:
+    from service.errors import suggest_fields
+
+    errors = [
+        {
+            "type": "extra_forbidden",
+            "loc": ["body", "tress"],
+            "msg": "Extra inputs are not permitted",
+        },
+        {
+            "type": "extra_forbidden",
+            "loc": ["body", "grammar", "rules", "A", 0, "wieght"],
+            "msg": "Extra inputs are not permitted",
+        },
+        {"type": "missing", "loc": ["body", "seed"], "msg": "Field required"},
+    ]
+    out = suggest_fields("/v1/forests", errors)
+    assert out[0]["msg"] == "Extra inputs are not permitted; did you mean 'trees'?"
+    assert out[1]["msg"] == "Extra inputs are not permitted; did you mean 'weight'?"
+    assert out[2] == errors[2]
+    assert suggest_fields("/v1/jobs", errors) == errors  # no body model there
