@@ -356,7 +356,7 @@ def test_render_draws_foliage_by_default_and_counts_both_passes(
         res = CliRunner().invoke(
             main,
             ["render", str(crown_path), "-o", str(tmp_path / f"{name}.png"), "--metrics",
-             str(met), "--width", "48", "--height", "48", "--frames", "2", *extra],
+             str(met), "--width", "48", "--height", "48", "--frames", "2", "--bare", *extra],
         )  # fmt: skip
         assert res.exit_code == 0, res.output
         assert ("foliage: 6 leaf clouds" in res.output) == (name != "off")
