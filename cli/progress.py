@@ -11,6 +11,7 @@ starts again (the same name with a smaller count) is a new one.
 from __future__ import annotations
 
 import os
+import re
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -30,6 +31,14 @@ def quiet_option(fn: F) -> F:
     return click.option(
         "-q", "--quiet", is_flag=True, help="Show no progress on stderr, only the results."
     )(fn)
+
+
+# a plain progress line as PlainLines prints it (the docs' examples leave these out)
+PLAIN_LINE = re.compile(r"^\S+: .*? \d+/\d+(?: \(\d+%\))?(?: in .+|, .+ left)?$")
+
+
+def is_progress_line(line: str) -> bool:
+    return PLAIN_LINE.fullmatch(line) is not None
 
 
 class Quiet:
@@ -136,6 +145,8 @@ class LiveBars(Quiet):
             console=Console(file=stream),
             # stdout stays ours (echo); stray stderr lines (warnings) print above the bars
             redirect_stdout=False,
+            # the bars go when the command ends: the terminal keeps the result lines alone
+            transient=True,
         )
         self.tasks: dict[str, tuple[TaskID, int]] = {}
         self.bars.start()

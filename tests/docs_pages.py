@@ -8,6 +8,8 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
+from cli.progress import is_progress_line
+
 ROOT = Path(__file__).resolve().parent.parent
 NOT_RUN = "# not run by the docs test:"
 SHELL_LANGS = ("bash", "sh", "shell", "zsh")
@@ -109,7 +111,8 @@ def output_pattern(expected: tuple[str, ...]) -> re.Pattern[str]:
 
 
 def matches(expected: tuple[str, ...], printed: str) -> bool:
-    lines = [_normal(x) for x in printed.splitlines()]
+    # progress lines on stderr are left out, as a terminal's bars go when a command ends
+    lines = [_normal(x) for x in printed.splitlines() if not is_progress_line(x)]
     while lines and not lines[-1]:
         lines.pop()
     shown = list(expected)
