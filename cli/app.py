@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 import sys
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any, TypeVar
 
 import click
@@ -70,3 +71,17 @@ def parse_counts(text: str, path: str) -> list[int]:
     if not counts or min(counts) < 1:
         raise ForestError("counts must be positive integers", path=path)
     return counts
+
+
+def data_option(help: str) -> Callable[[F], F]:
+    """``--data DIR`` (``FOREST_DATA_DIR``): the embedded job store's folder, as its
+    ``data_dir`` argument; ``serve`` and ``keys`` read the same one."""
+    return click.option(
+        "--data",
+        "data_dir",
+        type=click.Path(path_type=Path),
+        default=Path("forest-data"),
+        show_default=True,
+        envvar="FOREST_DATA_DIR",
+        help=help,
+    )

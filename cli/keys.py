@@ -8,20 +8,15 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from cli.app import data_option as cli_data_option
 from cli.app import input_errors, main, needs
 from forest.errors import ForestError
 
 if TYPE_CHECKING:
     from farm.keys import KeyStore
 
-data_option = click.option(
-    "--data",
-    "data_dir",
-    type=click.Path(path_type=Path),
-    default=Path("forest-data"),
-    show_default=True,
-    envvar="FOREST_DATA_DIR",
-    help="Data folder of the embedded job store (when FOREST_DATABASE_URL is unset).",
+data_option = cli_data_option(
+    "Data folder of the embedded job store (when FOREST_DATABASE_URL is unset)."
 )
 
 

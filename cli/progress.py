@@ -60,7 +60,7 @@ class Quiet:
         click.echo(text)
 
     def close(self) -> None:
-        """End the display (every bar stays as it was last drawn)."""
+        """End the display (live bars clear: the terminal keeps the result lines)."""
 
 
 def duration(seconds: float) -> str:

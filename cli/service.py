@@ -6,7 +6,7 @@ from pathlib import Path
 
 import click
 
-from cli.app import bench, input_errors, main, needs, parse_counts
+from cli.app import bench, data_option, input_errors, main, needs, parse_counts
 from forest.extras import install_line, installed
 from worker.jobs.main import worker_command
 
@@ -15,15 +15,7 @@ SERVICE_MODULES = ("fastapi", "uvicorn", "sqlalchemy", "alembic", "celery")
 
 
 @main.command()
-@click.option(
-    "--data",
-    "data_dir",
-    type=click.Path(path_type=Path),
-    default=Path("forest-data"),
-    show_default=True,
-    envvar="FOREST_DATA_DIR",
-    help="Folder of the embedded job store, broker and artifacts.",
-)
+@data_option("Folder of the embedded job store, broker and artifacts.")
 @click.option("--host", default="127.0.0.1", show_default=True)
 @click.option("--port", type=click.IntRange(0, 65535), default=8000, show_default=True)
 @click.option(

@@ -92,12 +92,10 @@ def _step(annotation: Any, part: int | str) -> Any:
     args = typing.get_args(annotation)
     if origin is dict and len(args) == 2:
         return args[1]
+    if origin is tuple and args and isinstance(part, int):  # tuple[A, B]: item by position
+        return args[min(part, len(args) - 1)]
     if origin in (list, tuple, set, frozenset) and args:
-        return (
-            args[0]
-            if not isinstance(part, int) or origin is not tuple
-            else args[min(part, len(args) - 1)]
-        )
+        return args[0]
     return None
 
 
