@@ -20,3 +20,17 @@ SPECIES = {
 def within(value: float, lo_hi: tuple[float, float]) -> bool:
     lo, hi = lo_hi
     return lo * (1 - SLACK) <= value <= hi * (1 + SLACK)
+
+
+# Leaf-card length of each species in metres (SPECIES.md's leaf or needle length; a card is one
+# leaf, or for the conifers one needle's length): the figures tests read it from the USD.
+LEAF_CARD_M = {
+    "oak": (0.07, 0.14),
+    "birch": (0.03, 0.07),
+    "poplar": (0.05, 0.10),
+    "almond": (0.07, 0.12),
+    "hazel": (0.06, 0.12),
+    "willow": (0.08, 0.15),
+    "pine": (0.04, 0.07),
+    "spruce": (0.01, 0.025),
+}
