@@ -171,6 +171,9 @@ class Grammar(StrictModel):
     rules: Annotated[
         dict[Symbol, Annotated[list[Alternative], Field(min_length=1)]], Field(min_length=1)
     ]
+    axiom_length: Annotated[float, Field(gt=0, le=4, allow_inf_nan=False)] = 1.0
+    """Length scale of each tree's root piece (a successor's ``length`` for the axiom): short
+    for a shrub's stool, whose stems leave near the ground."""
     max_depth: Annotated[int, Field(ge=0, le=64)] | None = None
     """Pieces deeper than this are not grown (their rims stay open tips). Without it the rules
     must terminate on their own."""

@@ -239,7 +239,7 @@ def expand(
         parent=np.full(n_trees, -1, np.int32),
         rim=np.zeros(n_trees, np.int32),
         sym=np.full(n_trees, cg.axiom, np.int32),
-        len=np.ones(n_trees),
+        len=np.full(n_trees, g.axiom_length),
         rad=np.ones(n_trees),
         scale=radius0.copy(),
         order=np.zeros(n_trees, np.int32),

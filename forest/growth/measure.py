@@ -161,7 +161,7 @@ def _roundness(xz: F64) -> float:
     _, axes = np.linalg.eigh(np.cov(centred.T))
     along = centred @ axes  # columns: minor axis, major axis
     lo, hi = np.percentile(along, [2, 98], axis=0)
-    extent = hi - lo
+    extent = np.sort(hi - lo)
     return float(extent[0] / max(extent[1], 1e-12))
 
 
