@@ -187,9 +187,10 @@ class Grammar(StrictModel):
     twig_radius: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] | None = None
     """Metres: a rim thinner than this grows no successor; the branch ends there."""
     ground_clearance: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
-    """Metres: no piece but the tree's root bends below this height (posed, without wind).
-    A branch that would go lower ends in a cap where it gets there (weeping shoots stop
-    above the ground, never through it)."""
+    """Metres: no branch bends down below this height (posed, without wind): a piece that
+    heads down (its hub or a leaf rim lower than its root) and gets lower ends its branch in
+    a cap there, so weeping shoots stop above the ground, never through it. Pieces rising
+    from lower down (a trunk, a shrub's stems) are not cut."""
     close_tips: bool = True
     """End every open rim with a tapered cap piece."""
     bark: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")] = "default"

@@ -315,8 +315,8 @@ def _under_ground(
     clearance: float,
 ) -> NDArray[np.bool_]:
     """``(n,)`` pieces to end branches at: those (not a tree's root piece) whose hub or a
-    leaf-rim centre lies lower than ``clearance`` above their tree's base, posed without
-    wind, and the pieces that bear caps lying that low."""
+    leaf-rim centre lies lower than their root and than ``clearance`` above their tree's
+    base, posed without wind, and the pieces that bear caps lying that low."""
     transforms, bones, pose, still, _ = posed
     pal = still
     if pal is None:
@@ -328,8 +328,9 @@ def _under_ground(
         m = pal[bones.offset[at] + j]
         y = np.einsum("nj,nj->n", m[:, 1, :3], rest[graph.piece[at]]) + m[:, 1, 3]
         low[at] = np.minimum(low[at], y)
-    low -= trees[graph.tree, 1, 3]
-    under = (low < clearance) & (graph.parent >= 0)
+    root = pal[bones.offset, 1, 3]  # the root joint's rest frame is the identity
+    # only pieces that head down: a stem rising from the ground is never cut
+    under = (low - trees[graph.tree, 1, 3] < clearance) & (low < root) & (graph.parent >= 0)
     # a cap that dips under is its branch's end: the piece it closes ends the branch instead
     caps = np.flatnonzero(under & (graph.piece == PIECE_NAMES.index("Cap")))
     under[caps] = False
