@@ -156,12 +156,12 @@ def generate(
     from forest.growth.wind import Wind
     from forest.usd.files import check_output_path
     from forest.usd.scene import wants_skinned
-    from schemas.tileset import DEFAULT_MANIFEST
 
     check_output_path(output, SCENE_SUFFIXES)
     glb = is_glb(output)
     g = _load_grammar(preset, grammar)
-    manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else DEFAULT_MANIFEST
+    # no tile folder: generate_forest takes the manifest of the shipped set the grammar names
+    manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else None
     options = ForestOptions(
         trees=trees,
         area=area,

@@ -63,6 +63,10 @@ class TileClass(StrictModel):
     count: Annotated[int, Field(ge=1, le=4096)]
     edges: TileEdges | None = None
     """Edge colours of this class's tiles (absent in a manifest written by hand)."""
+    stands_for: Annotated[int, Field(ge=1, le=255)] | None = None
+    """On a trunk piece that starts below the manifest's ``lower_trunk`` fraction of its
+    tree's height, quads of class ``stands_for`` draw from this class instead: the lower
+    trunk's own bark (pine's grey fissures under the orange plates, birch's black foot)."""
 
 
 class SourceImage(StrictModel):
@@ -152,6 +156,26 @@ class TileSetManifest(BaseModel):
     corner: CornerPattern | None = None
     tiles: list[TileRecord] = []
     files: TileSetFiles | None = None
+    lower_trunk: Annotated[float, Field(gt=0.0, le=1.0)] | None = None
+    """Height fraction of a tree below which its trunk pieces take the classes that stand
+    for theirs (``TileClass.stands_for``); absent: one bark from root to top."""
+    lower_corner: CornerPattern | None = None
+    """The corner pattern of the classes that stand for others (they have edge colours of
+    their own and meet only each other); ``corner`` is the rest's."""
+
+    @model_validator(mode="after")
+    def _lower_trunk(self) -> TileSetManifest:
+        ids = {c.id: c for c in self.classes}
+        lower = [c for c in self.classes if c.stands_for is not None]
+        if lower and self.lower_trunk is None:
+            raise ValueError("classes stand for others but lower_trunk is not given")
+        for c in lower:
+            target = ids.get(c.stands_for)  # type: ignore[arg-type]
+            if target is None or target.stands_for is not None:
+                raise ValueError(f"class {c.name} stands for {c.stands_for}, not a plain class")
+        if len({c.stands_for for c in lower}) != len(lower):
+            raise ValueError("two classes stand for the same class")
+        return self
 
     @model_validator(mode="after")
     def _disjoint(self) -> TileSetManifest:
@@ -183,8 +207,7 @@ class TileSetManifest(BaseModel):
                         f"class {c.name}: {side} edge colour {name!r} is {axis[name]}, not {want}"
                     )
         crops: list[_Crop] = [*self.edge_patterns, *self.tiles]
-        if self.corner is not None:
-            crops.append(self.corner)
+        crops += [c for c in (self.corner, self.lower_corner) if c is not None]
         for crop in crops:
             if crop.source >= len(self.sources):
                 raise ValueError(f"source {crop.source} is not in sources")

@@ -19,6 +19,7 @@ from forest.usd.contract import BARK_TILE_SET
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
+from schemas.tileset import DEFAULT_MANIFEST
 from worker.render.textures import tile_images
 
 
@@ -63,10 +64,16 @@ def test_renderer_loads_the_named_set(birch_scene: Path) -> None:
     assert scene.bark_tile_set == "birch" and scene.tile_folder is None
     images = tile_images(scene.manifest, None, scene.tile_folder, bark=scene.bark_tile_set)
     assert "birch" in images.source
-    assert images.slices[..., :3].mean() > 170  # pale slices bound, not the default's brown
-    # an explicit tile folder (``forest generate --tiles``) still wins
+    # pale slices bound, not the default's brown (the black foot's slices come after)
+    assert images.slices[: DEFAULT_MANIFEST.n_slices, ..., :3].mean() > 170
+    # an explicit tile folder (``forest generate --tiles``) still wins; one without the lower
+    # trunk's slices shows its bark there too
     oak = tile_images(scene.manifest, set_dir("oak"), scene.tile_folder, bark="birch")
     assert "oak" in oak.source and oak.slices[..., :3].mean() < 140
+    n = DEFAULT_MANIFEST.n_slices
+    assert oak.n_slices == scene.manifest.n_slices > n
+    assert np.array_equal(oak.slices[n : n + 8], oak.slices[:8])  # lower bark: oak's bark
+    assert np.array_equal(oak.slices[n + 8 : n + 12], oak.slices[8:12])  # and fork
 
 
 def test_generate_with_tiles_folder_keeps_working(tmp_path: Path) -> None:

@@ -7,7 +7,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from forest.bark.tiles import class_tables, draw_tile_indices
+from forest.bark.tiles import class_tables, draw_tile_indices, lower_trunk
+from forest.bark.tilesets import LOWER_TRUNK, shipped_manifest
 from forest.errors import ForestError
 from forest.geometry.pieces import piece_library
 from forest.growth.generate import Forest, ForestOptions, generate_forest
@@ -23,28 +24,38 @@ def check_tiles(f: Forest) -> None:
     assert tiles.dtype == np.int16
     assert tiles.shape == (f.n_instances, n_quads.max())
     by_id = {c.id: c for c in f.manifest.classes}
+    stand_in = {c.stands_for: c for c in f.manifest.classes if c.stands_for is not None}
+    lower = np.zeros(f.n_instances, bool)
+    if f.manifest.lower_trunk is not None:
+        g = f.graph
+        lower = lower_trunk(g.tree, g.order, g.height, f.manifest.lower_trunk)
     for pid, piece in enumerate(f.pieces):
-        inst = np.nonzero(f.graph.piece == pid)[0]
-        if len(inst) == 0:
-            continue
-        nq = n_quads[pid]
-        block = tiles[inst]
-        assert (block[:, nq:] == -1).all(), piece.name  # padding
-        real = block[:, :nq]
-        assert (real >= 0).all(), piece.name  # no -1 inside the piece's quads
-        # a crotch class (id > 2) the manifest lacks draws from the fork class
-        cls = [by_id.get(int(c)) or by_id[2] for c in piece.tile_class]
-        lo = np.array([c.first for c in cls])
-        hi = lo + np.array([c.count for c in cls])
-        assert ((real >= lo) & (real < hi)).all(), piece.name
+        for low in (False, True):
+            inst = np.nonzero((f.graph.piece == pid) & (lower == low))[0]
+            if len(inst) == 0:
+                continue
+            nq = n_quads[pid]
+            block = tiles[inst]
+            assert (block[:, nq:] == -1).all(), piece.name  # padding
+            real = block[:, :nq]
+            assert (real >= 0).all(), piece.name  # no -1 inside the piece's quads
+            # a crotch class (id > 2) the manifest lacks draws from the fork class; on the
+            # lower trunk a class another stands for draws from that one
+            cls = [by_id.get(int(c)) or by_id[2] for c in piece.tile_class]
+            if low:
+                cls = [stand_in.get(c.id, c) for c in cls]
+            lo = np.array([c.first for c in cls])
+            hi = lo + np.array([c.count for c in cls])
+            assert ((real >= lo) & (real < hi)).all(), piece.name
 
 
 @pytest.mark.parametrize("name", preset_names())
 @settings(max_examples=5, deadline=None)
 @given(seed=SEEDS, segments=st.sampled_from([1, 2]))
 def test_tile_indices_shape_padding_and_class_ranges(name: str, seed: int, segments: int) -> None:
-    f = generate_forest(load_preset(name), seed, ForestOptions(trees=2, segments=segments))
-    assert f.manifest == DEFAULT_MANIFEST
+    grammar = load_preset(name)
+    f = generate_forest(grammar, seed, ForestOptions(trees=2, segments=segments))
+    assert f.manifest == shipped_manifest(grammar.bark)
     check_tiles(f)
 
 
@@ -172,3 +183,32 @@ def test_threads_draw_the_same_indices_and_leave_the_same_stream(threads: int) -
     np.testing.assert_array_equal(a, b)
     assert one.bit_generator.state == many.bit_generator.state
     assert one.integers(1 << 62) == many.integers(1 << 62)
+
+
+@pytest.mark.parametrize("name", sorted(LOWER_TRUNK))
+def test_lower_trunk_draws_its_own_tiles(name: str) -> None:
+    """Pine's and birch's trunk pieces below the set's height fraction take the lower
+    trunk's bark and fork tiles (slices after the default 27), every other piece the rest;
+    the other instances' tiles are the ones the default manifest's classes give."""
+    f = generate_forest(load_preset(name), 3, ForestOptions(trees=2))
+    m = f.manifest
+    assert m.lower_trunk == LOWER_TRUNK[name]
+    check_tiles(f)
+    g = f.graph
+    low = lower_trunk(g.tree, g.order, g.height, LOWER_TRUNK[name])
+    assert low.any() and (g.order[low] == 0).all()
+    for t in range(2):  # the lowest trunk piece of each tree is on the lower trunk
+        mine = np.nonzero(g.tree == t)[0]
+        assert low[mine[np.argmin(g.height[mine])]]
+    n = DEFAULT_MANIFEST.n_slices
+    t = f.tile_indices
+    assert (t[low] >= n).any() and (t[~low] < n).all()
+    default = generate_forest(load_preset(name), 3, ForestOptions(trees=2), DEFAULT_MANIFEST)
+    assert np.array_equal(default.tile_indices[~low], t[~low])
+
+
+def test_lower_trunk_takes_the_lowest_share() -> None:
+    tree = np.array([0, 0, 0, 0, 1, 1, 1])
+    order = np.array([0, 0, 0, 1, 0, 0, 1])
+    height = np.array([0.0, 3.0, 9.0, 1.0, 0.0, 2.0, 0.5])
+    assert lower_trunk(tree, order, height, 1 / 3).tolist() == [1, 0, 0, 0, 1, 0, 0]

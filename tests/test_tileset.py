@@ -23,13 +23,14 @@ from cli import main
 from forest.bark.images import read_pixels, read_texture_array
 from forest.bark.tiles import manifest_for
 from forest.bark.tileset import (
+    LOWER_PREFIX,
     ClassSpec,
     TileGeometry,
     build_tileset,
     default_classes,
     stitch_tiles,
 )
-from forest.bark.tilesets import SETS, default_dir, make_set, set_dir
+from forest.bark.tilesets import LOWER_TRUNK, SETS, default_dir, make_set, set_dir
 from forest.errors import ForestError, LimitError
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -113,9 +114,12 @@ def check_borders(folder: Path) -> None:
     assert s is not None and w is not None and m.overlap is not None and m.corner is not None
     e = w + m.overlap
     pats = patterns(folder, m)
-    corner = read_pixels(folder / m.corner.file)
-    assert corner.shape == (2 * e, 2 * e, 3)
+    corners = {False: read_pixels(folder / m.corner.file)}
+    if m.lower_corner is not None:  # the lower trunk's classes have a corner of their own
+        corners[True] = read_pixels(folder / m.lower_corner.file)
     for c in m.classes:
+        corner = corners[c.stands_for is not None]
+        assert corner.shape == (2 * e, 2 * e, 3)
         assert c.edges is not None
         left, right = pats[c.edges.left], pats[c.edges.right]
         top, bottom = across(pats, c.edges.top), across(pats, c.edges.bottom)
@@ -177,11 +181,30 @@ def check_joints(folder: Path) -> None:
                 band = np.concatenate([tiles[a][:, s - w :], np.rot90(tiles[b], k)[:, :w]], 1)
                 assert np.array_equal(band[mid], pats[colour][mid, e - w : e + w])
                 joints += 1
-    # every pair of plain tiles (bark and fork) meets at least one way
-    plain = sum(1 for k in edges.values() if k is not None and QUARTER_TURN.keys().isdisjoint(
-        (k.left, k.right, k.top, k.bottom)))  # fmt: skip
-    assert joints >= plain**2
-    a, b, c, d = tiles[0], tiles[-1], tiles[1], tiles[len(tiles) // 2]
+    # every pair of plain tiles (bark and fork) of one group (the lower trunk's, or the
+    # rest) meets at least one way
+    group = {
+        k: c.name.startswith(LOWER_PREFIX)
+        for c in m.classes
+        for k in range(c.first, c.first + c.count)
+    }
+    plain = [
+        sum(
+            1
+            for k, e in edges.items()
+            if e is not None
+            and group[k] == g
+            and QUARTER_TURN.keys().isdisjoint((e.left, e.right, e.top, e.bottom))
+        )
+        for g in (False, True)
+    ]
+    assert joints >= sum(n * n for n in plain)
+    n = (
+        min(c.first for c in m.classes if c.stands_for is not None)
+        if m.lower_corner
+        else len(tiles)
+    )
+    a, b, c, d = tiles[0], tiles[n - 1], tiles[1], tiles[n // 2]
     upper = np.concatenate([a[s - w :, s - w :], b[s - w :, :w]], axis=1)
     lower = np.concatenate([c[:w, s - w :], d[:w, :w]], axis=1)
     junction = np.concatenate([upper, lower], axis=0)
@@ -305,15 +328,28 @@ def test_forest_generate_uses_the_built_set(photo_set: Path) -> None:
 @pytest.mark.parametrize("name", SETS)
 def test_shipped_set_has_the_default_manifest_classes(name: str) -> None:
     m, tiles = load(set_dir(name))
-    assert [(c.id, c.first, c.count) for c in m.classes] == [
+    n = DEFAULT_MANIFEST.n_slices
+    assert [(c.id, c.first, c.count) for c in m.classes[: len(DEFAULT_MANIFEST.classes)]] == [
         (c.id, c.first, c.count) for c in DEFAULT_MANIFEST.classes
     ]
-    assert tiles.shape == (DEFAULT_MANIFEST.n_slices, 128, 128, 3)
     prefix = "procedural-bark" if name == "default" else f"procedural-{name}"
-    assert [s.file for s in m.sources] == [f"{prefix}-1.png", f"{prefix}-2.png"]
+    files = [f"{prefix}-1.png", f"{prefix}-2.png"]
+    lower = m.classes[len(DEFAULT_MANIFEST.classes) :]
+    if name in LOWER_TRUNK:  # bark and fork again, for the lower trunk, after the rest
+        assert m.lower_trunk == LOWER_TRUNK[name]
+        assert [(c.id, c.first, c.count, c.stands_for) for c in lower] == [
+            (101, n, 8, 1),
+            (102, n + 8, 4, 2),
+        ]
+        n += 12
+        files += [f"{prefix}-lower-1.png", f"{prefix}-lower-2.png"]
+    else:
+        assert not lower and m.lower_trunk is None
+    assert tiles.shape == (n, 128, 128, 3)
+    assert [s.file for s in m.sources] == files
     size = sum(p.stat().st_size for p in set_dir(name).iterdir())
-    # 27 tiles (15 crotch classes of one tile each): under 2 MB a set
-    assert size < 2_000_000, f"{name} tile set is {size} bytes"
+    # 27 tiles (15 crotch classes of one tile each): under 2 MB a set; 75 kB a tile more
+    assert size < 2_000_000 + 75_000 * (n - 27), f"{name} tile set is {size} bytes"
 
 
 @pytest.mark.slow  # every set rebuilt, 5 s each
@@ -455,8 +491,9 @@ def test_shipped_set_is_package_data(name: str) -> None:
     root = Path(__file__).parents[1] / "forest"
     files = sorted(set_dir(name).iterdir())
     m = manifest_for(set_dir(name))
-    # slices, one pattern per edge colour, the array, the corner and the manifest
-    assert len(files) == m.n_slices + len(m.edge_patterns) + 3
+    # slices, one pattern per edge colour, the array, the corner (and the lower trunk's) and
+    # the manifest
+    assert len(files) == m.n_slices + len(m.edge_patterns) + 3 + (m.lower_corner is not None)
     for f in files:
         rel = f.relative_to(root).as_posix()
         assert any(fnmatch.fnmatch(rel, p) for p in patterns), rel

@@ -253,6 +253,24 @@ def _furrows(
     return ridge
 
 
+def _valleys(
+    rng: np.random.Generator,
+    hw: tuple[int, int],
+    f: float,
+    level: float,
+    soft: float = 0.1,
+    length: float = 14.0,
+) -> F64:
+    """``(h, w)``: 0 down in a furrow, rising to 1 on a ridge. Furrows are where vertically
+    stretched, domain-warped noise (~``f`` px across, ``length`` times that along) falls
+    below ``level``: long, deep valleys that meet and part, not lines drawn on a surface;
+    ``soft`` is how gently the walls rise."""
+    warp = 1.0 * f * (noise(rng, hw, 0.7 * length * f, 4 * f) - 0.5)
+    n = 0.7 * noise(rng, hw, length * f, f, shift_x=warp)
+    n += 0.3 * noise(rng, hw, 0.35 * length * f, 0.5 * f, shift_x=warp)
+    return _smooth((n - level) / soft)
+
+
 def _cross_cracks(
     rng: np.random.Generator, hw: tuple[int, int], length: float, spacing: float, share: float
 ) -> F64:
@@ -264,23 +282,48 @@ def _cross_cracks(
     return line * keep
 
 
+def _ribs(rng: np.random.Generator, hw: tuple[int, int], period: float, width: float) -> F64:
+    """``(h, w)``: 0 down in a furrow, 1 on a ridge. Furrows run the height of the image
+    about ``period`` px apart, wavering slowly, ~``width`` px wide (varying), here and there
+    bridged by a ridge that crosses them. A bark tile's top and bottom share one edge
+    pattern, so a furrow crossing them must sit at the same place across every tile: furrows
+    this evenly spaced let each tile's interior be slid to meet them (the tile set's slide)
+    and run on from tile to tile."""
+    height, width_px = hw
+    xx = np.arange(width_px, dtype=np.float64)[None, :].repeat(height, 0)
+    waver = 0.35 * period * (noise(rng, hw, 6 * period, 3 * period) - 0.5) * 2
+    waver += 0.12 * period * (noise(rng, hw, 1.5 * period, period) - 0.5) * 2
+    phase = (xx + waver) / period
+    dist = np.abs(phase - np.floor(phase) - 0.5) * period  # px from the furrow's centre line
+    wide = width * (0.6 + 0.8 * noise(rng, hw, 4 * period, 0.5 * period))
+    furrow = _smooth(1.0 - dist / wide)
+    bridge = _smooth((noise(rng, hw, 0.8 * period, 0.7 * period) - 0.78) / 0.08)
+    return 1.0 - furrow * (1.0 - 0.8 * bridge)
+
+
 def _oak(rng: np.random.Generator, hw: tuple[int, int]) -> NDArray[np.uint8]:
-    """Deep, wandering vertical furrows between thick, blocky grey-brown ridges."""
-    f = 26.0
-    ridge = _furrows(rng, hw, f, 16.0)
-    cracks = _cross_cracks(rng, hw, 0.8 * f, 1.6 * f, 0.55)
-    fibres = noise(rng, hw, 16.0, 2.5)
-    rough = fbm(rng, hw, 0.8 * f, 0.5 * f, 4)
-    h = ridge * (0.75 + 0.25 * rough - 0.1 * _smooth(1.0 - contour_distance(fibres)))
-    h = h * (1.0 - 0.85 * cracks * np.sqrt(ridge))
+    """Deep vertical furrows, evenly spaced, between long, thick grey-brown ridges, the
+    ridges broken into blocks by a few cross cracks and furrowed by fibres."""
+    f = 20.0
+    # five furrows across a 128 px tile (see _ribs)
+    ridge = _ribs(rng, hw, 128.0 / 5.0, 9.0)
+    cracks = _cross_cracks(rng, hw, 0.7 * f, 2.2 * f, 0.4)
+    fibres = noise(rng, hw, 14.0, 2.0)
+    rough = fbm(rng, hw, 0.8 * f, 0.4 * f, 4)
+    # a ridge's top is flat and rough, its walls steep: sqrt sharpens the profile
+    h = np.sqrt(ridge) * (0.7 + 0.3 * rough - 0.12 * _smooth(1.0 - contour_distance(fibres)))
+    h = h * (1.0 - 0.8 * cracks * ridge)
     grain = noise(rng, hw, 5.0, 1.2)
     h = np.clip(h + 0.05 * (grain - 0.5), 0.0, 1.0)
     tint = fbm(rng, hw, 3 * f, 3 * f, 3)
-    albedo = _palette(h, [(0.0, (30, 24, 20)), (0.45, (84, 73, 62)), (1.0, (150, 141, 128))])
+    albedo = _palette(
+        h,
+        [(0.0, (52, 41, 33)), (0.3, (72, 60, 49)), (0.7, (104, 92, 78)), (1.0, (132, 120, 104))],
+    )
     albedo *= (0.88 + 0.24 * tint)[..., None]
-    moss = _smooth((fbm(rng, hw, 4 * f, 4 * f, 3) - 0.6) / 0.15) * 0.3 * h
-    albedo += moss[..., None] * (np.array([125.0, 135.0, 104.0]) - albedo)
-    return _finish(albedo, shade(h, 12.0, cavity=0.4))
+    moss = _smooth((fbm(rng, hw, 4 * f, 4 * f, 3) - 0.62) / 0.15) * 0.25 * h
+    albedo += moss[..., None] * (np.array([104.0, 112.0, 84.0]) - albedo)
+    return _finish(albedo, shade(h, 14.0, ambient=0.5, cavity=0.4))
 
 
 def _scales(
@@ -453,6 +496,48 @@ def _hazel(rng: np.random.Generator, hw: tuple[int, int]) -> NDArray[np.uint8]:
     return _finish(albedo, light)
 
 
+def _pine_lower(rng: np.random.Generator, hw: tuple[int, int]) -> NDArray[np.uint8]:
+    """The foot of an old pine: thick grey-brown plates split by deep, mostly vertical
+    fissures, a rust-red glow of inner bark down in them."""
+    f = 28.0
+    ridge = _valleys(rng, hw, 0.55 * f, 0.36, 0.1)
+    edge, lift, tone = _scales(rng, hw, 2.5 * f, 1.4 * f, 0.08, warp=0.35)
+    rough = fbm(rng, hw, 10.0, 6.0, 4)
+    h = np.sqrt(ridge) * (0.4 + 0.6 * edge) * (0.65 + 0.2 * rough + 0.15 * lift)
+    h = np.clip(h + 0.05 * (noise(rng, hw, 6.0, 1.5) - 0.5), 0.0, 1.0)
+    albedo = _palette(
+        h + 0.15 * (tone - 0.5),
+        [(0.0, (58, 34, 24)), (0.25, (100, 58, 38)), (0.5, (92, 80, 70)), (1.0, (128, 116, 102))],
+    )
+    albedo *= (0.9 + 0.2 * fbm(rng, hw, 60.0, 60.0, 3))[..., None]
+    return _finish(albedo, shade(h, 14.0, cavity=0.5))
+
+
+def _birch_lower(rng: np.random.Generator, hw: tuple[int, int]) -> NDArray[np.uint8]:
+    """The foot of an old birch: black-grey corky bark in thick vertical ridges between deep
+    fissures, a few strips of the white bark left between them."""
+    f = 22.0
+    ridge = _valleys(rng, hw, 0.6 * f, 0.37, 0.1)
+    cracks = _cross_cracks(rng, hw, 0.8 * f, 2.0 * f, 0.5)
+    rough = fbm(rng, hw, 8.0, 4.0, 4)
+    h = np.sqrt(ridge) * (0.65 + 0.35 * rough) * (1.0 - 0.7 * cracks)
+    h = np.clip(h + 0.05 * (noise(rng, hw, 4.0, 1.5) - 0.5), 0.0, 1.0)
+    dark = _palette(h, [(0.0, (12, 11, 10)), (0.5, (40, 37, 34)), (1.0, (78, 74, 70))])
+    # white bark survives in patches on the ridges, long and narrow
+    white = _smooth((fbm(rng, hw, 50.0, 14.0, 3) - 0.6) / 0.06) * _smooth(h / 0.6)
+    pale = np.array([214.0, 208.0, 198.0])
+    albedo = dark + white[..., None] * (pale - dark)
+    return _finish(albedo, shade(h, 12.0, cavity=0.45))
+
+
+LOWER: dict[str, Callable[[np.random.Generator, tuple[int, int]], NDArray[np.uint8]]] = {
+    "pine": _pine_lower,
+    "birch": _birch_lower,
+}
+"""Bark of the lower trunk, for species whose foot looks other than the rest: like
+:data:`SPECIES`."""
+
+
 SPECIES: dict[str, Callable[[np.random.Generator, tuple[int, int]], NDArray[np.uint8]]] = {
     "oak": _oak,
     "almond": _almond,
@@ -472,3 +557,11 @@ def species_example(species: str, height: int, width: int, seed: int) -> NDArray
     if species not in SPECIES:
         raise ValueError(f"unknown bark species {species!r}; known: {', '.join(SPECIES)}")
     return SPECIES[species](np.random.default_rng(seed), (height, width))
+
+
+def lower_example(species: str, height: int, width: int, seed: int) -> NDArray[np.uint8]:
+    """A ``(height, width, 3)`` uint8 example of ``species``' lower-trunk bark (one of
+    :data:`LOWER`), at :func:`species_example`'s scale."""
+    if species not in LOWER:
+        raise ValueError(f"no lower-trunk bark for {species!r}; known: {', '.join(LOWER)}")
+    return LOWER[species](np.random.default_rng(seed), (height, width))

@@ -80,8 +80,10 @@ def _folder_files(folder: Path, n_slices: int) -> tuple[str | None, list[str]]:
     return files.array, files.slices
 
 
-def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
-    """Slices of a tile-set folder: its texture-array TIFF, else its per-slice PNGs."""
+def load_tile_folder(folder: Path, n_slices: int, required: int | None = None) -> TileImages:
+    """Slices of a tile-set folder: its texture-array TIFF, else its per-slice PNGs; at least
+    ``required`` of them (default ``n_slices``), the rest as far as the folder has them."""
+    need = n_slices if required is None else required
     array_name, slice_names = _folder_files(folder, n_slices)
     array = folder / array_name if array_name else None
     if array is not None and array.is_file():
@@ -91,6 +93,8 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
         images = []
         for k in range(min(n_slices, len(slice_names))):
             path = folder / slice_names[k]
+            if not path.is_file() and k >= need:
+                break
             if not path.is_file():
                 raise TileSetError(
                     f"tile set has no {array_name or 'texture array'} and slice {k} is missing",
@@ -98,8 +102,8 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
                 )
             images.extend(read_image_subimages(path)[:1])
         source = str(folder / UDIM_PATTERN)
-    if len(images) < n_slices:
-        raise TileSetError(f"{len(images)} slices, the scene's tiles need {n_slices}", path=source)
+    if len(images) < need:
+        raise TileSetError(f"{len(images)} slices, the scene's tiles need {need}", path=source)
     shapes = {im.shape for im in images}
     if len(shapes) != 1:
         raise TileSetError(f"slices differ in size: {sorted(shapes)}", path=source)
@@ -108,22 +112,25 @@ def load_tile_folder(folder: Path, n_slices: int) -> TileImages:
 
 def shipped_tile_folder(manifest: TileSetManifest, name: str = "default") -> Path | None:
     """The package's tile set ``name`` (``forest.bark.tilesets``) when it has the scene's
-    tile classes (None: a scene of other classes, which the shipped tiles do not fit). An
-    unknown name, or a shipped set missing from this installation, is
-    an error naming the set (never its folder): placeholder bark in its stead would hide
-    a broken install."""
-    from forest.bark.tilesets import SETS, installed_set_dir
+    tile classes: the default manifest's, or the set's own (which may add the lower trunk's
+    after them); None for a scene of other classes, which the shipped tiles do not fit. An
+    unknown name, or a shipped set missing from this installation, is an error naming the
+    set (never its folder): placeholder bark in its stead would hide a broken install."""
+    from forest.bark.tilesets import SETS, installed_set_dir, set_dir, shipped_manifest
 
     if name not in SETS:
         raise TileSetError(
             f"no shipped bark tile set {name!r} (shipped: {', '.join(SETS)})", path="bark"
         )
-    same = [(c.id, c.first, c.count) for c in manifest.classes] == [
-        (c.id, c.first, c.count) for c in DEFAULT_MANIFEST.classes
-    ]
-    if not same:
-        return None
-    return installed_set_dir(name)
+
+    def spans(m: TileSetManifest) -> set[tuple[int, int, int]]:
+        return {(c.id, c.first, c.count) for c in m.classes}
+
+    wanted = spans(manifest)
+    fits = wanted <= spans(DEFAULT_MANIFEST)
+    if not fits and (set_dir(name) / "manifest.json").is_file():
+        fits = wanted <= spans(shipped_manifest(name))
+    return installed_set_dir(name) if fits else None
 
 
 def scene_tile_images(
@@ -145,4 +152,27 @@ def scene_tile_images(
         return None
     if not folder.is_dir():
         raise TileSetError("tile-set folder does not exist", path=str(folder))
-    return load_tile_folder(folder, manifest.n_slices)
+    lower = [c for c in manifest.classes if c.stands_for is not None]
+    base = min((c.first for c in lower), default=manifest.n_slices)
+    images = load_tile_folder(folder, manifest.n_slices, required=base)
+    return _with_lower_trunk(images, manifest)
+
+
+def _with_lower_trunk(images: TileImages, manifest: TileSetManifest) -> TileImages:
+    """``images`` with the lower trunk's slices (``TileClass.stands_for``) that a folder
+    built without them lacks taken from the classes they stand for: such a set shows its
+    one bark down to the ground."""
+    n = manifest.n_slices
+    if images.n_slices >= n:
+        return images
+    by_id = {c.id: c for c in manifest.classes}
+    slices = np.concatenate(
+        [images.slices, np.zeros((n - images.n_slices, *images.slices.shape[1:]), np.uint8)]
+    )
+    for c in manifest.classes:
+        if c.stands_for is None or c.first + c.count <= images.n_slices:
+            continue
+        base = by_id[c.stands_for]
+        for k in range(c.count):
+            slices[c.first + k] = slices[base.first + k % base.count]
+    return TileImages(slices, f"{images.source} (its bark for the lower trunk's slices)")

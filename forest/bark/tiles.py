@@ -18,10 +18,11 @@ FORK_ID = 2  # the class crotch classes fall back to
 
 
 def class_tables(
-    pieces: tuple[PieceArrays, ...], manifest: TileSetManifest
+    pieces: tuple[PieceArrays, ...], manifest: TileSetManifest, lower: bool = False
 ) -> tuple[NDArray[np.int32], NDArray[np.int32], NDArray[np.int32]]:
     """Per piece and padded quad: first slice ``(p, q)``, tile count ``(p, q)`` (0 marks
-    padding), and the quad counts ``(p,)``.
+    padding), and the quad counts ``(p,)``. With ``lower``, the lower trunk's: a class some
+    class stands for (``TileClass.stands_for``) draws from that one.
 
     A crotch class (id 3 and up, :data:`schemas.tileset.CLASS_EDGES`) the manifest lacks (a
     set built with bark and fork tiles only, or written by hand) draws from the fork class:
@@ -31,6 +32,8 @@ def class_tables(
         for cid in CLASS_EDGES:
             if cid > FORK_ID:
                 by_id.setdefault(cid, by_id[FORK_ID])
+    if lower:
+        by_id.update({c.stands_for: c for c in manifest.classes if c.stands_for is not None})
     n_quads = np.array([len(p.quads) for p in pieces], np.int32)
     first = np.zeros((len(pieces), n_quads.max()), np.int32)
     count = np.zeros_like(first)
@@ -53,6 +56,7 @@ def draw_tile_indices(
     manifest: TileSetManifest,
     rng: np.random.Generator,
     threads: int = 1,
+    lower: NDArray[np.bool_] | None = None,
 ) -> NDArray[np.int16]:
     """``(n, q_max)`` int16 slice per instance and quad, ``-1`` past the piece's last quad
     (16 bits: half the bytes of the forest's largest array after the palette; a texture
@@ -68,8 +72,18 @@ def draw_tile_indices(
     advanced to where a single thread would be at that chunk (PCG64 jumps ahead in
     ``O(log n)``): the same indices on any number of threads. ``rng`` ends advanced past every
     draw either way.
+
+    ``lower`` ``(n,)`` marks the instances on the lower trunk (:func:`lower_trunk`): they
+    draw from the classes that stand for theirs. They index a second copy of the piece
+    tables, so the draws, and every other instance's tiles, are the same as without.
     """
     first, count, n_quads = class_tables(pieces, manifest)
+    if lower is not None and lower.any():
+        low_first, low_count, _ = class_tables(pieces, manifest, lower=True)
+        first = np.concatenate([first, low_first])
+        count = np.concatenate([count, low_count])
+        n_quads = np.concatenate([n_quads, n_quads])
+        piece = np.where(lower, piece + len(pieces), piece).astype(piece.dtype)
     if int((first + count).max(initial=0)) > np.iinfo(np.int16).max:
         raise ForestError(
             f"the tile set has over {np.iinfo(np.int16).max} slices", path="tileset.classes"
@@ -121,6 +135,22 @@ def draw_tile_indices(
 
 
 _TILE_CHUNK = 8192  # rows per chunk: a multiple of 4, so chunks use whole 64-bit draws
+
+
+def lower_trunk(
+    tree: NDArray[np.integer],
+    order: NDArray[np.integer],
+    height: NDArray[np.floating],
+    fraction: float,
+) -> NDArray[np.bool_]:
+    """``(n,)`` the trunk instances (branch order 0) that start below ``fraction`` of their
+    tree's height, the highest start of a trunk instance in that tree (per instance
+    ``tree``, ``order`` and ``height``, metres, as :class:`forest.growth.expand.PieceGraph`
+    holds them)."""
+    trunk = order == 0
+    top = np.zeros(int(tree.max(initial=-1)) + 1)
+    np.maximum.at(top, tree[trunk], height[trunk])
+    return trunk & (height < fraction * top[tree])
 
 
 def manifest_for(folder: Path) -> TileSetManifest:

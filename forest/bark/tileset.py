@@ -35,7 +35,7 @@ from __future__ import annotations
 import itertools
 import re
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +70,7 @@ from schemas.tileset import (
 U8 = NDArray[np.uint8]
 Progress = Callable[[str, int, int], None]  # (stage, done, total), as forest.growth.generate's
 CORNER_FILE = "corner.png"
+LOWER_CORNER_FILE = "corner.lower.png"
 # Image quilting's patch choice: any candidate whose overlap error is within 10 % of the best
 # is as good (Efros and Freeman use the same 0.1); choosing among them at random keeps tiles
 # from converging on one lucky patch.
@@ -78,6 +79,10 @@ ERROR_TOLERANCE_PERCENT = 10
 # whose interior overlaps earlier tiles' least (within 10 percentage points of the least) stay.
 FALLBACK_CANDIDATES = 64
 FALLBACK_OVERLAP_SLACK = 0.1
+# Columns between the places a sliding slot's patch is tried at (build_tileset's slide).
+SLIDE_STEP = 2
+# Random crops an edge or corner pattern is chosen from (the most typical of them).
+PATTERN_CANDIDATES = 24
 # Tiles are stitched in chunks of at most this many bytes per image stack.
 CHUNK_BYTES = 1 << 26
 # A tile set is held in memory whole (and written as one texture array): 1 GiB of RGB bytes
@@ -161,6 +166,8 @@ class TileSet:
     reused: int = 0
     """Tiles whose interior overlaps an earlier tile's in the examples, because the examples
     held no more disjoint places (see :func:`choose_patch`)."""
+    lower_corner: U8 | None = None
+    """The lower trunk's corner pattern (:func:`stack_lower`), like ``corner``."""
 
 
 # ---------------------------------------------------------------- array functions
@@ -275,30 +282,45 @@ def class_frame(left: U8, right: U8, top: U8, bottom: U8, geom: TileGeometry) ->
 class _Places:
     """Where interiors can come from: per example, disjoint slots of the region's size laid
     out on a jittered grid, and the regions already taken (to count overlap when slots run
-    out)."""
+    out). A slot wider than the region (``slide``) may hold its patch anywhere across it:
+    ``slide`` maps the slot's leftmost place to how many columns further right it may go."""
 
     free: list[tuple[int, int, int]]  # (example, crop y, crop x)
     taken: list[list[tuple[int, int]]]  # per example, crop (y, x) of chosen patches
+    slide: dict[tuple[int, int, int], int] = field(default_factory=dict)
+
+    def anchor(self, place: tuple[int, int, int]) -> tuple[int, int, int]:
+        """The free slot ``place`` lies in."""
+        k, y, x = place
+        for a in self.free:
+            if a[0] == k and a[1] == y and a[2] <= x <= a[2] + self.slide.get(a, 0):
+                return a
+        raise KeyError(place)
 
 
 def _slots(
-    shapes: Sequence[tuple[int, int]], geom: TileGeometry, rng: np.random.Generator
+    shapes: Sequence[tuple[int, int]], geom: TileGeometry, rng: np.random.Generator, slide: int = 0
 ) -> _Places:
     w, r = geom.border, geom.region
     free: list[tuple[int, int, int]] = []
+    spans: dict[tuple[int, int, int], int] = {}
     for k, (h, wd) in enumerate(shapes):
         starts = []
-        for extent in (h, wd):
+        for extent, extra in ((h, 0), (wd, slide)):
             usable = extent - 2 * w  # the region must keep ``border`` pixels of margin
-            n = usable // r
+            n = max(1, usable // (r + extra)) if extra else usable // r
             edges = [w + (usable * i) // n for i in range(n + 1)]
             starts.append([(a, b - a) for a, b in itertools.pairwise(edges)])
         for y0, hy in starts[0]:
             for x0, hx in starts[1]:
                 y = y0 + int(rng.integers(0, hy - r + 1)) - w
-                x = x0 + int(rng.integers(0, hx - r + 1)) - w
+                if slide:  # the patch's place across is chosen by its error, not at random
+                    x = x0 - w
+                    spans[(k, y, x)] = hx - r
+                else:
+                    x = x0 + int(rng.integers(0, hx - r + 1)) - w
                 free.append((k, y, x))
-    return _Places(free=free, taken=[[] for _ in shapes])
+    return _Places(free=free, taken=[[] for _ in shapes], slide=spans)
 
 
 def _overlap(places: _Places, k: int, y: int, x: int, r: int) -> float:
@@ -313,7 +335,11 @@ def _candidates(
     places: _Places, shapes: Sequence[tuple[int, int]], geom: TileGeometry, rng: np.random.Generator
 ) -> list[tuple[int, int, int]]:
     if places.free:
-        return places.free
+        return [
+            (k, y, x + d)
+            for k, y, x in places.free
+            for d in range(0, places.slide.get((k, y, x), 0) + 1, SLIDE_STEP)
+        ]
     s = geom.size
     drawn = []
     for _ in range(FALLBACK_CANDIDATES):
@@ -368,7 +394,7 @@ def choose_patch(
     pick = int(ok[rng.integers(len(ok))])
     place = cands[pick]
     if places.free:
-        places.free.remove(place)
+        places.free.remove(places.anchor(place))
     places.taken[place[0]].append(place[1:])
     return place, int(err[pick])
 
@@ -417,11 +443,16 @@ def build_tileset(
     geom: TileGeometry,
     seed: int,
     progress: Progress | None = None,
+    slide: int = 0,
 ) -> TileSet:
     """Cut edge patterns and a corner pattern from the examples, then stitch an interior patch
     into every tile of every class. The same examples, classes, geometry and seed give the same
     tiles on every machine (integer errors, seeded choices). ``progress`` hears ``(stage,
-    tiles done, tiles)`` as patches are chosen (``patches``), then stitched (``stitch``)."""
+    tiles done, tiles)`` as patches are chosen (``patches``), then stitched (``stitch``).
+
+    ``corner_source`` ``(2(e+o), 2(e+o), 3)``: the corner crop to use (shared with another
+    group of tiles, :func:`stack_lower`) instead of one cut here; ``corner_like``: other
+    images the corner should look typical of too (that other group's examples)."""
     note = progress or (lambda stage, done, total: None)
     axes = _check_classes(classes)
     _check_size(sum(c.count for c in classes), geom)
@@ -439,14 +470,31 @@ def build_tileset(
     rng = np.random.default_rng(seed)
     pix = [ex.pixels for ex in examples]
     n_ex = len(pix)
+    target = _colour_quantiles(pix)
 
-    # the corner pattern, then one edge pattern per colour, each from an example in turn
-    def place(h: int, w: int, k: int) -> tuple[int, int, int]:
+    # the corner pattern, then one edge pattern per colour, each from an example in turn; a
+    # pattern shows in every tile of its colour, so of a few random crops the one whose
+    # colours spread most like the examples' is taken: never a rare dark scar that would
+    # then ring every crotch or dot every corner
+    def place(
+        h: int, w: int, k: int, tries: int = PATTERN_CANDIDATES, like: NDArray[np.float64] = target
+    ) -> tuple[int, int, int]:
         ey, ex_ = pix[k].shape[:2]
-        return k, int(rng.integers(0, ey - h + 1)), int(rng.integers(0, ex_ - w + 1))
+        best: tuple[float, tuple[int, int, int]] | None = None
+        for _ in range(tries):
+            at = k, int(rng.integers(0, ey - h + 1)), int(rng.integers(0, ex_ - w + 1))
+            q = _colour_quantiles([_crops(pix, [at], h, w)[0]])
+            d = float(np.abs(q - like).sum())
+            if best is None or d < best[0]:
+                best = (d, at)
+        assert best is not None
+        return best[1]
 
     cs = geom.corner_crop
-    corner_at = place(cs, cs, int(rng.integers(n_ex)))
+    # the corner shows at every tile's four corners, a grid across the bark: the plainest
+    # crop of the examples' middle colour, which the eye does not pick out
+    plain = np.repeat(target[:, target.shape[1] // 2 : target.shape[1] // 2 + 1], 16, axis=1)
+    corner_at = place(cs, cs, int(rng.integers(n_ex)), 16 * PATTERN_CANDIDATES, plain)
     corner_src = _crops(pix, [corner_at], cs, cs)[0]
     names = sorted(axes)
     first = int(rng.integers(n_ex))
@@ -492,7 +540,7 @@ def build_tileset(
         )
         for c in classes
     }
-    places = _slots([p.shape[:2] for p in pix], geom, rng)
+    places = _slots([p.shape[:2] for p in pix], geom, rng, slide)
     records: list[TileRecord] = []
     tile_classes: list[TileClass] = []
     chosen: list[tuple[int, int, int]] = []
@@ -565,7 +613,91 @@ def build_tileset(
             array=ARRAY_FILE,
         ),
     )
-    return TileSet(manifest=manifest, tiles=tiles, patterns=patterns, corner=corner, reused=reused)
+    return TileSet(
+        manifest=manifest,
+        tiles=tiles,
+        patterns=patterns,
+        corner=corner,
+        reused=reused,
+    )
+
+
+def _colour_quantiles(images: Sequence[U8]) -> NDArray[np.float64]:
+    """``(3, 16)`` 16 quantiles of each colour channel over all ``images``, from the 10th
+    to the 90th percentile: a crop matches them whatever it holds of a feature rarer than
+    a tenth of the examples, but not if such a feature fills a tenth of the crop."""
+    px = np.concatenate([im.reshape(-1, im.shape[-1]) for im in images]).astype(np.float64)
+    return np.quantile(px, np.linspace(0.1, 0.9, 16), axis=0).T
+
+
+LOWER_ID = 100
+"""A lower-trunk class's id is this plus the id of the class it stands for."""
+LOWER_PREFIX = "lower-"
+"""Names and edge colours of the lower trunk's classes: their own, so the lower bark
+continues only into itself."""
+
+
+def lower_classes(classes: Sequence[ClassSpec]) -> tuple[ClassSpec, ...]:
+    """The lower trunk's classes for ``classes``: the same counts, ids :data:`LOWER_ID` up,
+    names and edge colours prefixed :data:`LOWER_PREFIX`."""
+
+    def rename(e: TileEdges) -> TileEdges:
+        return TileEdges(**{k: LOWER_PREFIX + v for k, v in e.model_dump().items()})
+
+    return tuple(
+        ClassSpec(LOWER_PREFIX + c.name, LOWER_ID + c.id, c.count, rename(c.edges)) for c in classes
+    )
+
+
+def stack_lower(upper: TileSet, lower: TileSet, fraction: float) -> TileSet:
+    """One tile set of two groups: ``upper``'s slices, then ``lower``'s (built with
+    :func:`lower_classes`: its own edge colours and corner pattern, so it meets only itself
+    without a seam), whose classes stand for the classes of ``upper`` they were made for on
+    trunk pieces below ``fraction`` of the tree's height (``TileSetManifest.lower_trunk``)."""
+    um, lm = upper.manifest, lower.manifest
+    assert um.files is not None and um.corner is not None and lm.corner is not None
+    n_up, n_src = um.n_slices, len(um.sources)
+    classes = [
+        *um.classes,
+        *(
+            c.model_copy(update={"first": c.first + n_up, "stands_for": c.id - LOWER_ID})
+            for c in lm.classes
+        ),
+    ]
+    n = n_up + lm.n_slices
+    manifest = um.model_copy(
+        update={
+            "classes": classes,
+            "sources": [*um.sources, *lm.sources],
+            "edge_patterns": [
+                *um.edge_patterns,
+                *(p.model_copy(update={"source": p.source + n_src}) for p in lm.edge_patterns),
+            ],
+            "tiles": [
+                *um.tiles,
+                *(
+                    t.model_copy(update={"slice": t.slice + n_up, "source": t.source + n_src})
+                    for t in lm.tiles
+                ),
+            ],
+            "files": um.files.model_copy(
+                update={"slices": [udim_file(um.files.udim, k) for k in range(n)]}
+            ),
+            "lower_trunk": fraction,
+            "lower_corner": lm.corner.model_copy(
+                update={"file": LOWER_CORNER_FILE, "source": lm.corner.source + n_src}
+            ),
+        }
+    )
+    manifest = TileSetManifest.model_validate(manifest.model_dump())  # validated whole
+    return TileSet(
+        manifest=manifest,
+        tiles=np.concatenate([upper.tiles, lower.tiles]),
+        patterns={**upper.patterns, **lower.patterns},
+        corner=upper.corner,
+        reused=upper.reused + lower.reused,
+        lower_corner=lower.corner,
+    )
 
 
 # the slice files of any earlier set written with the default names
@@ -602,6 +734,10 @@ def write_tileset(tileset: TileSet, folder: Path, progress: Progress | None = No
             write_png(staging / p.file, tileset.patterns[p.name])
         names.append(m.corner.file)
         write_png(staging / m.corner.file, tileset.corner)
+        if m.lower_corner is not None:
+            assert tileset.lower_corner is not None
+            names.append(m.lower_corner.file)
+            write_png(staging / m.lower_corner.file, tileset.lower_corner)
         names.append(MANIFEST_FILE)
         write_text(staging / MANIFEST_FILE, m.model_dump_json(indent=2) + "\n")
     keep = set(m.files.slices)

@@ -11,7 +11,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest import __version__
-from forest.bark.tiles import draw_tile_indices
+from forest.bark.tiles import draw_tile_indices, lower_trunk
+from forest.bark.tilesets import shipped_manifest
 from forest.errors import LimitError
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceArrays, piece_library
 from forest.geometry.transforms import F64, similarity_scale
@@ -30,7 +31,7 @@ from forest.growth.tropism import apply_tropisms
 from forest.growth.wind import Wind
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
-from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+from schemas.tileset import TileSetManifest
 
 Progress = Callable[[str, int, int], None]
 GROUND_PASSES = 3  # the cuts of branches under the ground: enough for the caps they make
@@ -191,12 +192,16 @@ def generate_forest(
     grammar: Grammar,
     seed: int,
     options: ForestOptions | None = None,
-    manifest: TileSetManifest = DEFAULT_MANIFEST,
+    manifest: TileSetManifest | None = None,
     settings: ForestSettings | None = None,
     progress: Progress | None = None,
     compiled: CompiledGrammar | None = None,
 ) -> Forest:
-    """Expand, assemble, pose and tile a forest. Same inputs, same version: same arrays."""
+    """Expand, assemble, pose and tile a forest. Same inputs, same version: same arrays.
+    ``manifest``: the tile classes the bark tiles draw from; by default the shipped set the
+    grammar's ``bark`` names (:func:`forest.bark.tilesets.shipped_manifest`)."""
+    if manifest is None:
+        manifest = shipped_manifest(grammar.bark)
     settings = settings or get_settings()
     options = options or ForestOptions()
     options.check(settings)
@@ -287,8 +292,17 @@ def _assemble(
     # a core idle much of the time (the same arrays on any number of threads); the pool ends
     # with the call, as in forest.growth.parallel
     with ThreadPoolExecutor(2, thread_name_prefix="forest-side") as side:
+        lower = None
+        if manifest.lower_trunk is not None:
+            lower = lower_trunk(graph.tree, graph.order, graph.height, manifest.lower_trunk)
         tiles_drawn = side.submit(
-            draw_tile_indices, graph.piece, pieces, manifest, rng_tiles, threads=block_threads()
+            draw_tile_indices,
+            graph.piece,
+            pieces,
+            manifest,
+            rng_tiles,
+            threads=block_threads(),
+            lower=lower,
         )
         pose_drawn = side.submit(draw_pose, graph, pieces, cg)
         note("assemble", 2, 5)

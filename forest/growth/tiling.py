@@ -27,7 +27,7 @@ from forest.growth.scatter import CellGrid, PlacedTrees, Placement, placed
 from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
-from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
+from schemas.tileset import TileSetManifest
 
 
 @dataclass(frozen=True)
@@ -146,7 +146,7 @@ def generate_tile(
     i: int,
     j: int,
     options: ForestOptions | None = None,
-    manifest: TileSetManifest = DEFAULT_MANIFEST,
+    manifest: TileSetManifest | None = None,
     settings: ForestSettings | None = None,
     progress: Progress | None = None,
     threshold: np.uint64 | None = None,
