@@ -13,8 +13,12 @@ from pxr import Sdf, Usd, UsdGeom
 
 from forest.geometry.pieces import HUB, piece_library
 from forest.growth.foliage import (
+    CLUSTER,
     FAMILIES,
     MODELS,
+    ROSETTE,
+    STEM_S,
+    STEM_T,
     YAW_STEPS,
     cloud_colors,
     cloud_models,
@@ -53,7 +57,8 @@ def test_sprays_are_flat_cards_in_metres(family: str) -> None:
     for m, c in enumerate(models):
         assert c.family == family
         assert c.quads.shape == (c.n_cards, 4) and c.triangles().shape == (2 * c.n_cards, 3)
-        assert c.leaf is not None and c.leaf.shape == (c.n_cards,) and c.leaf.any()
+        assert c.kind is not None and c.kind.shape == (c.n_cards,)
+        assert c.leaf is not None and c.leaf.any() and c.n_leaves >= c.leaf.sum()
         # a branchlet: its shoot starts at the origin (a card's half width away at most), no
         # more than 2 m long
         assert np.linalg.norm(c.positions, axis=1).min() < 0.05 and 0.1 < c.radius < 2.0
@@ -78,9 +83,13 @@ def test_sprays_are_flat_cards_in_metres(family: str) -> None:
 def test_spray_leaves_follow_the_phyllotaxis_and_face_the_light() -> None:
     oak = cloud_models("oak")
     for c in oak:
-        assert c.leaf is not None
+        assert c.leaf is not None and c.kind is not None
         n = c.normals[::4][c.leaf]
         assert np.median(np.abs(n[:, 1])) > 0.7  # blades mostly level, facing up or down
+        # every shoot ends in a cluster card of ROSETTE leaves facing up
+        cluster = c.kind == CLUSTER
+        assert cluster.sum() >= 4 and (c.normals[::4][cluster][:, 1] > 0.6).all()
+        assert c.n_leaves == c.leaf.sum() + ROSETTE * cluster.sum()
     # a grammar's length and phyllotaxis reach the models
     small = cloud_models("hazel", (0.02, 0.03), "opposite")
     assert all(c.leaf_lengths().min() >= 0.014 and c.leaf_lengths().max() <= 0.03 for c in small)
@@ -113,11 +122,14 @@ def test_leaf_textures_are_neutral_leaves_with_empty_surroundings(family: str) -
     assert t.shape == (64, 64, 4) and t.dtype == np.uint8
     shape = t[..., 3] == 255
     assert set(np.unique(t[..., 3])) == {0, 255}
-    assert 0.1 < shape.mean() < 0.75
-    assert not shape[:, 0].any() and not shape[:, -1].any()  # room round the leaf
-    assert shape[:, 32].sum() > 40  # the stalk and midrib (or the twig) run the card's length
+    leaf, cluster = shape[:, :32], shape[32:, 32:]
+    assert 0.1 < leaf.mean() < 0.75 and 0.1 < cluster.mean() < 0.9
+    assert not shape[:, 0].any() and not shape[:, 31].any()  # room round the leaf
+    assert not shape[:32, 32:].any()  # the lower right quarter is empty
+    assert leaf[:, 16].sum() > 40  # the stalk and midrib (or the twig) run the card's length
     # the stalk stem cards show: opaque over STEM_S x STEM_T
-    assert t[int(0.02 * 64) : int(0.05 * 64) + 1, 31:33, 3].min() == 255
+    assert t[int(STEM_T[0] * 64) : int(STEM_T[1] * 64) + 1, int(STEM_S[0] * 64), 3].min() == 255
+    assert cluster[12:20, 12:20].any()  # the cluster's leaves meet in its middle
     rgb = t[..., :3][shape].astype(float)
     # neutral: the spray's colour tints it, so no channel dominates
     assert np.abs(rgb[:, 0] - rgb[:, 1]).max() <= 1 and rgb[:, 2].mean() < rgb[:, 1].mean()
@@ -126,12 +138,12 @@ def test_leaf_textures_are_neutral_leaves_with_empty_surroundings(family: str) -
 
 def test_every_species_has_its_own_leaf_picture() -> None:
     species = ["oak", "birch", "hazel", "willow", "almond", "poplar", "pine", "spruce"]
-    alphas = [leaf_texture(f, 64)[..., 3] for f in species]  # type: ignore[arg-type]
+    alphas = [leaf_texture(f, 64)[:, :32, 3] for f in species]  # type: ignore[arg-type]
     for i in range(len(alphas)):
         for j in range(i):
             assert (alphas[i] != alphas[j]).mean() > 0.02, (species[i], species[j])
     # the oak's blade is lobed: across its upper half the width swings in and out
-    a = leaf_texture("oak", 256)[..., 3] > 0
+    a = leaf_texture("oak", 256)[:, :128, 3] > 0
     width = a[100:240].sum(axis=1).astype(float)
     swings = np.sum(np.abs(np.diff(np.sign(np.diff(width)))) > 0)
     assert swings >= 4

@@ -62,8 +62,14 @@ TEXTURE_SIZE = 256
 RECT = np.array([[-0.5, 0.0], [0.5, 0.0], [0.5, 1.0], [-0.5, 1.0]])
 RECT_ST = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
 CARD, CARD_ST = RECT, RECT_ST
-# the part of every picture a stem card shows: the petiole (or the twig of a needle sprig)
-STEM_S = (0.49, 0.51)
+# where each picture lies in a family's texture (s from, s to, t from, t to): one leaf, a
+# cluster of ROSETTE leaves seen from above, and the stalk that stem cards show
+LEAF_ST = (0.0, 0.5, 0.0, 1.0)
+ROSETTE_ST = (0.5, 1.0, 0.5, 1.0)
+ROSETTE = 6
+ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half width
+STEM, LEAF, CLUSTER = 0, 1, 2  # what a card shows (LeafCloud.kind)
+STEM_S = (0.245, 0.255)
 STEM_T = (0.015, 0.05)
 LEAF_GREEN = (0.22, 0.42, 0.13)  # linear RGB of sprays that carry no colour (older scenes)
 # per-spray jitter about its tree's base colour: hue in turns, saturation and value as
@@ -86,7 +92,9 @@ class SprayForm:
     fans round the shoot's end), ``sprig`` (needle sprigs all round a branchlet); rise: the
     shoot's start above the horizontal, degrees; stem: stem card width; sides: range of the
     side shoots of the last order on the spray's shoot (so a spray is a branchlet of the
-    last two orders), side: their length range. Leaves counts are per shoot."""
+    last two orders), side: their length range; rosette: every shoot ends in a cluster of
+    leaves (one card showing ROSETTE leaves from above). Leaf counts are per shoot, besides
+    the rosette's."""
 
     length: tuple[float, float]
     aspect: float
@@ -100,11 +108,12 @@ class SprayForm:
     stem: float = 0.004
     sides: tuple[int, int] = (0, 0)
     side: tuple[float, float] = (0.1, 0.2)
+    rosette: bool = False
 
 
 FORMS: dict[str, SprayForm] = {
-    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (5, 8), (0.35, 0.7), crowd=2.6,
-                     sides=(3, 5), side=(0.08, 0.2)),
+    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (3, 5), (0.5, 0.9), crowd=1.8,
+                     sides=(3, 5), side=(0.12, 0.3), rosette=True),
     "birch": SprayForm((0.05, 0.08), 0.62, 0.32, "spiral", (5, 8), (0.4, 0.8),
                        habit="hanging", rise=(0.0, 25.0), stem=0.003, sides=(2, 4),
                        side=(0.15, 0.3)),
@@ -113,17 +122,17 @@ FORMS: dict[str, SprayForm] = {
     "willow": SprayForm((0.08, 0.14), 0.2, 0.05, "spiral", (16, 24), (0.8, 1.6),
                         habit="hanging", rise=(10.0, 30.0), stem=0.003, sides=(1, 2),
                         side=(0.4, 0.8)),
-    "almond": SprayForm((0.08, 0.12), 0.3, 0.12, "spiral", (6, 9), (0.3, 0.5), crowd=1.4,
-                        sides=(2, 4), side=(0.1, 0.22)),
+    "almond": SprayForm((0.08, 0.12), 0.3, 0.12, "spiral", (4, 6), (0.3, 0.5), crowd=1.4,
+                        sides=(2, 4), side=(0.1, 0.22), rosette=True),
     "poplar": SprayForm((0.06, 0.11), 0.7, 0.3, "spiral", (5, 8), (0.3, 0.5),
                         rise=(25.0, 60.0), sides=(2, 3), side=(0.1, 0.2)),
     "pine": SprayForm((0.045, 0.07), 0.6, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
-    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (2, 4), (0.25, 0.45),
+    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.4, 0.7),
                         habit="sprig", rise=(-15.0, 10.0)),
-    "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (5, 8), (0.3, 0.55), crowd=1.6,
-                           sides=(2, 4), side=(0.1, 0.2)),
+    "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (4, 6), (0.3, 0.55), crowd=1.6,
+                           sides=(2, 4), side=(0.1, 0.2), rosette=True),
     "strands": SprayForm((0.07, 0.12), 0.24, 0.06, "spiral", (12, 18), (0.6, 1.2),
                          habit="hanging", rise=(10.0, 30.0), stem=0.003, sides=(1, 2),
                          side=(0.3, 0.6)),
@@ -137,15 +146,28 @@ class LeafCloud:
     quads : (c, 4) int32 (one card each).
 
     Each card owns its four vertices (flat normal); the shoot starts at the origin;
-    ``family`` names the picture its st coordinates index; ``leaf`` (c,) marks the leaf cards
-    (the others are stem cards), None where unknown (a model read back from a scene)."""
+    ``family`` names the picture its st coordinates index; ``kind`` (c,) says what each card
+    shows (STEM, LEAF or a cluster of ROSETTE leaves), None where unknown (a model read back
+    from a scene)."""
 
     positions: F64
     normals: F64
     st: F64
     quads: NDArray[np.int32]
     family: Family = "broadleaf"
-    leaf: NDArray[np.bool_] | None = None
+    kind: NDArray[np.int8] | None = None
+
+    @property
+    def leaf(self) -> NDArray[np.bool_] | None:
+        """``(c,)`` the cards that show one leaf (None where unknown)."""
+        return None if self.kind is None else np.asarray(self.kind == LEAF)
+
+    @property
+    def n_leaves(self) -> int:
+        """Leaves shown: one per leaf card, ROSETTE per cluster card."""
+        if self.kind is None:
+            return self.n_cards
+        return int((self.kind == LEAF).sum() + ROSETTE * (self.kind == CLUSTER).sum())
 
     @property
     def n_cards(self) -> int:
@@ -162,9 +184,15 @@ class LeafCloud:
         return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int32)
 
     def leaf_lengths(self) -> F64:
-        """Base-to-tip length of every leaf card, metres."""
+        """Base-to-tip length of every leaf card and the longest leaf of every cluster card
+        (half its side), metres."""
         q = self.quads if self.leaf is None else self.quads[self.leaf]
-        return np.asarray(np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1))
+        one = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
+        if self.kind is None:
+            return np.asarray(one)
+        q = self.quads[self.kind == CLUSTER]
+        side = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
+        return np.concatenate([one, 0.5 * ROSETTE_LEAF * side])
 
 
 def _unit(v: F64) -> F64:
@@ -184,20 +212,20 @@ class _Cards:
     widths and st rectangles."""
 
     def __init__(self) -> None:
-        self.parts: list[tuple[F64, F64, F64, F64, F64, F64, bool]] = []
+        self.parts: list[tuple[F64, F64, F64, F64, F64, F64, int]] = []
 
     def add(
         self, base: F64, along: F64, across: F64, length: F64, width: F64,
-        st: tuple[float, float, float, float] = (0.0, 1.0, 0.0, 1.0), leaf: bool = True,
+        st: tuple[float, float, float, float] = LEAF_ST, kind: int = LEAF,
     ) -> None:  # fmt: skip
         n = len(base)
         rect = np.broadcast_to(np.asarray(st, np.float64), (n, 4))
         self.parts.append((base, _unit(along), _unit(across), np.broadcast_to(length, (n,)),
-                           np.broadcast_to(width, (n,)), rect, leaf))  # fmt: skip
+                           np.broadcast_to(width, (n,)), rect, kind))  # fmt: skip
 
     def cloud(self, family: Family) -> LeafCloud:
-        pos, nrm, st, leaf = [], [], [], []
-        for base, along, across, length, width, rect, is_leaf in self.parts:
+        pos, nrm, st, kinds = [], [], [], []
+        for base, along, across, length, width, rect, kind in self.parts:
             across = _unit(across - (across * along).sum(1, keepdims=True) * along)
             normal = np.cross(across, along)
             p = (
@@ -210,7 +238,7 @@ class _Cards:
             s = rect[:, None, 0] + RECT_ST[None, :, 0] * (rect[:, None, 1] - rect[:, None, 0])
             t = rect[:, None, 2] + RECT_ST[None, :, 1] * (rect[:, None, 3] - rect[:, None, 2])
             st.append(np.stack([s, t], axis=-1).reshape(-1, 2))
-            leaf.append(np.full(len(base), is_leaf))
+            kinds.append(np.full(len(base), kind, np.int8))
         positions = np.concatenate(pos)
         c = len(positions) // 4
         return LeafCloud(
@@ -219,7 +247,7 @@ class _Cards:
             st=np.concatenate(st),
             quads=np.arange(4 * c, dtype=np.int32).reshape(c, 4),
             family=family,
-            leaf=np.concatenate(leaf),
+            kind=np.concatenate(kinds),
         )
 
 
@@ -308,7 +336,7 @@ def _stem_cards(cards: _Cards, path: F64, width: float) -> None:
     along = np.diff(path, axis=0)
     length = np.linalg.norm(along, axis=1)
     cards.add(base, along, _side(_unit(along)), length, np.full(len(base), width),
-              (STEM_S[0], STEM_S[1], STEM_T[0], STEM_T[1]), leaf=False)  # fmt: skip
+              (STEM_S[0], STEM_S[1], STEM_T[0], STEM_T[1]), STEM)  # fmt: skip
 
 
 def _leafy(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
@@ -318,7 +346,7 @@ def _leafy(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
     hanging = form.habit == "hanging"
     main = _shoot(rng, form, rng.uniform(*form.shoot), 6 if hanging else 3)
     cards = _Cards()
-    for path in [main, *_side_shoots(rng, form, main, 4 if hanging else 2)]:
+    for path in [main, *_side_shoots(rng, form, main, 4 if hanging else 1)]:
         _leaves_on(cards, rng, form, lengths, phyllotaxis, path, hanging)
     return cards.cloud(family)
 
@@ -355,6 +383,14 @@ def _leaves_on(
     _stem_cards(cards, path, form.stem)
     # a stalk begins at the shoot's surface
     cards.add(at + 0.5 * form.stem * radial, along, across, size, form.aspect * size)
+    if form.rosette:  # the cluster at the shoot's end, facing up and a little forwards
+        end = _unit(path[-1] - path[-2])
+        normal = _unit(UP + 0.5 * end * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
+        a = _unit(end - (end @ normal) * normal + 0.3 * rng.normal(size=3))
+        a = _unit(a - (a @ normal) * normal)
+        r = rng.uniform(*lengths) / ROSETTE_LEAF
+        cards.add((path[-1] - r * a)[None], a[None], np.cross(a, normal)[None],
+                  np.array([2 * r]), np.array([2 * r]), ROSETTE_ST, CLUSTER)  # fmt: skip
 
 
 def _tuft(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
@@ -407,15 +443,16 @@ def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
 
     clothe(main)
     sides = int(rng.integers(form.leaves[0], form.leaves[1] + 1))
-    s = length * np.linspace(0.2, 0.75, sides) + rng.uniform(-0.03, 0.03, sides)
+    s = length * np.linspace(0.12, 0.8, sides) + rng.uniform(-0.02, 0.02, sides)
     at, tangent = _along(main, s)
     for i in range(sides):
         side = _side(tangent[i : i + 1])[0] * (1 if i % 2 else -1)
-        ang = np.radians(rng.uniform(40, 60))
+        ang = np.radians(rng.uniform(40, 65))
         d = _unit(np.cos(ang) * tangent[i] + np.sin(ang) * side)
-        ln = (length - s[i]) * rng.uniform(0.45, 0.7)
+        ln = max(length - s[i], 0.1) * rng.uniform(0.5, 0.8)
+        # side shoots sag and, on the lower side, hang (the comb of a spruce's branches)
         k = np.linspace(0, 1, 3)[:, None]
-        droop = np.array([0.0, -0.08, 0.0]) * k**2 * ln
+        droop = np.array([0.0, -rng.uniform(0.15, 0.6), 0.0]) * k**1.5 * ln
         clothe(at[i] + k * ln * d + droop)
     return cards.cloud(family)
 
@@ -505,58 +542,89 @@ def _segments(px: F64, py: F64, a: F64, b: F64, half: float) -> NDArray[np.bool_
     return hit
 
 
-def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDArray[np.uint8]:
-    """``(size, size, 4)`` RGBA8 (row 0 is t = 0, the stem end), rgb sRGB-encoded: the family's
-    leaf on its card, alpha 255 on it and 0 around it. The rgb is neutral detail (midrib,
-    veins, mottle, shading) that the renderer multiplies by each spray's colour. Made from
-    code, so nothing of unclear origin ships and any worker can rebuild it. Every picture has
-    a stalk (or twig) down the middle of its base (STEM_S x STEM_T), which stem cards show.
-
-    Broad leaves: the species' outline (lobed oak, triangular birch and poplar on long stalks,
-    round toothed hazel, narrow willow and almond) with midrib and side veins; ``pine``: a
-    fan of needle pairs from a sheath; ``spruce``/``needles``: a sprig, a twig along the
-    middle with short needles either side pointing forwards."""
-    if family not in FORMS:
-        raise ValueError(f"leaves.family must be one of {FAMILIES}, got {family!r}")
+def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
+    """Where the family's leaf is (x across its card in -1..1, tt along it in 0..1, the stalk
+    at 0) and its neutral value there."""
     form = FORMS[family]
-    t = (np.arange(size) + 0.5) / size
-    s, tt = np.meshgrid(t, t)  # s across (column), t along (row)
-    x = (s - 0.5) * 2.0  # -1..1 across
-    rng = np.random.default_rng([size, FAMILIES.index(family)])
-    mottle = 1.0 + 0.06 * rng.standard_normal((size, size))
     stalk = (np.abs(x) < 0.06) & (tt > 0.005) & (tt < max(form.petiole, 0.08) + 0.02)
     if form.habit == "sprig":
         twig = (np.abs(x) < 0.08) & (tt > 0.005) & (tt < 0.995)
-        # needles leave the twig every 1/8 of its length at 55 degrees, nearly to the edge,
+        # needles leave the twig every 1/16 of its length at 55 degrees, nearly to the edge,
         # thick enough to stay a few texels wide in an impostor
-        phase = (tt - 0.45 * np.abs(x)) * 8.0
-        needle = (np.abs(phase - np.round(phase)) < 0.16) & (np.abs(x) < 0.95)
+        phase = (tt - 0.45 * np.abs(x)) * 16.0
+        needle = (np.abs(phase - np.round(phase)) < 0.36) & (np.abs(x) < 0.95)
         needle &= tt - 0.45 * np.abs(x) > 0.0
-        shape = twig | needle
-        value = np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x)) * mottle
-    elif form.habit == "tuft":
-        # pairs of needles from a sheath at the base, fanned out, slightly curved
+        return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
+    if form.habit == "tuft":
+        # pairs of needles from a sheath at the base, fanned out
         ends = np.array([-0.85, -0.72, -0.38, -0.26, 0.02, 0.12, 0.52, 0.66, 0.9])
         a = np.zeros((len(ends), 2)) + np.array([0.0, 0.06])
         b = np.stack([ends, 0.97 - 0.12 * np.abs(ends)], axis=1)
         # the picture's x spans the card's width, its t the length: the thickness in x
         # units is about a needle's width (1.5 mm) over the card's half width
-        needle = _segments(x, tt, a, b, 0.035)
-        shape = needle | stalk
-        value = np.where(stalk, 0.5, 0.75 + 0.2 * tt) * mottle
-    else:
-        p = form.petiole
-        u = (tt - p) / (1 - p)
-        half = 0.94 * _outline(family, u) * np.clip(u / 0.03, 0, 1)  # a margin for mip levels
-        blade = (np.abs(x) <= half) & (u > 0) & (u < 0.995)
-        shape = blade | stalk
-        rib = np.abs(x) < 0.035
-        veins_per = {"oak": 5.0, "hazel": 7.0, "birch": 7.0, "poplar": 6.0}.get(family, 12.0)
-        vein_phase = (u - 0.5 * np.abs(x)) * veins_per
-        veins = (np.abs(vein_phase - np.round(vein_phase)) < 0.06) & (u > 0.05)
-        value = (0.7 + 0.25 * (1 - np.abs(x)) * np.clip(u * 1.5, 0, 1)) * mottle
-        value = np.where(rib | veins, value * 1.15, value)
-        value = np.where(stalk & ~blade, 0.55, value)
+        needle = _segments(x, tt, a, b, 0.05)
+        return needle | stalk, np.where(stalk, 0.5, 0.75 + 0.2 * tt)
+    p = form.petiole
+    u = (tt - p) / (1 - p)
+    half = 0.94 * _outline(family, u) * np.clip(u / 0.03, 0, 1)  # a margin for mip levels
+    blade = (np.abs(x) <= half) & (u > 0) & (u < 0.995)
+    rib = np.abs(x) < 0.035
+    veins_per = {"oak": 5.0, "hazel": 7.0, "birch": 7.0, "poplar": 6.0}.get(family, 12.0)
+    vein_phase = (u - 0.5 * np.abs(x)) * veins_per
+    veins = (np.abs(vein_phase - np.round(vein_phase)) < 0.06) & (u > 0.05)
+    value = 0.7 + 0.25 * (1 - np.abs(x)) * np.clip(u * 1.5, 0, 1)
+    value = np.where(rib | veins, value * 1.15, value)
+    return blade | stalk, np.where(stalk & ~blade, 0.55, value)
+
+
+def _rosette(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
+    """An ``n`` x ``n`` picture of the family's leaves in a cluster seen from above: ROSETTE
+    leaves from the centre, each as long as the picture's half width."""
+    form = FORMS[family]
+    c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    px, py = np.meshgrid(c, c)
+    shape = np.zeros((n, n), bool)
+    value = np.zeros((n, n))
+    for j in range(ROSETTE):
+        # the youngest leaves in the middle of the cluster are smaller
+        turn = 2 * np.pi * j / ROSETTE + 0.25 * np.sin(3.0 * j)
+        scale = ROSETTE_LEAF - 0.12 * (j % 2)
+        along = (px * np.sin(turn) + py * np.cos(turn)) / scale
+        across = (px * np.cos(turn) - py * np.sin(turn)) / scale / (0.5 * form.aspect)
+        inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
+        sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
+        sh &= inside & ~shape  # the first leaves drawn lie on top
+        value = np.where(sh, val * (0.9 + 0.1 * (j % 3) / 2), value)
+        shape |= sh
+    return shape, value
+
+
+def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDArray[np.uint8]:
+    """``(size, size, 4)`` RGBA8 (row 0 is t = 0, the stem end), rgb sRGB-encoded: the family's
+    pictures, alpha 255 on them and 0 around them. The rgb is neutral detail (midrib, veins,
+    mottle, shading) that the renderer multiplies by each spray's colour. Made from code, so
+    nothing of unclear origin ships and any worker can rebuild it.
+
+    The left half (LEAF_ST) is one leaf, its stalk at t = 0; a stalk (or twig) runs down the
+    middle of its base (STEM_S x STEM_T), which stem cards show. The upper right quarter
+    (ROSETTE_ST) is a cluster of ROSETTE leaves seen from above (the leaves crowded at a
+    shoot's end, one card for several). Broad leaves: the species' outline (lobed oak,
+    triangular birch and poplar on long stalks, round toothed hazel, narrow willow and
+    almond) with midrib and side veins; ``pine``: a fan of needle pairs from a sheath;
+    ``spruce``/``needles``: a sprig, a twig along the middle with short needles either side
+    pointing forwards."""
+    if family not in FORMS:
+        raise ValueError(f"leaves.family must be one of {FAMILIES}, got {family!r}")
+    half = size // 2
+    t = (np.arange(size) + 0.5) / size
+    s = (np.arange(half) + 0.5) / half
+    x, tt = np.meshgrid((s - 0.5) * 2.0, t)  # x across (column) -1..1, t along (row)
+    shape = np.zeros((size, size), bool)
+    value = np.zeros((size, size))
+    shape[:, :half], value[:, :half] = _picture(family, x, tt)
+    shape[half:, half:], value[half:, half:] = _rosette(family, size - half)
+    rng = np.random.default_rng([size, FAMILIES.index(family)])
+    value = value * (1.0 + 0.06 * rng.standard_normal((size, size)))
     # neutral with a touch of warmth in the lighter parts (veins and midribs yellow a little)
     rgb = np.clip(value[..., None] * np.array([1.0, 1.0, 0.93]), 0, 1)
     out = np.zeros((size, size, 4), np.uint8)
@@ -683,20 +751,23 @@ def snap_yaw(yaw: F64) -> F64:
     return (np.mod(step, YAW_STEPS) * (2 * np.pi / YAW_STEPS)).astype(np.float64)
 
 
-def _outer(pos: F64, tree: NDArray[np.int32]) -> F64:
-    """``(k,)`` how far out in its tree's crown each point lies: 0 at the crown's centre, 1 on
-    an ellipsoid through the outermost points (95th percentiles, across and up)."""
+def _outer(pos: F64, tree: NDArray[np.int32], bands: int = 10) -> F64:
+    """``(k,)`` how far out in its tree's crown each point lies: 0 on the crown's axis at mid
+    height, 1 on its outer surface: across, the distance from the axis over the crown's
+    radius at that height (95th percentile of a tenth of the crown's height, so a cone's
+    narrow top is as much outside as its broad base); up and down, over the half height."""
     out = np.zeros(len(pos))
     for t in np.unique(tree):
-        sel = tree == t
+        sel = np.flatnonzero(tree == t)
         p = pos[sel]
         lo, hi = np.percentile(p[:, 1], [2, 98])
-        centre = np.array([p[:, 0].mean(), 0.5 * (lo + hi), p[:, 2].mean()])
-        d = p - centre
-        across = np.hypot(d[:, 0], d[:, 2])
-        r = max(float(np.percentile(across, 95)), 1e-6)
         h = max(0.5 * float(hi - lo), 1e-6)
-        out[sel] = np.hypot(across / r, d[:, 1] / h)
+        across = np.hypot(p[:, 0] - p[:, 0].mean(), p[:, 2] - p[:, 2].mean())
+        band = np.clip(((p[:, 1] - lo) / (2 * h) * bands).astype(np.int64), 0, bands - 1)
+        radius = np.ones(bands)
+        for b in np.unique(band):
+            radius[b] = max(float(np.percentile(across[band == b], 95)), 1e-6)
+        out[sel] = np.maximum(across / radius[band], np.abs(p[:, 1] - lo - h) / h)
     return out
 
 

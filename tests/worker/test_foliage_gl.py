@@ -21,8 +21,9 @@ from pxr import Usd, UsdGeom
 
 from bench.render import run_render_bench
 from cli import main
-from forest.growth.foliage import MODELS, YAW_STEPS
+from forest.growth.foliage import MODELS, YAW_STEPS, cloud_models
 from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
 from forest.usd.contract import FOLIAGE
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
@@ -241,8 +242,9 @@ def test_pass_one_reruns_only_when_the_view_direction_changes(
     first = r.draw(cam, TESS, frame=0)
     assert first.foliage is not None and first.foliage.impostor_rendered
     # every model at every heading, one instanced call per model
-    assert r.foliage.n_triangles == MODELS * 512
-    assert first.foliage.impostor.primitives == YAW_STEPS * MODELS * 512
+    tris = sum(2 * c.n_cards for c in crown.foliage_clouds)
+    assert r.foliage.n_triangles == tris
+    assert first.foliage.impostor.primitives == YAW_STEPS * tris
     assert first.foliage.impostor.draw_calls == MODELS
     again = r.draw(cam, TESS, frame=1)  # wind: same view direction
     closer = dataclasses.replace(cam, eye=cam.eye + 0.3 * (cam.target - cam.eye))
@@ -349,7 +351,11 @@ def test_clouds_follow_their_bones_in_the_wind(
 def test_render_draws_foliage_by_default_and_counts_both_passes(
     gl_session: Any, crown_path: Path, tmp_path: Path
 ) -> None:
-    n_types = len(set(read_scene(crown_path).proto_indices.tolist()))
+    scene = read_scene(crown_path)
+    n_types = len(set(scene.proto_indices.tolist()))
+    k = scene.n_foliage
+    per_model = np.array([2 * c.n_cards for c in scene.foliage_clouds])
+    geo_tris = int(per_model[scene.foliage_model].sum())
     runs = {}
     for name, extra in (("on", []), ("off", ["--no-foliage"]), ("geo", ["--foliage-geometry"])):
         met = tmp_path / f"{name}.json"
@@ -359,22 +365,22 @@ def test_render_draws_foliage_by_default_and_counts_both_passes(
              str(met), "--width", "48", "--height", "48", "--frames", "2", "--bare", *extra],
         )  # fmt: skip
         assert res.exit_code == 0, res.output
-        assert ("foliage: 6 leaf clouds" in res.output) == (name != "off")
+        assert (f"foliage: {k} leaf clouds" in res.output) == (name != "off")
         runs[name] = RenderMetrics.model_validate(json.loads(met.read_text()))
     on, off, geo = runs["on"], runs["off"], runs["geo"]
     assert off.foliage is None and all(f.foliage is None for f in off.frames)
     assert all(f.draw_calls == n_types for f in off.frames)
-    assert on.foliage is not None and on.foliage.mode == "impostor" and on.foliage.clouds == 6
+    assert on.foliage is not None and on.foliage.mode == "impostor" and on.foliage.clouds == k
     assert on.foliage.impostor_renders == 1  # in the warm-up frame: the view never turns
     for f in on.frames:
         assert f.foliage is not None and not f.foliage.impostor_rendered
         assert f.draw_calls == n_types + 1
-        assert f.foliage.billboards.primitives == 12
+        assert f.foliage.billboards.primitives == 2 * k
     assert geo.foliage is not None and geo.foliage.impostor_size is None
     assert geo.frames[0].foliage is not None
-    assert geo.frames[0].foliage.billboards.primitives == 6 * 512
+    assert geo.frames[0].foliage.billboards.primitives == geo_tris
     # the same camera (framing the clouds too) and the same branches in both
-    assert on.frames[0].primitives - 12 == geo.frames[0].primitives - 6 * 512
+    assert on.frames[0].primitives - 2 * k == geo.frames[0].primitives - geo_tris
 
 
 def test_render_counts_pass_one_in_the_frame_that_runs_it(
@@ -385,11 +391,12 @@ def test_render_counts_pass_one_in_the_frame_that_runs_it(
             scene=crown_path, output=tmp_path / "p.png", width=32, height=32, frames=2, warmup=0
         )
     )
-    n_types = len(set(read_scene(crown_path).proto_indices.tolist()))
+    scene = read_scene(crown_path)
+    n_types = len(set(scene.proto_indices.tolist()))
     first, second = m.frames
     assert first.foliage is not None and second.foliage is not None
     assert first.foliage.impostor_rendered and not second.foliage.impostor_rendered
-    pass1 = YAW_STEPS * MODELS * 512
+    pass1 = YAW_STEPS * sum(2 * c.n_cards for c in scene.foliage_clouds)
     assert first.foliage.impostor.model_dump() == {"draw_calls": MODELS, "primitives": pass1}
     assert first.draw_calls == n_types + 1 + MODELS and second.draw_calls == n_types + 1
     # the rest is the branches (their tessellation may change by a few triangles with the
@@ -413,8 +420,10 @@ def test_bench_puts_impostors_beside_the_real_clouds(gl_session: Any) -> None:
     for imp, geo in zip(rows[::2], rows[1::2], strict=True):
         assert imp.clouds == geo.clouds > 0
         # both passes, every frame
-        assert imp.foliage_triangles == YAW_STEPS * MODELS * 512 + 2 * imp.clouds
-        assert geo.foliage_triangles == 512 * geo.clouds
+        # the bench preset's sprays (default leaves), whose models differ in card count
+        tris = [2 * c.n_cards for c in cloud_models(load_preset("alternating").leaves.family)]
+        assert imp.foliage_triangles == YAW_STEPS * sum(tris) + 2 * imp.clouds
+        assert min(tris) * geo.clouds <= geo.foliage_triangles <= max(tris) * geo.clouds
         # impostors: a pass-1 call per model and the billboards; geometry: a call per model
         # that some cloud shows
         assert 1 <= imp.draw_calls - geo.draw_calls <= MODELS
