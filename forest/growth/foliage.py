@@ -126,7 +126,7 @@ FORMS: dict[str, SprayForm] = {
                         sides=(2, 4), side=(0.1, 0.22), rosette=True),
     "poplar": SprayForm((0.06, 0.11), 0.7, 0.3, "spiral", (5, 8), (0.3, 0.5),
                         rise=(25.0, 60.0), sides=(2, 3), side=(0.1, 0.2)),
-    "pine": SprayForm((0.045, 0.07), 0.6, 0.0, "spiral", (10, 14), (0.25, 0.45),
+    "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
     "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.4, 0.7),
@@ -557,7 +557,7 @@ def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
         return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
     if form.habit == "tuft":
         # pairs of needles from a sheath at the base, fanned out
-        ends = np.array([-0.85, -0.72, -0.38, -0.26, 0.02, 0.12, 0.52, 0.66, 0.9])
+        ends = np.array([-0.88, -0.76, -0.52, -0.4, -0.16, -0.05, 0.1, 0.21, 0.42, 0.54, 0.76, 0.88])
         a = np.zeros((len(ends), 2)) + np.array([0.0, 0.06])
         b = np.stack([ends, 0.97 - 0.12 * np.abs(ends)], axis=1)
         # the picture's x spans the card's width, its t the length: the thickness in x

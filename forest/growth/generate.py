@@ -172,6 +172,15 @@ class Forest:
         )  # fmt: skip
 
 
+def foliage_or_none(forest: Forest) -> FoliageAnchors | None:
+    """The forest's leaf sprays, or None where it bears none (no foliage piece, or every
+    spray left out by height, ground, shell or budget)."""
+    if not len(forest.foliage_instance):
+        return None
+    anchors = forest.foliage_anchors()
+    return anchors if len(anchors) else None
+
+
 def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:
     """``(k,)`` the instances that bear leaf sprays: of a foliage symbol, not a cap, and no
     thicker than the leaves' ``max_radius`` (leaves live on the last orders, not on trunks

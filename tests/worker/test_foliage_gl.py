@@ -41,7 +41,7 @@ TESS = TessSettings(max_level=2.0)
 SMALL = {
     "name": "small-crown",
     "axiom": "T",
-    "max_depth": 4,
+    "max_depth": 7,
     "trunk_radius": 0.15,
     "rules": {
         "T": [
@@ -54,13 +54,21 @@ SMALL = {
         "B": [
             {
                 "piece": "Y",
-                "successors": [{"symbol": "L"}, {"symbol": "L"}],
-                "pose": {"spread": [20, 30]},
-            }
+                "successors": [
+                    {"symbol": "B", "length": [1.2, 1.4]},
+                    {"symbol": "B", "length": [1.2, 1.4]},
+                ],
+                "pose": {"spread": [20, 35]},
+                "max_depth": 5,
+            },
+            {"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}, "min_depth": 6},
         ],
-        "L": [{"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}}],
     },
-    "foliage": ["L", "B"],
+    "foliage": ["B"],
+    # a crown of sprays a little larger than life, so the leaves fill a good part of the
+    # picture and branches cross them both ways (these tests compare the impostors with the
+    # real cards, not botany)
+    "leaves": {"sprays": [3, 4], "scale": [1.5, 2.0]},
 }
 
 
@@ -109,6 +117,11 @@ def render(
     return eye_depth(r.read_depth(), cam), r.read_color()
 
 
+def radii(scene: SceneArrays) -> NDArray[np.float64]:
+    """``(k,)`` each spray's model's bounding radius (before its size)."""
+    return np.array([c.radius for c in scene_models(scene)])[scene.foliage_model]
+
+
 def covered(depth: NDArray[np.float64]) -> NDArray[np.bool_]:
     return depth < EMPTY
 
@@ -133,18 +146,19 @@ def near_agreement(a: NDArray[np.float64], b: NDArray[np.float64], shift: int) -
 
 # -- depth -----------------------------------------------------------------------------------
 
-# Thresholds, as fractions of the clouds' median diameter D, over pixels both renders cover.
+# Thresholds, as fractions of the sprays' median diameter D, over pixels both renders cover.
 # Near-orthographic view (4 degrees): the impostor is exact up to sampling: a pixel and the
-# texel it reads sample the cloud at points up to half a texel apart, and where a leaf card is
-# seen edge-on the depth jumps by up to a card (0.2 D) between them; such silhouette pixels
-# are about one in ten, so 85 % within 0.05 D (measured: 92-95 %) and an IoU of the
-# silhouettes of 0.95 (measured 0.98).
-# Preview view (40 degrees, close): one picture serves every cloud, but a cloud off the view
+# texel it reads sample the spray at points up to half a texel apart, and where a leaf card
+# is seen edge-on the depth jumps between them. A leaf is only 4-5 pixels long here, so most
+# of the sprays' pixels are edge pixels: 75 % within 0.05 D (measured 79-81 %, at impostor
+# sizes 128 and 256 alike: sampling, not resolution) and an IoU of the silhouettes of 0.85
+# (measured 0.90-0.91; the leaf clouds' round blobs measured 0.98).
+# Preview view (40 degrees, close): one picture serves every spray, but a spray off the view
 # axis by theta is seen along its own ray, so a leaf at s from the billboard plane shows
-# shifted by s tan(theta) (up to 0.18 D here, a few pixels): compared allowing one pixel of
-# registration, 85 % within 0.1 D (measured 93-95 %), IoU 0.85 (measured 0.91).
-ORTHO = {"fov": 4.0, "shift": 0, "tol": 0.05, "within": 0.85, "iou": 0.95, "occlusion": 0.9}
-PREVIEW = {"fov": 40.0, "shift": 1, "tol": 0.10, "within": 0.85, "iou": 0.85, "occlusion": 0.75}
+# shifted by s tan(theta) (a few pixels): compared allowing one pixel of registration, 85 %
+# within 0.1 D (measured 93 %), IoU 0.75 (measured 0.81).
+ORTHO = {"fov": 4.0, "shift": 0, "tol": 0.05, "within": 0.75, "iou": 0.85, "occlusion": 0.9}
+PREVIEW = {"fov": 40.0, "shift": 1, "tol": 0.10, "within": 0.85, "iou": 0.75, "occlusion": 0.75}
 
 
 @pytest.mark.parametrize("case", [ORTHO, PREVIEW], ids=["near-orthographic", "preview"])
@@ -159,7 +173,7 @@ def test_impostor_depth_agrees_with_the_real_leaf_clouds(
     assert iou(ci, cg) >= case["iou"]
     both = ci & cg
     err = near_agreement(imp, geo, int(case["shift"]))[both]
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
     assert (err <= case["tol"] * d).mean() >= case["within"]
 
 
@@ -172,7 +186,9 @@ def test_branches_and_clouds_hide_each_other_exactly_where_they_should(
     both, both_rgb = render(renderers["impostor"], cam)
     in_front = covered(wood) & covered(leaves) & (wood < leaves)
     behind = covered(wood) & covered(leaves) & (leaves < wood)
-    assert in_front.sum() > 50 and behind.sum() > 50  # branches cross clouds both ways
+    # branches cross sprays both ways (measured 25 and 709 pixels: sprays grow out of the
+    # crown's branches, so few branches pass in front of them)
+    assert in_front.sum() > 10 and behind.sum() > 50
     # the depth test composes the two renders pixel by pixel: nearest wins, exactly
     np.testing.assert_array_equal(both, np.minimum(wood, leaves))
     np.testing.assert_array_equal(both_rgb[in_front], wood_rgb[in_front])
@@ -202,7 +218,7 @@ def test_the_picture_turns_with_the_view_and_matches_the_real_silhouettes(
 ) -> None:
     imp, geo = renderers["impostor"], renderers["geometry"]
     assert imp.foliage is not None
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
 
     def agreement(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, float]:
         """Silhouette IoU, and the share of pixels both cover whose depths agree within
@@ -438,8 +454,14 @@ def close_up(scene: SceneArrays, on_screen: float) -> tuple[Camera, int]:
     """A camera looking at the largest cloud from where it covers ``on_screen`` pixels of
     the SIZE view, and that cloud."""
     i = int(np.argmax(scene.foliage_sizes))
-    centre = scene.foliage_at(0)[i]
-    half = float(scene.foliage_sizes[i]) * scene_models(scene)[scene.foliage_model[i]].radius
+    model = scene_models(scene)[scene.foliage_model[i]]
+    # the spray grows from its anchor: look at the middle of its cards, turned by its yaw
+    mid = scene.foliage_sizes[i] * model.positions.mean(axis=0)
+    c, s = np.cos(scene.foliage_yaw[i]), np.sin(scene.foliage_yaw[i])
+    centre = scene.foliage_at(0)[i] + np.array(
+        [c * mid[0] + s * mid[2], mid[1], c * mid[2] - s * mid[0]]
+    )
+    half = float(scene.foliage_sizes[i]) * model.radius
     focal = SIZE[1] / (2.0 * np.tan(np.radians(40.0) / 2.0))
     depth = 2.0 * half * focal / on_screen
     eye = centre + depth * np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
@@ -467,5 +489,5 @@ def test_close_clouds_are_drawn_as_their_leaf_cards(
     assert cg.mean() > 0.3
     assert iou(ci, cg) >= 0.97
     both = ci & cg
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
     assert (np.abs(depth_imp - depth_geo)[both] <= 0.02 * d).mean() >= 0.95
