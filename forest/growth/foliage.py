@@ -557,7 +557,9 @@ def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
         return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
     if form.habit == "tuft":
         # pairs of needles from a sheath at the base, fanned out
-        ends = np.array([-0.88, -0.76, -0.52, -0.4, -0.16, -0.05, 0.1, 0.21, 0.42, 0.54, 0.76, 0.88])
+        ends = np.array(
+            [-0.88, -0.76, -0.52, -0.4, -0.16, -0.05, 0.1, 0.21, 0.42, 0.54, 0.76, 0.88]
+        )
         a = np.zeros((len(ends), 2)) + np.array([0.0, 0.06])
         b = np.stack([ends, 0.97 - 0.12 * np.abs(ends)], axis=1)
         # the picture's x spans the card's width, its t the length: the thickness in x
