@@ -24,6 +24,7 @@ from forest.growth.grammar import CompiledGrammar
 from forest.growth.poser import piece_tables
 from forest.growth.presets import load_preset
 from forest.growth.scatter import tree_transforms
+from forest.usd.figures import scene_figures
 from forest.usd.scene import write_scene
 from schemas.tileset import DEFAULT_MANIFEST
 
@@ -194,6 +195,12 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
             t_write = time.perf_counter() - t0
         size = out.stat().st_size
         t_floor = page_cache_write_seconds(Path(tmp), size)  # same bytes, same folder
+        # one tree as an artist gets it (the default form of a one-tree .usdc), measured
+        # from the written file alone: what a tree weighs, beside the forest's bytes a tree
+        tree_path = Path(tmp) / "tree.usdc"
+        write_scene(generate_forest(grammar, 1, ForestOptions(trees=1, area=(1.0, 1.0))), tree_path)
+        tree = scene_figures(tree_path).trees[0]
+        tree_bytes = tree_path.stat().st_size
     t_save = sum(saves)
     echo(
         f"preset {preset}, {trees} trees, {n_vec} pieces; best of {repeat} alternating runs "
@@ -210,7 +217,18 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
         f"floor for the same bytes {t_floor:.3f} s: write {t_write / t_floor:.1f}x, "
         f"Save {t_save / t_floor:.1f}x the floor   (target: write <= 2x)"
     )
+    echo(
+        f"one tree (seed 1, default .usdc): {tree.triangles:,} triangles "
+        f"({tree.bark_triangles:,} bark, {tree.leaf_triangles:,} leaves), {tree.cards:,} leaf "
+        f"cards, {tree_bytes / 1e6:.2f} MB; the forest's instanced .usdc: "
+        f"{size / trees / 1e3:.1f} kB a tree"
+    )
     return {
+        "tree_triangles": tree.triangles,
+        "tree_bark_triangles": tree.bark_triangles,
+        "tree_leaf_triangles": tree.leaf_triangles,
+        "tree_bytes": tree_bytes,
+        "forest_bytes_per_tree": size / trees,
         "pieces": n_vec,
         "seconds": t_vec,
         "pieces_per_s": rate_vec,

@@ -9,7 +9,7 @@ import click
 
 from cli.app import bench, input_errors, main, needs, parse_counts
 from cli.progress import quiet_option, show_progress
-from forest.errors import ForestError
+from forest.errors import ForestError, OutputError
 from forest.sniff import USD_READERS, require_usd
 
 VIEW_NAMES = ("overview", "side", "eye")  # worker.render.camera.VIEWS, without importing the worker
@@ -243,26 +243,45 @@ def render(
 
 @main.command()
 @click.argument("scene", type=click.Path(path_type=Path))
-@click.option(
-    "-o", "--output", type=click.Path(path_type=Path), required=True, help="Contact sheet PNG."
-)
+@click.option("-o", "--output", type=click.Path(path_type=Path), help="Contact sheet PNG.")
 @click.option("--frame", type=int, default=0, show_default=True, help="Palette (wind) sample.")
 @click.option("--width", type=click.IntRange(200, 8192), default=1400, show_default=True)
 @click.option("--height", type=click.IntRange(150, 8192), default=1050, show_default=True)
+@click.option(
+    "--figures",
+    is_flag=True,
+    help="Print per-tree figures measured from the USD alone: height, leaf cards, lowest "
+    "bark and leaf vertex, twig tip diameters, crown plan and base, triangles.",
+)
 @input_errors
-def inspect(scene: Path, output: Path, frame: int, width: int, height: int) -> None:
+def inspect(
+    scene: Path, output: Path | None, frame: int, width: int, height: int, figures: bool
+) -> None:
     """Diagnostic contact sheet (pyvista, offscreen): skeleton, rims and tile classes, tile
-    indices, piece types."""
+    indices, piece types; with --figures, a table of each tree's figures."""
     require_usd(scene, USD_READERS["inspect"])
-    needs("inspect", "pyvista", "vtk")
+    if output is None and not figures:
+        raise ForestError(
+            "give -o SHEET.png for the contact sheet, --figures for the figures, or both",
+            path="forest inspect",
+        )
+    if output is not None:  # the sheet's checks first: a bad -o does no work
+        needs("inspect", "pyvista", "vtk")
+        if output.suffix.lower() != ".png":
+            raise OutputError("the contact sheet is a PNG: name it *.png", path=str(output))
+        if not output.parent.resolve().is_dir():
+            raise OutputError("folder does not exist", path=str(output))
+    if figures:
+        from forest.usd.figures import figures_table, scene_figures
+
+        fig = scene_figures(scene)
+        click.echo(f"{scene}: {len(fig.trees)} tree(s), measured on the {fig.representation} form")
+        click.echo(figures_table(fig.trees))
+    if output is None:
+        return
     from cli.sheets.inspect import contact_sheet
-    from forest.errors import OutputError
     from forest.usd.read import read_scene
 
-    if output.suffix.lower() != ".png":
-        raise OutputError("the contact sheet is a PNG: name it *.png", path=str(output))
-    if not output.parent.resolve().is_dir():
-        raise OutputError("folder does not exist", path=str(output))
     s = read_scene(scene)
     if not 0 <= frame < s.n_frames:
         raise ForestError(

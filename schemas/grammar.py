@@ -107,12 +107,20 @@ class Alternative(StrictModel):
     min_depth: Annotated[int, Field(ge=0, le=MAX_DEPTH_BOUND)] = 0
     max_depth: Annotated[int, Field(ge=0, le=MAX_DEPTH_BOUND)] | None = None
     """Depth condition: the alternative applies when min_depth <= depth <= max_depth."""
+    min_radius: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)] = 0.0
+    max_radius: Annotated[float, Field(gt=0, le=100, allow_inf_nan=False)] | None = None
+    """Thickness condition, metres: the alternative applies to a piece whose root rim's
+    radius (at rest, the tree's scale included) r has min_radius <= r < max_radius. Twigs
+    are grown by thickness, not depth: e.g. a non-forking, strongly tapering last order
+    below some radius. A symbol with no alternative for its radius ends there (a tip)."""
 
     @model_validator(mode="after")
     def _depths(self) -> Alternative:
         _ordered(self.taper, "taper")
         if self.max_depth is not None and self.max_depth < self.min_depth:
             raise ValueError(f"max_depth {self.max_depth} < min_depth {self.min_depth}")
+        if self.max_radius is not None and self.max_radius <= self.min_radius:
+            raise ValueError(f"max_radius {self.max_radius} <= min_radius {self.min_radius}")
         return self
 
 
@@ -207,6 +215,9 @@ class Grammar(StrictModel):
     rules: Annotated[
         dict[Symbol, Annotated[list[Alternative], Field(min_length=1)]], Field(min_length=1)
     ]
+    axiom_length: Annotated[float, Field(gt=0, le=4, allow_inf_nan=False)] = 1.0
+    """Length scale of each tree's root piece (a successor's ``length`` for the axiom): short
+    for a shrub's stool, whose stems leave near the ground."""
     max_depth: Annotated[int, Field(ge=0, le=64)] | None = None
     """Pieces deeper than this are not grown (their rims stay open tips). Without it the rules
     must terminate on their own."""
@@ -219,6 +230,11 @@ class Grammar(StrictModel):
     ranges of a fork are then relative weights (the split ratio), normalised to that rule."""
     twig_radius: Annotated[float, Field(gt=0, le=1, allow_inf_nan=False)] | None = None
     """Metres: a rim thinner than this grows no successor; the branch ends there."""
+    ground_clearance: Annotated[float, Field(ge=0, le=10, allow_inf_nan=False)] = 0.0
+    """Metres: no branch bends down below this height (posed, without wind): a piece that
+    heads down (its hub or a leaf rim lower than its root) and gets lower ends its branch in
+    a cap there, so weeping shoots stop above the ground, never through it. Pieces rising
+    from lower down (a trunk, a shrub's stems) are not cut."""
     close_tips: bool = True
     """End every open rim with a tapered cap piece."""
     bark: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_]{0,31}$")] = "default"

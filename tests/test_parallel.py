@@ -18,7 +18,7 @@ def test_block_passes_equal_on_any_thread_count(
     options = ForestOptions(
         trees=6, area=(60.0, 60.0), placement="grid", wind=Wind(strength_deg=8.0), frames=2
     )
-    monkeypatch.setattr(expand, "BLOCK_PIECES", 1024)  # several blocks of a few trees
+    monkeypatch.setattr(expand, "BLOCK_PIECES", 512)  # several blocks of a few trees
     runs = []
     for threads in (1, 3):
         monkeypatch.setattr(parallel, "block_threads", lambda t=threads: t)

@@ -8,7 +8,15 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from species_ranges import SPECIES, within
+from species_ranges import (
+    OAK_BARK_TRIANGLES_MAX,
+    OAK_CROWN_BASE,
+    ROUND_CROWNS,
+    ROUNDNESS_MIN,
+    SPECIES,
+    TIP_DIAMETER_MAX,
+    within,
+)
 
 from forest.geometry.pieces import HUB as HUB_JOINT
 from forest.geometry.pieces import PIECE_NAMES
@@ -16,7 +24,7 @@ from forest.growth.compile import compile_grammar
 from forest.growth.foliage import YAW_STEPS
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.grammar import parse_grammar
-from forest.growth.measure import fork_pipe_ratios, tip_directions, tree_figures
+from forest.growth.measure import fork_pipe_ratios, piece_points, tip_directions, tree_figures
 from forest.growth.presets import load_preset, preset_names
 
 CAP = PIECE_NAMES.index("Cap")
@@ -76,6 +84,90 @@ def test_shape_in_the_species_ranges(name: str) -> None:
     assert 300 <= np.median(fig.pieces) <= 8000
     if name in SLENDER:
         assert np.median(fig.slenderness) >= 20 * (1 - 0.15), np.median(fig.slenderness)
+
+
+@pytest.mark.parametrize("name", sorted(SPECIES))
+def test_twigs_end_thin_and_nothing_under_the_ground(name: str) -> None:
+    fig = tree_figures(forest(name, 5, trees=4))
+    assert (fig.tip_diameter <= TIP_DIAMETER_MAX).all(), (name, fig.tip_diameter)
+    assert (fig.lowest >= 0.0).all(), (name, fig.lowest)
+
+
+def test_willow_curtains_stop_above_the_ground() -> None:
+    f = forest("willow", 8, trees=3)
+    fig = tree_figures(f)
+    assert f.grammar.ground_clearance > 0
+    # hanging shoots end where they reach the clearance, not in the ground
+    assert (fig.lowest >= f.grammar.ground_clearance - 0.1).all(), fig.lowest
+    assert (fig.lowest <= 1.5).all(), fig.lowest
+
+
+def test_broadleaf_crowns_are_round_from_above() -> None:
+    # the median over a dozen trees of each species, and of all of them: single trees vary
+    # (a crown of five limbs is irregular), a fan of one plane would be far below
+    medians = {}
+    for name in ROUND_CROWNS:
+        r = [tree_figures(forest(name, seed, trees=6)).crown_roundness for seed in (3, 7)]
+        medians[name] = float(np.median(np.concatenate(r)))
+    assert np.median(list(medians.values())) >= ROUNDNESS_MIN, medians
+    assert min(medians.values()) >= ROUNDNESS_MIN - 0.1, medians
+
+
+def test_oak_forks_low_under_a_dome_within_its_bark_budget() -> None:
+    fig = tree_figures(forest("oak", 16, trees=6))
+    assert within(float(np.median(fig.crown_base_fraction)), OAK_CROWN_BASE)
+    assert np.median(fig.bark_triangles) <= OAK_BARK_TRIANGLES_MAX, fig.bark_triangles
+    f = forest("oak", 16, trees=1)
+    g, height = f.graph, tree_figures(f).height[0]
+    # three to six heavy limbs leave the short trunk (below 0.4 of the height)
+    first = (g.order == 1) & (g.order[np.maximum(g.parent, 0)] == 0) & (g.parent >= 0)
+    heavy = first & (g.scale >= 0.25 * g.scale[0]) & (g.height <= 0.4 * height)
+    assert 3 <= heavy.sum() <= 6, heavy.sum()
+
+
+def test_spruce_branches_sweep_down_with_tips_turning_up() -> None:
+    f = forest("spruce", 2, trees=1)
+    g, pal = f.graph, f.palette()
+    axis = pal[f.bones.offset + HUB_JOINT, :3, 1]
+    axis /= np.linalg.norm(axis, axis=1, keepdims=True)
+    sym = {s: i for i, s in enumerate(f.grammar.rules)}
+    br = g.symbol == sym["Branch"]
+    thick = br & (g.scale >= 0.03)
+    thin = br & (g.scale < 0.03) & (g.piece != CAP)
+    assert axis[thick, 1].mean() < axis[thin, 1].mean()
+    assert tree_figures(f).crown_base_fraction[0] <= 0.1  # crown to the ground
+
+
+def test_thickness_conditions_choose_the_alternative() -> None:
+    g = _grammar()
+    g["rules"]["A"] = [  # type: ignore[index]
+        {**g["rules"]["A"][0], "min_radius": 0.5},  # type: ignore[index]
+        {"piece": "I", "successors": [{"symbol": "A"}], "max_radius": 0.5, "taper": [0.7, 0.7]},
+    ]
+    g.update(trunk_radius=1.0, tree_scale=[1.0, 1.0], max_depth=30)
+    f = generate_forest(parse_grammar(g), 3, ForestOptions())
+    gr = f.graph
+    on_a = np.flatnonzero((gr.symbol == 0) & (gr.piece != CAP))
+    t_piece = gr.piece[on_a] == PIECE_NAMES.index("T")
+    np.testing.assert_array_equal(t_piece, gr.scale[on_a] >= 0.5)
+    assert t_piece.any() and (~t_piece).any()
+
+
+def test_ground_clearance_ends_hanging_branches_above_it() -> None:
+    def branch_hubs(clearance: float) -> np.ndarray:
+        g = _grammar(branch_angle=[80, 80], tropism={"gravity": -0.5})
+        g["rules"]["B"] = [  # type: ignore[index]
+            {"piece": "I", "successors": [{"symbol": "B"}], "tropism": {"gravity": -0.5}}
+        ]
+        g.update(ground_clearance=clearance, trunk_radius=0.05, max_depth=30)
+        f = generate_forest(parse_grammar(g), 1, ForestOptions())
+        _, hubs = piece_points(f)
+        return hubs[(f.graph.order > 0) & (f.graph.piece != CAP), 1]
+
+    for clearance in (0.0, 0.3):
+        y = branch_hubs(clearance)
+        # branches hang down to the clearance, never below it
+        assert clearance <= y.min() <= clearance + 0.3, (clearance, y.min())
 
 
 def test_narrow_and_broad_crowns_differ() -> None:

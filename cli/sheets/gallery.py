@@ -1,5 +1,7 @@
 """``forest gallery``: every preset as one tree (side view, on the ground, with a scale bar
-and its measured height) and as a small stand (overview, on the ground), plus a contact sheet.
+and its measured height), in two close-ups (the leaves at a shoot end on the crown's sunny
+side, and the trunk's base) and as a small stand (overview, on the ground), plus two contact
+sheets (trees and stands; close-ups).
 
 Each scene goes through a written and re-read USD file, as a render job sees it. One tree is
 framed from its own posed surface (every skinned piece vertex) and leaf clouds; the stand is
@@ -56,6 +58,10 @@ BAR_LENGTHS = (0.5, 1.0, 2.0, 5.0, 10.0, 20.0, 50.0)  # metres
 BAR_SEGMENTS = {0.5: 1, 1.0: 2, 2.0: 2, 5.0: 5, 10.0: 5, 20.0: 4, 50.0: 5}
 BAR_OF_HEIGHT = 0.6  # the longest bar no taller than this fraction of the tree
 SHEET_THUMB = 320  # contact-sheet row height in pixels
+LEAF_VIEW = 1.2  # metres across a leaf close-up: a shoot end and its leaves at their size
+LEAF_BAND = (0.45, 0.85)  # the close-up's shoot is taken between these fractions of the height
+BASE_VIEW = (1.5, 3.0)  # metres of trunk a base close-up shows: 12 % of the height in this range
+CLOSE_ELEVATION = 8.0  # degrees: close-ups are seen from about eye level
 MIN_SIZE, MAX_SIZE = 64, 4096
 
 
@@ -125,9 +131,11 @@ def posed_vertices(scene: SceneArrays, frame: int = 0, chunk: int = 1024) -> F64
     return np.concatenate(out) if out else np.zeros((0, 3))
 
 
-def scene_surface_points(scene: SceneArrays, frame: int = 0) -> F64:
-    """``(m, 3)`` posed piece vertices and the corners of every leaf cloud's box."""
-    return np.concatenate([posed_vertices(scene, frame), foliage_points(scene, frame)])
+def scene_surface_points(scene: SceneArrays, frame: int = 0, bark: F64 | None = None) -> F64:
+    """``(m, 3)`` posed piece vertices (``bark`` when already computed) and the corners of
+    every leaf cloud's box."""
+    bark = posed_vertices(scene, frame) if bark is None else bark
+    return np.concatenate([bark, foliage_points(scene, frame)])
 
 
 def bar_length(height: float) -> float:
@@ -166,6 +174,44 @@ def frame_tree(points: F64, root: F64, aspect: float) -> TreeShot:
     cam = frame_points(np.concatenate([points, bar, room]), aspect, FOV, AZIMUTH, 0.0)
     width = float(max(hi[0] - lo[0], hi[2] - lo[2]))
     return TreeShot(with_ground(cam), height, width, bar, metres)
+
+
+def frame_leaves(scene: SceneArrays, aspect: float) -> Camera | None:
+    """A close-up, LEAF_VIEW metres across, of the outermost foliage anchor on the camera's
+    side of the crown (between LEAF_BAND of the height): the leaves a walker looks at.
+    None for a tree without leaves."""
+    if scene.n_foliage == 0:
+        return None
+    centres = scene.foliage_at(0)
+    root = scene.tree_transforms[0, :3, 3]
+    top = float(centres[:, 1].max()) - root[1]
+    y = centres[:, 1] - root[1]
+    band = (y >= LEAF_BAND[0] * top) & (y <= LEAF_BAND[1] * top)
+    if not band.any():
+        band = np.ones(len(centres), bool)
+    az = np.deg2rad(AZIMUTH)
+    toward_camera = np.array([np.sin(az), 0.0, np.cos(az)])
+    middle = np.array([np.median(centres[:, 0]), 0.0, np.median(centres[:, 2])])
+    reach = np.where(band, (centres - middle) @ toward_camera, -np.inf)
+    target = centres[int(np.argmax(reach))]
+    # a square LEAF_VIEW across facing the camera (a box's corners would frame it wider)
+    right = np.array([np.cos(az), 0.0, -np.sin(az)])
+    up = np.array([0.0, 1.0, 0.0])
+    square = target + 0.5 * LEAF_VIEW * np.array(
+        [r * right + u * up for r in (-1, 1) for u in (-1, 1)]
+    )
+    return frame_points(square, aspect, FOV, AZIMUTH, CLOSE_ELEVATION, target_in=target)
+
+
+def frame_base(bark: F64, root: F64, height: float, aspect: float) -> tuple[Camera, float]:
+    """A close-up of the trunk's base: the bark vertices up to 12 % of the tree's ``height``
+    (within BASE_VIEW metres) seen from about eye level; returns the camera and the metres."""
+    metres = float(np.clip(0.12 * height, *BASE_VIEW))
+    low = bark[bark[:, 1] <= root[1] + metres]
+    if len(low) == 0:
+        low = bark
+    cam = frame_points(low, aspect, FOV, AZIMUTH, CLOSE_ELEVATION)
+    return with_ground(cam), metres
 
 
 # -- drawing --------------------------------------------------------------------------------------
@@ -262,21 +308,29 @@ def _stand_scene(
 
 @dataclass(frozen=True)
 class GalleryEntry:
+    """``leaves`` is None for a preset without foliage."""
+
     preset: str
     single: Path
     stand: Path
     height: float
     pieces: int
     stand_trees: int
+    leaves: Path | None = None
+    base: Path | None = None
+
+    def closeups(self) -> tuple[Path, ...]:
+        return tuple(p for p in (self.leaves, self.base) if p is not None)
 
 
 def make_gallery(
     options: GalleryOptions, echo: Echo = print, progress: Progress | None = None
 ) -> list[GalleryEntry]:
-    """Write ``<preset>.png``, ``<preset>_stand.png`` for each preset and
-    ``contact_sheet.png`` into ``options.output``; echo a line per file. ``progress`` hears
-    ``("images", done, total)`` as each picture is written (a staged stand on a CPU
-    rasteriser takes seconds)."""
+    """Write ``<preset>.png``, ``<preset>_leaves.png`` (when it has leaves),
+    ``<preset>_base.png`` and ``<preset>_stand.png`` for each preset, ``contact_sheet.png``
+    (trees and stands) and ``closeups.png`` into ``options.output``; echo a line per file.
+    ``progress`` hears ``("images", done, total)`` as each picture is written (a staged stand
+    on a CPU rasteriser takes seconds)."""
     note = progress or (lambda stage, done, total: None)
     options.check()
     from PIL import Image
@@ -286,25 +340,56 @@ def make_gallery(
     names = list(options.presets) if options.presets is not None else preset_names()
     w, h = options.size
     entries: list[GalleryEntry] = []
-    n_images = 2 * len(names) + 1  # each preset's two, then the contact sheet
+    # each preset's tree, close-ups and stand, then the two sheets
+    grammars = {name: load_preset(name) for name in names}
+    n_images = sum(3 + bool(g.foliage) for g in grammars.values()) + 2
+    done = 0
+
+    def wrote(path: Path, line: str) -> Path:
+        nonlocal done
+        done += 1
+        note("images", done, n_images)
+        echo(f"wrote {path}: {line}")
+        return path
+
     ctx = create_context()
     try:
         with tempfile.TemporaryDirectory() as tmp:
             note("images", 0, n_images)
-            for k, name in enumerate(names):
-                grammar = load_preset(name)
+            for name in names:
+                grammar = grammars[name]
                 one = ForestOptions(trees=1, area=(1.0, 1.0))
                 scene = _scene(grammar, options.seed, one, Path(tmp) / f"{name}.usdc")
                 root = scene.tree_transforms[0, :3, 3]
-                shot = frame_tree(scene_surface_points(scene), root, w / h)
+                bark = posed_vertices(scene)
+                shot = frame_tree(scene_surface_points(scene, bark=bark), root, w / h)
                 image = Image.fromarray(_render(ctx, scene, shot.camera, (w, h))[..., :3])
                 _scale_bar(image, shot)
                 _caption(image, f"{name}: {shot.height:.1f} m tall, {scene.n_instances} pieces")
-                single = write_png(out / f"{name}.png", np.asarray(image))
-                note("images", 2 * k + 1, n_images)
-                echo(
-                    f"wrote {single}: {name}, one tree {shot.height:.1f} m tall, "
-                    f"{scene.n_instances} pieces, side view, {shot.bar_metres:g} m bar"
+                single = wrote(
+                    write_png(out / f"{name}.png", np.asarray(image)),
+                    f"{name}, one tree {shot.height:.1f} m tall, {scene.n_instances} pieces, "
+                    f"side view, {shot.bar_metres:g} m bar",
+                )
+
+                # close-ups are square, as wide as the single tree's picture
+                leaves = None
+                leaf_cam = frame_leaves(scene, 1.0)
+                if leaf_cam is None:  # a grammar whose foliage symbols bore no leaves
+                    n_images -= bool(grammar.foliage)
+                else:
+                    image = Image.fromarray(_render(ctx, scene, leaf_cam, (w, w))[..., :3])
+                    _caption(image, f"{name}: leaves, {LEAF_VIEW:g} m across")
+                    leaves = wrote(
+                        write_png(out / f"{name}_leaves.png", np.asarray(image)),
+                        f"{name}, close-up of a shoot's leaves, {LEAF_VIEW:g} m across",
+                    )
+                base_cam, metres = frame_base(bark, root, shot.height, 1.0)
+                image = Image.fromarray(_render(ctx, scene, base_cam, (w, w))[..., :3])
+                _caption(image, f"{name}: trunk base, lowest {metres:.1f} m")
+                base = wrote(
+                    write_png(out / f"{name}_base.png", np.asarray(image)),
+                    f"{name}, close-up of the trunk's base, lowest {metres:.1f} m",
                 )
 
                 spacing = max(0.9 * shot.crown_width, 0.4 * shot.height, 0.5)
@@ -319,26 +404,35 @@ def make_gallery(
                 cam = place_camera(CameraSpec(view="overview", fov=FOV), pts, h / w, ground=True)
                 image = Image.fromarray(_render(ctx, stand, cam, (h, w))[..., :3])
                 _caption(image, f"{name}: {n} trees on {side:.0f} m x {side:.0f} m")
-                stand_path = write_png(out / f"{name}_stand.png", np.asarray(image))
-                note("images", 2 * k + 2, n_images)
-                echo(
-                    f"wrote {stand_path}: {name}, {n} trees, {stand.n_instances} pieces, "
-                    f"{side:.0f} m square, overview"
+                stand_path = wrote(
+                    write_png(out / f"{name}_stand.png", np.asarray(image)),
+                    f"{name}, {n} trees, {stand.n_instances} pieces, {side:.0f} m square, overview",
                 )
                 entries.append(
-                    GalleryEntry(name, single, stand_path, shot.height, scene.n_instances, n)
+                    GalleryEntry(
+                        name, single, stand_path, shot.height, scene.n_instances, n, leaves, base
+                    )
                 )
     finally:
         ctx.release()
-    sheet = write_png(out / "contact_sheet.png", contact_sheet(entries))
-    note("images", n_images, n_images)
-    echo(f"wrote {sheet}: {len(entries)} preset(s)")
+    wrote(write_png(out / "contact_sheet.png", contact_sheet(entries)), f"{len(entries)} preset(s)")
+    closeups = contact_sheet(entries, images=GalleryEntry.closeups)
+    wrote(write_png(out / "closeups.png", closeups), f"close-ups of {len(entries)} preset(s)")
     return entries
 
 
-def contact_sheet(entries: Sequence[GalleryEntry], thumb: int = SHEET_THUMB) -> NDArray[np.uint8]:
-    """``(h, w, 3)`` uint8: per preset, its tree and its stand scaled to ``thumb`` pixels high
-    under its name; two presets a row (one when there is one)."""
+def _tree_and_stand(e: GalleryEntry) -> tuple[Path, ...]:
+    return (e.single, e.stand)
+
+
+def contact_sheet(
+    entries: Sequence[GalleryEntry],
+    thumb: int = SHEET_THUMB,
+    images: Callable[[GalleryEntry], tuple[Path, ...]] = _tree_and_stand,
+) -> NDArray[np.uint8]:
+    """``(h, w, 3)`` uint8: per preset, its ``images`` (default its tree and its stand)
+    scaled to ``thumb`` pixels high under its name; two presets a row (one when there is
+    one)."""
     from PIL import Image, ImageDraw
 
     font = _font(max(14, thumb // 14))
@@ -346,15 +440,18 @@ def contact_sheet(entries: Sequence[GalleryEntry], thumb: int = SHEET_THUMB) -> 
     cells = []
     for e in entries:
         parts = []
-        for path in (e.single, e.stand):
+        for path in images(e):
             with Image.open(path) as im:
                 rgb = im.convert("RGB")
             parts.append(
                 rgb.resize((round(rgb.width * thumb / rgb.height), thumb), Image.Resampling.LANCZOS)
             )
-        cell = Image.new("RGB", (parts[0].width + gap + parts[1].width, label_h + thumb), "white")
-        cell.paste(parts[0], (0, label_h))
-        cell.paste(parts[1], (parts[0].width + gap, label_h))
+        width = sum(p.width for p in parts) + gap * max(len(parts) - 1, 0)
+        cell = Image.new("RGB", (max(width, thumb), label_h + thumb), "white")
+        x = 0
+        for part in parts:
+            cell.paste(part, (x, label_h))
+            x += part.width + gap
         ImageDraw.Draw(cell).text((4, 2), e.preset, fill=(0, 0, 0), font=font)
         cells.append(cell)
     cols = 1 if len(cells) <= 1 else 2

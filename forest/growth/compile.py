@@ -96,6 +96,9 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
             n_alt, 2
         ),
         alt_taper=np.array([a.taper for a in alts]).reshape(n_alt, 2),
+        alt_thickness=np.array(
+            [[a.min_radius, np.inf if a.max_radius is None else a.max_radius] for a in alts]
+        ).reshape(n_alt, 2),
         foliage=np.isin(np.arange(len(symbols)), [sid[s] for s in g.foliage]),
         cap_alt=cap_alt,
         pipe_exponent=g.pipe_exponent,
@@ -108,7 +111,7 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         )
     if g.max_depth is None:
         _check_terminates(cg)
-    if g.twig_radius is not None or g.crown is not None:
+    if g.twig_radius is not None or g.crown is not None or cg.by_thickness:
         # growth ends by thickness and height, which counting by depth cannot see: grow a
         # small sample (its own fixed seed; the per-tree cap still stops a runaway)
         expected = _sampled_pieces(cg, settings)

@@ -239,7 +239,7 @@ def expand(
         parent=np.full(n_trees, -1, np.int32),
         rim=np.zeros(n_trees, np.int32),
         sym=np.full(n_trees, cg.axiom, np.int32),
-        len=np.ones(n_trees),
+        len=np.full(n_trees, g.axiom_length),
         rad=np.ones(n_trees),
         scale=radius0.copy(),
         order=np.zeros(n_trees, np.int32),
@@ -249,12 +249,16 @@ def expand(
         key=np.asarray(keys, np.uint64),
     )
     close = g.close_tips and cg.cap_alt >= 0
+    thick = cg.alt_thickness if cg.by_thickness else None
     out: list[tuple[NDArray, ...]] = []
     count = 0
     per_tree = np.zeros(n_trees, np.int64)
     for depth in range(cg.max_depth + 2):  # the last level holds only caps
         # np.take: several times faster than fancy indexing for these row gathers
         cum = np.take(cg.choice_table(depth), f.sym, axis=0)
+        if thick is not None:  # thickness conditions: each piece's own eligible weights
+            fits = (f.scale[:, None] >= thick[:, 0]) & (f.scale[:, None] < thick[:, 1])
+            cum = np.cumsum(np.diff(cum, axis=1, prepend=0.0) * fits, axis=1)
         total = cum[:, -1]
         h_piece = keyed.hashes(f.key, _PIECE)
         u = keyed.lane(h_piece, 0) * total
@@ -443,3 +447,41 @@ def children_radius(graph: PieceGraph, radius: NDArray[np.float64]) -> NDArray[n
         np.take(radius, has)
     )
     return out
+
+
+def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cap_alt: int) -> PieceGraph:
+    """``graph`` with each instance marked in ``at`` (and below no other marked one)
+    replaced by a cap piece of length scale 1 and everything above it dropped: the branch
+    ends where it would have grown that piece. What stays keeps its keys, so its draws, pose
+    and place are unchanged."""
+    cap = PIECE_NAMES.index("Cap")
+    gone = np.zeros(len(graph), bool)
+    by_depth = LevelBlock.of(graph.depth, 0, len(graph))
+    for _, idx in by_depth.levels():
+        par = np.take(graph.parent, idx)
+        has = par >= 0
+        p = np.maximum(par, 0)
+        gone[idx] = has & (np.take(gone, p) | np.take(at, p))
+    cut = at & ~gone
+    keep = np.flatnonzero(~gone)
+    new_index = np.cumsum(~gone) - 1
+    parent = graph.parent[keep]
+    parent = np.where(parent >= 0, new_index[np.maximum(parent, 0)], -1).astype(np.int32)
+    cut_k = cut[keep]
+    return PieceGraph(
+        tree=graph.tree[keep],
+        parent=parent,
+        parent_rim=graph.parent_rim[keep],
+        depth=graph.depth[keep],
+        piece=np.where(cut_k, cap, graph.piece[keep]).astype(np.int32),
+        symbol=graph.symbol[keep],
+        alt=np.where(cut_k, cap_alt, graph.alt[keep]).astype(np.int32),
+        twist=graph.twist[keep],
+        length=np.where(cut_k, 1.0, graph.length[keep]),
+        radius=graph.radius[keep],
+        scale=graph.scale[keep],
+        order=graph.order[keep],
+        height=graph.height[keep],
+        taper=np.where(cut_k, 1.0, graph.taper[keep]),
+        key=graph.key[keep],
+    )

@@ -13,11 +13,11 @@ from numpy.typing import NDArray
 from forest import __version__
 from forest.bark.tiles import draw_tile_indices
 from forest.errors import LimitError
-from forest.geometry.pieces import HUB, PIECE_NAMES, PieceArrays, piece_library
+from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceArrays, piece_library
 from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
 from forest.growth.compile import compile_grammar
-from forest.growth.expand import PieceGraph
+from forest.growth.expand import PieceGraph, end_branches
 from forest.growth.foliage import FoliageAnchors, Season, spray_anchors
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.keyed import GROW, tree_keys
@@ -33,6 +33,7 @@ from schemas.grammar import Grammar
 from schemas.tileset import DEFAULT_MANIFEST, TileSetManifest
 
 Progress = Callable[[str, int, int], None]
+GROUND_PASSES = 3  # the cuts of branches under the ground: enough for the caps they make
 MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
 
 
@@ -218,7 +219,6 @@ def generate_forest(
     note = progress or (lambda stage, done, total: None)
     # bark tiles draw per forest; placement, growth and pose per tree and piece, keyed on the
     # seed and the tree's id, so a tree is the same in any forest or tile (forest.growth.keyed)
-    rng_tiles = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
     pieces = piece_library(options.segments)
     note("place", 0, 5)
     placed = place_trees(
@@ -243,6 +243,52 @@ def generate_forest(
             path="max_palette_matrices",
             limit=settings.max_palette_matrices,
         )
+    posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
+    for _ in range(GROUND_PASSES):
+        under = _under_ground(graph, posed, pieces, trees, grammar.ground_clearance)
+        if not under.any():
+            break
+        # branches that would bend under the ground end where they reach it (a cap that
+        # still dips under ends its branch one piece sooner on the next pass); the rest of
+        # each tree keeps its keys, so it grows and poses exactly as before
+        graph = end_branches(graph, under, cg.cap_alt)
+        posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
+    transforms, bones, pose, still, tiles = posed
+    note("done", 5, 5)
+    return Forest(
+        grammar=grammar,
+        seed=seed,
+        version=__version__,
+        options=options,
+        pieces=pieces,
+        graph=graph,
+        tree_transforms=trees,
+        tree_ids=placed.ids,
+        transforms=transforms,
+        bones=bones,
+        pose=pose,
+        tile_indices=tiles,
+        manifest=manifest,
+        foliage_instance=foliage_bearers(cg, graph),
+        still_palette=still,
+    )
+
+
+_Posed = tuple[F64, Bones, PoseParams, F64 | None, NDArray[np.int16]]
+
+
+def _assemble(
+    cg: CompiledGrammar,
+    graph: PieceGraph,
+    pieces: tuple[PieceArrays, ...],
+    trees: F64,
+    manifest: TileSetManifest,
+    seed: int,
+    note: Progress,
+) -> _Posed:
+    """Transforms, bones, pose (tropisms applied), the still palette where tropisms made one,
+    and bark tiles of a piece graph."""
+    rng_tiles = np.random.default_rng(np.random.SeedSequence(seed).spawn(4)[3])
     # the bark tiles and the pose draws depend on the piece graph alone: they run on their
     # own threads beside the assembly, and the tiles on beside the posing, whose passes leave
     # a core idle much of the time (the same arrays on any number of threads); the pool ends
@@ -265,21 +311,36 @@ def generate_forest(
             still.setflags(write=False)
         note("tiles", 4, 5)
         tiles = tiles_drawn.result()
-    note("done", 5, 5)
-    return Forest(
-        grammar=grammar,
-        seed=seed,
-        version=__version__,
-        options=options,
-        pieces=pieces,
-        graph=graph,
-        tree_transforms=trees,
-        tree_ids=placed.ids,
-        transforms=transforms,
-        bones=bones,
-        pose=pose,
-        tile_indices=tiles,
-        manifest=manifest,
-        foliage_instance=foliage_bearers(cg, graph),
-        still_palette=still,
-    )
+    return transforms, bones, pose, still, tiles
+
+
+def _under_ground(
+    graph: PieceGraph,
+    posed: _Posed,
+    pieces: tuple[PieceArrays, ...],
+    trees: F64,
+    clearance: float,
+) -> NDArray[np.bool_]:
+    """``(n,)`` pieces to end branches at: those (not a tree's root piece) whose hub or a
+    leaf-rim centre lies lower than their root and than ``clearance`` above their tree's
+    base, posed without wind, and the pieces that bear caps lying that low."""
+    transforms, bones, pose, still, _ = posed
+    pal = still
+    if pal is None:
+        pal = Poser(graph, bones, pieces, trees, transforms, pose).palette()
+    low = np.full(len(graph), np.inf)
+    for j in range(HUB, TIP0 + MAX_LEAF_RIMS):
+        at = np.flatnonzero(np.array([p.n_joints > j for p in pieces])[graph.piece])
+        rest = np.stack([p.joint_rest[min(j, p.n_joints - 1), :3, 3] for p in pieces])
+        m = pal[bones.offset[at] + j]
+        y = np.einsum("nj,nj->n", m[:, 1, :3], rest[graph.piece[at]]) + m[:, 1, 3]
+        low[at] = np.minimum(low[at], y)
+    root = pal[bones.offset, 1, 3]  # the root joint's rest frame is the identity
+    # only pieces that head down: a stem rising from the ground is never cut
+    under = (low - trees[graph.tree, 1, 3] < clearance) & (low < root) & (graph.parent >= 0)
+    # a cap that dips under is its branch's end: the piece it closes ends the branch instead
+    caps = np.flatnonzero(under & (graph.piece == PIECE_NAMES.index("Cap")))
+    under[caps] = False
+    under[graph.parent[caps]] = True
+    under &= graph.parent >= 0
+    return under

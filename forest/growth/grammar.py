@@ -82,6 +82,8 @@ class CompiledGrammar:
     alt_branch_angle : (A, 2) float64 range in radians, NaN where none
     alt_tropism : (A, 2) float64 gravity and light strengths
     alt_taper : (A, 2) float64 range of the radius at the children over the root radius
+    alt_thickness : (A, 2) float64 [min, max) root-rim radius in metres the alternative
+    applies to (max inf where none)
     foliage : (S,) bool
     cap_alt : the alternative (last, weight 0, never drawn) that closes a tip with the Cap
     piece; -1 when the piece library has none
@@ -105,6 +107,7 @@ class CompiledGrammar:
     alt_branch_angle: NDArray[np.float64]
     alt_tropism: NDArray[np.float64]
     alt_taper: NDArray[np.float64]
+    alt_thickness: NDArray[np.float64]
     foliage: NDArray[np.bool_]
     cap_alt: int
     pipe_exponent: float | None
@@ -116,3 +119,10 @@ class CompiledGrammar:
         w = np.zeros((len(self.symbols), len(self.alt_symbol)))
         w[self.alt_symbol, np.arange(len(self.alt_symbol))] = self.alt_weight * ok
         return np.cumsum(w, axis=1)
+
+    @property
+    def by_thickness(self) -> bool:
+        """Whether any alternative has a thickness condition."""
+        return bool(
+            (self.alt_thickness[:, 0] > 0).any() or np.isfinite(self.alt_thickness[:, 1]).any()
+        )

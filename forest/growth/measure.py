@@ -1,5 +1,6 @@
 """What a forester would measure on each generated tree, computed from the posed arrays:
-height, trunk diameter at breast height, crown width and base, pieces, the thinnest rims.
+height, trunk diameter at breast height, crown width and base, how round the crown is seen from
+above, pieces and bark triangles, how thin the twigs end and the lowest point of the bark.
 
 Used by the species tests (figures against ``shared/SPECIES.md``), the gallery's captions and
 ``forest presets --figures``.
@@ -12,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.geometry.pieces import HUB
+from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, TIP0
 from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.generate import Forest
 
@@ -27,7 +28,14 @@ class TreeFigures:
     branch point or leaf cloud top), dbh (area-equivalent trunk diameter at 1.3 m), crown_width
     (mean of the x and z extents of branches and clouds), crown_base (lowest leaf cloud's
     bottom), pieces ``(t,)`` int64, tip_radius (largest radius of a rim that ends its branch),
-    trunk_radius (root rim radius)."""
+    trunk_radius (root rim radius), tip_diameter (twig ends: the 95th percentile of the
+    diameters, corner to corner, of the rims that end branches; the few thicker ends are knots
+    of shed branches and the leader's top), crown_roundness (seen from above: the leaf clouds'
+    extent across the crown over their extent along it, on the principal axes of their
+    positions; 1 for a round crown, small for a flat fan), lowest (the lowest root, hub or
+    leaf-rim centre of any piece but the tree's root piece, above the tree's base; < 0 is
+    under the ground), bark_triangles ``(t,)`` int64 (two per quad of every piece: full
+    detail before tessellation)."""
 
     height: F64
     dbh: F64
@@ -36,6 +44,10 @@ class TreeFigures:
     pieces: NDArray[np.int64]
     tip_radius: F64
     trunk_radius: F64
+    tip_diameter: F64
+    crown_roundness: F64
+    lowest: F64
+    bark_triangles: NDArray[np.int64]
 
     @property
     def slenderness(self) -> F64:
@@ -46,6 +58,11 @@ class TreeFigures:
     def crown_ratio(self) -> F64:
         """Crown width over height."""
         return self.crown_width / self.height
+
+    @property
+    def crown_base_fraction(self) -> F64:
+        """Crown base over height (the bare bole's share of the tree)."""
+        return self.crown_base / self.height
 
 
 def piece_points(forest: Forest, palette: F64 | None = None) -> tuple[F64, F64]:
@@ -100,6 +117,26 @@ def tree_figures(forest: Forest) -> TreeFigures:
     ends = _ending_rims(forest, radius)
     tip = np.zeros(n_trees)
     np.maximum.at(tip, g.tree[ends[0]], ends[1])
+    tip_diameter = np.array(
+        [
+            2 * np.quantile(ends[1][g.tree[ends[0]] == t], 0.95) if (g.tree[ends[0]] == t).any()
+            else np.nan
+            for t in range(n_trees)
+        ]
+    )  # fmt: skip
+    cloud_tree = g.tree[anchors.instance]
+    roundness = np.array([_roundness(cloud[cloud_tree == t][:, [0, 2]]) for t in range(n_trees)])
+    low = np.minimum(rel_roots[:, 1], rel_hubs[:, 1])
+    for r in range(MAX_LEAF_RIMS):  # each leaf rim's centre, where the piece has it
+        at = np.flatnonzero(np.array([p.n_leaf_rims > r for p in forest.pieces])[g.piece])
+        rest = np.stack([p.joint_rest[min(TIP0 + r, p.n_joints - 1), :3, 3] for p in forest.pieces])
+        m = pal[forest.bones.offset[at] + TIP0 + r]
+        y = np.einsum("nj,nj->n", m[:, 1, :3], rest[g.piece[at]]) + m[:, 1, 3]
+        low[at] = np.minimum(low[at], y - base[g.tree[at], 1])
+    low[g.parent < 0] = np.inf
+    lowest = np.full(n_trees, np.inf)
+    np.minimum.at(lowest, g.tree, low)
+    quads = np.array([len(p.quads) for p in forest.pieces], np.int64)[g.piece]
     return TreeFigures(
         height=top,
         dbh=dbh,
@@ -108,7 +145,24 @@ def tree_figures(forest: Forest) -> TreeFigures:
         pieces=np.bincount(g.tree, minlength=n_trees).astype(np.int64),
         tip_radius=tip,
         trunk_radius=radius[g.parent < 0],
+        tip_diameter=tip_diameter,
+        crown_roundness=roundness,
+        lowest=lowest,
+        bark_triangles=2 * np.bincount(g.tree, weights=quads, minlength=n_trees).astype(np.int64),
     )
+
+
+def _roundness(xz: F64) -> float:
+    """Extent across over extent along the principal axes of points ``(k, 2)`` (2nd to 98th
+    percentile, so a stray cloud does not set it); nan for fewer than three points."""
+    if len(xz) < 3:
+        return float("nan")
+    centred = xz - xz.mean(axis=0)
+    _, axes = np.linalg.eigh(np.cov(centred.T))
+    along = centred @ axes  # columns: minor axis, major axis
+    lo, hi = np.percentile(along, [2, 98], axis=0)
+    extent = np.sort(hi - lo)
+    return float(extent[0] / max(extent[1], 1e-12))
 
 
 def _ending_rims(forest: Forest, radius: F64) -> tuple[NDArray[np.intp], F64]:

@@ -226,7 +226,8 @@ def test_gallery_writes_images_of_trees_on_the_ground(gl43: Any, tmp_path: Path)
         echo=lines.append,
         progress=lambda *report: reports.append(report),
     )
-    names = [f"{p}{s}.png" for p in PRESETS for s in ("", "_stand")] + ["contact_sheet.png"]
+    kinds = ("", "_leaves", "_base", "_stand")
+    names = [f"{p}{s}.png" for p in PRESETS for s in kinds] + ["contact_sheet.png", "closeups.png"]
     assert sorted(p.name for p in out.iterdir()) == sorted(names)
     assert len(lines) == len(names) and all(line.startswith("wrote ") for line in lines)
     assert reports == [("images", k, len(names)) for k in range(len(names) + 1)]

@@ -19,7 +19,9 @@ SCALE = 4
 def main() -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     for path in sorted(SRC.glob("*.png")):
-        if path.stem == "contact_sheet" or path.stem.endswith("_stand"):
+        if path.stem in ("contact_sheet", "closeups") or path.stem.endswith(
+            ("_stand", "_leaves", "_base")
+        ):
             continue
         src = oiio.ImageBuf(str(path))
         spec = src.spec()
