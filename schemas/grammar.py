@@ -127,19 +127,63 @@ class Alternative(StrictModel):
 Hex = Annotated[str, Field(pattern=r"^#[0-9a-fA-F]{6}$")]
 
 
-class Leaves(StrictModel):
-    """Foliage of a species: which cloud models, how big, in which colours."""
+LeafFamily = Literal[
+    "broadleaf", "needles", "strands",
+    "oak", "birch", "hazel", "willow", "almond", "poplar", "pine", "spruce",
+]  # fmt: skip
+Metres = Annotated[float, Field(gt=0, le=2, allow_inf_nan=False)]
 
-    family: Literal["broadleaf", "needles", "strands"] = "broadleaf"
-    """Leaf-cloud models: balls of broad leaf cards, tufts of needles, hanging strands."""
-    size: Annotated[float, Field(gt=0, le=50, allow_inf_nan=False)] = 7.0
-    """Cloud diameter in radii of the branch piece it sits on."""
+
+class Leaves(StrictModel):
+    """Foliage of a species: leaf sprays (shoots of the last order carrying leaf cards at the
+    species' real size), where they grow, in which colours."""
+
+    family: LeafFamily = "broadleaf"
+    """The species' sprays and leaf picture: ``oak`` (lobed, crowded at shoot ends), ``birch``
+    (small triangular leaves on long stalks, hanging shoots), ``hazel`` (round, toothed, two
+    ranks), ``willow`` (narrow leaves on long hanging shoots), ``almond`` (narrow, toothed),
+    ``poplar`` (triangular, long stalks), ``pine`` (tufts of needle pairs at shoot ends),
+    ``spruce`` (short needles all round branchlets); the older ``broadleaf`` (ovate),
+    ``needles`` (spruce-like) and ``strands`` (hanging narrow leaves)."""
+    length: tuple[Metres, Metres] | None = None
+    """Range of a leaf card's length in metres, stalk included (the family's own without:
+    e.g. oak 0.08-0.14, birch 0.05-0.08, spruce needles 0.012-0.022)."""
+    phyllotaxis: Literal["spiral", "alternate", "opposite", "whorled"] | None = None
+    """How leaves sit along a shoot: ``spiral`` (137.5 degrees apart), ``alternate`` (two
+    ranks, 180), ``opposite`` (decussate pairs), ``whorled`` (threes); the family's own
+    without."""
+    sprays: tuple[Annotated[int, Field(ge=0, le=32)], Annotated[int, Field(ge=0, le=32)]] = (2, 4)
+    """Range of the number of sprays on each foliage-bearing piece, along its axis from the
+    hub to a terminal, denser towards the terminal."""
+    scale: tuple[
+        Annotated[float, Field(gt=0, le=4, allow_inf_nan=False)],
+        Annotated[float, Field(gt=0, le=4, allow_inf_nan=False)],
+    ] = (0.85, 1.15)
+    """Range of each spray's scale (the sprays are in metres: a jitter about 1)."""
+    size: Annotated[float, Field(gt=0, le=50, allow_inf_nan=False)] | None = None
+    """No longer used (leaf clouds were this many branch radii across; sprays are at real
+    size now): accepted so older grammars load."""
     max_radius: Annotated[float, Field(gt=0, le=10, allow_inf_nan=False)] | None = None
-    """Metres: no cloud on a piece whose root rim is thicker (trunks and main limbs)."""
+    """Metres: no spray on a piece whose root rim is thicker (trunks and main limbs)."""
+    min_height: Annotated[float, Field(ge=0, le=100, allow_inf_nan=False)] = 0.0
+    """Metres above the tree's foot below which no spray grows."""
+    shell: Annotated[float, Field(ge=0, lt=1, allow_inf_nan=False)] = 0.0
+    """Leaves live in the crown's outer shell: no spray nearer the crown's centre than this
+    fraction of the way to its outer surface (0: anywhere)."""
+    max_triangles: Annotated[int, Field(ge=0, le=10_000_000)] | None = None
+    """Most leaf triangles per tree: beyond it the innermost sprays go."""
     colors: Annotated[list[Hex], Field(min_length=1, max_length=8)] = ["#38691f"]
-    """sRGB palette: each tree draws a base colour from it, each cloud varies around it."""
+    """sRGB palette: each tree draws a base colour from it, each spray varies around it."""
     autumn_colors: Annotated[list[Hex], Field(max_length=8)] = []
     """The palette with ``season: autumn`` (none: the summer palette)."""
+
+    @model_validator(mode="after")
+    def _ranges(self) -> Leaves:
+        if self.length is not None:
+            _ordered(self.length, "length")
+        _ordered(self.sprays, "sprays")
+        _ordered(self.scale, "scale")
+        return self
 
 
 class Crown(StrictModel):

@@ -21,7 +21,6 @@ from pxr import Usd, UsdGeom, UsdSkel
 
 from forest.bark.images import read_pixels
 from forest.bark.tilesets import default_dir, mean_colour
-from forest.growth.foliage import cloud_models
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.contract import FOLIAGE, PIECES
@@ -102,7 +101,7 @@ def leaf_vertex_radius(forest: Forest, tree: int) -> np.ndarray:
     anchors = forest.foliage_anchors()
     inst, _ = tree_slices(forest)[tree]
     sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
-    counts = np.array([len(m.positions) for m in cloud_models(anchors.family)])
+    counts = np.array([len(m.positions) for m in anchors.models()])
     radius = forest.graph.scale[anchors.instance[sel]]
     return np.repeat(radius, counts[anchors.model[sel]]).astype(np.float64)
 

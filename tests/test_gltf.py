@@ -95,7 +95,7 @@ def test_bark_and_leaf_materials(forest: Forest, doc: gl.GLTF2) -> None:
     assert all(im.mimeType == "image/png" for im in doc.images)
     # every leaf cloud hangs under a joint of its tree
     clouds = [i for i, n in enumerate(doc.nodes) if n.name and n.name.startswith("Leaves_")]
-    assert len(clouds) == len(forest.foliage_instance)
+    assert len(clouds) == len(forest.foliage_anchors())
     joints = {j for s in doc.skins for j in s.joints}
     parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
     assert all(parent_of[c] in joints for c in clouds)

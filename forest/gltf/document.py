@@ -25,7 +25,7 @@ from forest.gltf.buffer import Blob
 from forest.gltf.instancing import add_instanced_scene
 from forest.gltf.leaves import LeafLibrary, add_tree_clouds
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
-from forest.growth.generate import Forest
+from forest.growth.generate import Forest, foliage_or_none
 from forest.usd.skinned import joint_frames, tree_mesh, tree_slices
 
 Progress = Callable[[str, int, int], None]
@@ -120,7 +120,7 @@ def forest_gltf(
     bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
     frames = joint_frames(forest)
     pose = sample_pose(forest, frames)
-    anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
+    anchors = foliage_or_none(forest)
     library = LeafLibrary(gltf, blob, anchors) if anchors is not None else None
     anchor_tree = forest.graph.tree[anchors.instance] if anchors is not None else None
     skins: list[tuple[TreeSkin, slice]] = []

@@ -20,7 +20,7 @@ from forest.geometry.transforms import F64, compose_similarity
 from forest.gltf.bark import png_bytes
 from forest.gltf.buffer import Blob
 from forest.gltf.skin import Pose, TreeSkin, trs
-from forest.growth.foliage import FoliageAnchors, cloud_models, leaf_texture, yaw_quaternions
+from forest.growth.foliage import FoliageAnchors, leaf_texture, yaw_quaternions
 from forest.growth.generate import Forest
 from forest.usd.skinned import dcc_joints
 
@@ -33,7 +33,7 @@ class LeafLibrary:
 
     def __init__(self, gltf: gl.GLTF2, blob: Blob, anchors: FoliageAnchors) -> None:
         self.gltf = gltf
-        models = cloud_models(anchors.family)
+        models = anchors.models()
         self.texture = blob.texture(
             png_bytes(leaf_texture(anchors.family)), f"leaf-{anchors.family}"
         )
@@ -128,11 +128,7 @@ def add_tree_clouds(
     local = compose_similarity(pose.t[0, bones], pose.q[0, bones], s)
     parent = (dcc.parent[bones] - bones.start).astype(np.intp)
     world = joint_worlds(forest.tree_transforms[tree], parent, local)[joint]
-    sub = FoliageAnchors(
-        instance=anchors.instance[pick], bone=anchors.bone[pick], rest=anchors.rest[pick],
-        size=anchors.size[pick], model=anchors.model[pick], yaw=anchors.yaw[pick],
-        color=anchors.color[pick], family=anchors.family,
-    )  # fmt: skip
+    sub = anchors.select(pick)
     time = float(pose.times[0]) if pose.times is not None else 0.0
     local = cloud_locals(forest, sub, world, time)
     for c in range(len(pick)):

@@ -1,25 +1,35 @@
-"""Foliage (paper 6): the leaf-cloud models built in code, their procedural textures, and the
-anchors that tie each cloud to the bone of the piece it sits on.
+"""Foliage (paper 6): the leaf-spray models built in code, their procedural leaf pictures, and
+the anchors that tie each spray to the bone of the piece it grows from.
 
-A leaf cloud is one small mesh of leaf cards (quads, double sided) inside a ball of unit
-diameter about the origin. Each leaf family (``Leaves.family`` of the grammar) has MODELS
-clouds of its own shape and its own texture:
+A leaf spray is one small shoot of the last order with its leaves, in metres at the species'
+real size: a thin stem (cards showing the picture's petiole) carrying leaf cards (quads,
+double sided, cut to the leaf by the picture's alpha) with the species' phyllotaxis. The
+shoot leaves its attachment point (the model's origin) along +z, rising or hanging as the
+species grows, so a turn about the vertical (``yaw``) points it away from its branch. Each
+leaf family (``Leaves.family`` of the grammar) has MODELS sprays of its own (different shoot
+lengths, leaf counts, curvature) and its own picture:
 
-* ``broadleaf``: clumpy balls of broad rhombus leaf cards, stems pointing outwards;
-* ``needles``: brushes of needle sprigs (a card shows a twig with needles either side)
-  radiating from a few twig segments;
-* ``strands``: curtains of narrow leaves in vertical chains hanging from the top of the
-  cloud (willow, birch).
+* ``oak``: lobed leaves crowded at the shoot's end, alternate spiral, facing the light;
+* ``birch``: small triangular leaves on long stalks along pendulous shoots;
+* ``hazel``: round toothed leaves, alternate in two ranks, facing the light;
+* ``willow``: narrow leaves along long shoots that hang straight down;
+* ``almond``: narrow toothed leaves, spiral, facing the light;
+* ``poplar``: triangular leaves on long stalks, spiral;
+* ``pine``: tufts of needle pairs round the end of upturned shoots;
+* ``spruce``: branchlets with side shoots, short needles all round every shoot;
+* the older names ``broadleaf`` (ovate leaves, spiral), ``needles`` (spruce-like sprigs) and
+  ``strands`` (hanging narrow leaves) keep working for user grammars.
 
 Every foliage instance shows one model (``model``), turned about the vertical by ``yaw`` (a
-turn about the vertical only, so strands keep hanging down; one of YAW_STEPS headings, so a
-renderer can keep one impostor picture per model and heading), scaled by its size (a diameter
-in metres), tinted by ``color`` (linear RGB: the textures are neutral detail, the colour comes
-from the grammar's palette, one base colour per tree and a small jitter per cloud).
+turn about the vertical only, so hanging shoots keep hanging and leaves keep facing up; one of
+YAW_STEPS headings, so a renderer can keep one impostor picture per model and heading), scaled
+by its size (a small jitter about 1: the models are in metres), tinted by ``color`` (linear
+RGB: the pictures are neutral detail, the colour comes from the grammar's palette, one base
+colour per tree and a small jitter per spray).
 
-An anchor is a point in a piece's model space (the hub joint) and the palette entry of that
-piece's hub bone; the cloud's centre at any frame is that palette matrix applied to the rest
-point, so foliage follows the wind with its branch.
+An anchor is a point in a piece's model space (on the piece's axis between its hub and a
+terminal) and the palette entry of that piece's hub bone; the spray's origin at any frame is
+that palette matrix applied to the rest point, so foliage follows the wind with its branch.
 """
 
 from __future__ import annotations
@@ -31,47 +41,133 @@ from typing import Literal, get_args
 import numpy as np
 from numpy.typing import NDArray
 
-from forest.geometry.pieces import HUB
+from forest.geometry.pieces import HUB, TIP0
 from forest.geometry.transforms import F64
 from schemas.grammar import Leaves
 
-Family = Literal["broadleaf", "needles", "strands"]
+Family = Literal[
+    "broadleaf", "needles", "strands",
+    "oak", "birch", "hazel", "willow", "almond", "poplar", "pine", "spruce",
+]  # fmt: skip
 FAMILIES: tuple[Family, ...] = get_args(Family)
+Phyllotaxis = Literal["spiral", "alternate", "opposite", "whorled"]
 Season = Literal["summer", "autumn"]
 SEASONS: tuple[Season, ...] = get_args(Season)
-MODELS = 3  # cloud models per family
-CARDS = 256  # cards per cloud model (every model: 512 triangles)
-YAW_STEPS = 8  # headings a cloud may take (the renderer's impostor pictures per model)
+MODELS = 8  # spray models per family (8 x 8 headings: 64 impostor pictures)
+YAW_STEPS = 8  # headings a spray may take (the renderer's impostor pictures per model)
 LEAF_SEED = 6
-TEXTURE_SIZE = 128
-CLOUD_RADII = 7.0  # default cloud diameter in radii of the piece it sits on (Leaves.size)
-# corners of a card in its own (across, along) frame, and their st, in the order base, right,
-# tip, left: a rhombus for leaf blades, a rectangle for needle sprigs
-RHOMBUS = np.array([[0.0, 0.0], [0.5, 0.4], [0.0, 1.0], [-0.5, 0.4]])
-RHOMBUS_ST = np.array([[0.5, 0.0], [1.0, 0.4], [0.5, 1.0], [0.0, 0.4]])
-RECT = np.array([[0.0, 0.0], [0.5, 0.0], [0.5, 1.0], [-0.5, 1.0]])
-RECT_ST = np.array([[0.5, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-CARD, CARD_ST = RHOMBUS, RHOMBUS_ST  # the broad leaf's card (kept for existing callers)
-LEAF_GREEN = (0.22, 0.42, 0.13)  # linear RGB of clouds that carry no colour (older scenes)
-# per-cloud jitter about its tree's base colour: hue in turns, saturation and value as
-# log-normal factors (small: a tree reads as one colour, its clouds do not look pasted)
+TEXTURE_SIZE = 256
+# a card's corners in its own (across, along) frame and their st, in the order base-left,
+# base-right, tip-right, tip-left (split into triangles along the 0-2 diagonal)
+RECT = np.array([[-0.5, 0.0], [0.5, 0.0], [0.5, 1.0], [-0.5, 1.0]])
+RECT_ST = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+CARD, CARD_ST = RECT, RECT_ST
+# where each picture lies in a family's texture (s from, s to, t from, t to): one leaf, a
+# cluster of ROSETTE leaves seen from above, and the stalk that stem cards show
+LEAF_ST = (0.0, 0.5, 0.0, 1.0)
+ROSETTE_ST = (0.5, 1.0, 0.5, 1.0)
+ROSETTE = 6
+ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half width
+STEM, LEAF, CLUSTER = 0, 1, 2  # what a card shows (LeafCloud.kind)
+STEM_S = (0.245, 0.255)
+STEM_T = (0.015, 0.05)
+LEAF_GREEN = (0.22, 0.42, 0.13)  # linear RGB of sprays that carry no colour (older scenes)
+# per-spray jitter about its tree's base colour: hue in turns, saturation and value as
+# log-normal factors (small: a tree reads as one colour, its sprays do not look pasted)
 HUE_JITTER = 0.012
 SAT_JITTER = 0.08
 VALUE_JITTER = 0.12
+UP = np.array([0.0, 1.0, 0.0])
+GOLDEN = 137.5
+
+
+@dataclass(frozen=True)
+class SprayForm:
+    """How a family's shoots carry their leaves (all lengths in metres).
+
+    length: leaf card length range (stalk included); aspect: card width over length;
+    petiole: the stalk's share of the card; leaves: leaf count range per shoot; shoot: shoot
+    length range; crowd: > 1 crowds the leaves towards the shoot's end; habit: ``spread``
+    (leaves turned to face the light), ``hanging`` (shoot and leaves hang), ``tuft`` (needle
+    fans round the shoot's end), ``sprig`` (needle sprigs all round a branchlet); rise: the
+    shoot's start above the horizontal, degrees; stem: stem card width; sides: range of the
+    side shoots of the last order on the spray's shoot (so a spray is a branchlet of the
+    last two orders), side: their length range; rosette: every shoot ends in a cluster of
+    leaves (one card showing ROSETTE leaves from above). Leaf counts are per shoot, besides
+    the rosette's."""
+
+    length: tuple[float, float]
+    aspect: float
+    petiole: float
+    phyllotaxis: Phyllotaxis
+    leaves: tuple[int, int]
+    shoot: tuple[float, float]
+    crowd: float = 1.0
+    habit: Literal["spread", "hanging", "tuft", "sprig"] = "spread"
+    rise: tuple[float, float] = (5.0, 35.0)
+    stem: float = 0.004
+    sides: tuple[int, int] = (0, 0)
+    side: tuple[float, float] = (0.1, 0.2)
+    rosette: bool = False
+
+
+FORMS: dict[str, SprayForm] = {
+    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (3, 5), (0.5, 0.9), crowd=1.8,
+                     sides=(3, 5), side=(0.12, 0.3), rosette=True),
+    "birch": SprayForm((0.05, 0.08), 0.62, 0.32, "spiral", (5, 8), (0.4, 0.8),
+                       habit="hanging", rise=(0.0, 25.0), stem=0.003, sides=(2, 4),
+                       side=(0.15, 0.3)),
+    "hazel": SprayForm((0.07, 0.12), 0.82, 0.12, "alternate", (4, 7), (0.35, 0.6),
+                       sides=(2, 3), side=(0.15, 0.3)),
+    "willow": SprayForm((0.08, 0.14), 0.2, 0.05, "spiral", (16, 24), (0.8, 1.6),
+                        habit="hanging", rise=(10.0, 30.0), stem=0.003, sides=(1, 2),
+                        side=(0.4, 0.8)),
+    "almond": SprayForm((0.08, 0.12), 0.3, 0.12, "spiral", (4, 6), (0.3, 0.5), crowd=1.4,
+                        sides=(2, 4), side=(0.1, 0.22), rosette=True),
+    "poplar": SprayForm((0.06, 0.11), 0.7, 0.3, "spiral", (5, 8), (0.3, 0.5),
+                        rise=(25.0, 60.0), sides=(2, 3), side=(0.1, 0.2)),
+    "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
+                      habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
+                      side=(0.1, 0.2)),
+    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.4, 0.7),
+                        habit="sprig", rise=(-15.0, 10.0)),
+    "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (4, 6), (0.3, 0.55), crowd=1.6,
+                           sides=(2, 4), side=(0.1, 0.2), rosette=True),
+    "strands": SprayForm((0.07, 0.12), 0.24, 0.06, "spiral", (12, 18), (0.6, 1.2),
+                         habit="hanging", rise=(10.0, 30.0), stem=0.003, sides=(1, 2),
+                         side=(0.3, 0.6)),
+}  # fmt: skip
+FORMS["needles"] = FORMS["spruce"]
 
 
 @dataclass(frozen=True, eq=False)
 class LeafCloud:
-    """positions, normals : (4 c, 3)   st : (4 c, 2)   quads : (c, 4) int32 (one card each).
+    """One spray model. positions, normals : (4 c, 3) metres   st : (4 c, 2)
+    quads : (c, 4) int32 (one card each).
 
-    Each card owns its four vertices (flat normal); every vertex lies within distance 0.5 of
-    the origin; ``family`` names the texture its st coordinates index."""
+    Each card owns its four vertices (flat normal); the shoot starts at the origin;
+    ``family`` names the picture its st coordinates index; ``kind`` (c,) says what each card
+    shows (STEM, LEAF or a cluster of ROSETTE leaves), None where unknown (a model read back
+    from a scene)."""
 
     positions: F64
     normals: F64
     st: F64
     quads: NDArray[np.int32]
     family: Family = "broadleaf"
+    kind: NDArray[np.int8] | None = None
+
+    @property
+    def leaf(self) -> NDArray[np.bool_] | None:
+        """``(c,)`` the cards that show one leaf (None where unknown)."""
+        return None if self.kind is None else np.asarray(self.kind == LEAF)
+
+    @property
+    def n_leaves(self) -> int:
+        """Leaves shown: one per leaf card, ROSETTE per cluster card."""
+        if self.kind is None:
+            return self.n_cards
+        return int((self.kind == LEAF).sum() + ROSETTE * (self.kind == CLUSTER).sum())
 
     @property
     def n_cards(self) -> int:
@@ -79,7 +175,7 @@ class LeafCloud:
 
     @property
     def radius(self) -> float:
-        """Largest distance of a vertex from the centre (the billboard's half size)."""
+        """Largest distance of a vertex from the origin (the billboard's half size)."""
         return float(np.linalg.norm(self.positions, axis=1).max())
 
     def triangles(self) -> NDArray[np.int32]:
@@ -87,177 +183,450 @@ class LeafCloud:
         q = self.quads
         return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int32)
 
+    def leaf_lengths(self) -> F64:
+        """Base-to-tip length of every leaf card and the longest leaf of every cluster card
+        (half its side), metres."""
+        q = self.quads if self.leaf is None else self.quads[self.leaf]
+        one = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
+        if self.kind is None:
+            return np.asarray(one)
+        q = self.quads[self.kind == CLUSTER]
+        side = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
+        return np.concatenate([one, 0.5 * ROSETTE_LEAF * side])
+
 
 def _unit(v: F64) -> F64:
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
 
 
-def _cards(
-    base: F64,
-    along: F64,
-    helper: F64,
-    length: F64 | float,
-    width: F64 | float,
-    shape: F64,
-    shape_st: F64,
-    family: Family,
-) -> LeafCloud:
-    """Cards from their base points and stem directions ``(c, 3)``; the blade's plane holds
-    ``along`` and is turned about it by ``helper`` (any direction not along it). The cloud is
-    scaled about the origin so its farthest vertex lies at 0.5 (unit diameter)."""
-    c = len(base)
-    along = _unit(along)
-    across = _unit(np.cross(along, helper))
-    normal = np.cross(across, along)
-    length = np.broadcast_to(np.asarray(length, np.float64), (c,))[:, None, None]
-    width = np.broadcast_to(np.asarray(width, np.float64), (c,))[:, None, None]
-    pos = (
-        base[:, None]
-        + shape[None, :, 0:1] * width * across[:, None]
-        + shape[None, :, 1:2] * length * along[:, None]
-    )
-    pos = pos.reshape(-1, 3)
-    pos *= 0.5 / np.linalg.norm(pos, axis=1).max()
-    return LeafCloud(
-        positions=pos,
-        normals=np.repeat(normal, 4, axis=0),
-        st=np.tile(shape_st, (c, 1)),
-        quads=np.arange(4 * c, dtype=np.int32).reshape(c, 4),
-        family=family,
-    )
+def _side(t: F64) -> F64:
+    """A horizontal direction across each direction ``t`` (x where ``t`` is vertical)."""
+    s = np.cross(t, UP)
+    flat = np.linalg.norm(s, axis=-1) < 1e-6
+    s[flat] = np.array([1.0, 0.0, 0.0])
+    return _unit(s)
 
 
-def _broadleaf(rng: np.random.Generator, model: int, cards: int) -> LeafCloud:
-    """Clumps of broad leaves: one ball (model 0), three lobes (1), five flattened lobes (2).
-    Leaves sit denser near each clump's surface with stems pointing outwards (towards the
-    light), so the silhouette reads as a clumpy cloud and the inside is mostly hidden."""
-    lobes, flat = ((1, 1.0), (3, 0.85), (5, 0.7))[model % 3]
-    centres = np.zeros((1, 3)) if lobes == 1 else 0.16 * _unit(rng.normal(size=(lobes, 3)))
-    centres[:, 1] *= flat
-    radius = 0.3 if lobes == 1 else 0.22
-    which = rng.integers(lobes, size=cards)
-    d = _unit(rng.normal(size=(cards, 3)))
-    base = centres[which] + d * (radius * rng.random(cards) ** 0.35)[:, None]
-    base[:, 1] *= flat
-    along = _unit(base + 1e-3 * d) + 0.6 * rng.normal(size=(cards, 3))
-    return _cards(base, along, rng.normal(size=(cards, 3)), 0.2, 0.12, RHOMBUS, RHOMBUS_ST,
-                  "broadleaf")  # fmt: skip
+class _Cards:
+    """Cards collected for one model: base points, along and across directions, lengths,
+    widths and st rectangles."""
+
+    def __init__(self) -> None:
+        self.parts: list[tuple[F64, F64, F64, F64, F64, F64, int]] = []
+
+    def add(
+        self, base: F64, along: F64, across: F64, length: F64, width: F64,
+        st: tuple[float, float, float, float] = LEAF_ST, kind: int = LEAF,
+    ) -> None:  # fmt: skip
+        n = len(base)
+        rect = np.broadcast_to(np.asarray(st, np.float64), (n, 4))
+        self.parts.append((base, _unit(along), _unit(across), np.broadcast_to(length, (n,)),
+                           np.broadcast_to(width, (n,)), rect, kind))  # fmt: skip
+
+    def cloud(self, family: Family) -> LeafCloud:
+        pos, nrm, st, kinds = [], [], [], []
+        for base, along, across, length, width, rect, kind in self.parts:
+            across = _unit(across - (across * along).sum(1, keepdims=True) * along)
+            normal = np.cross(across, along)
+            p = (
+                base[:, None]
+                + RECT[None, :, 0:1] * width[:, None, None] * across[:, None]
+                + RECT[None, :, 1:2] * length[:, None, None] * along[:, None]
+            )
+            pos.append(p.reshape(-1, 3))
+            nrm.append(np.repeat(normal, 4, axis=0))
+            s = rect[:, None, 0] + RECT_ST[None, :, 0] * (rect[:, None, 1] - rect[:, None, 0])
+            t = rect[:, None, 2] + RECT_ST[None, :, 1] * (rect[:, None, 3] - rect[:, None, 2])
+            st.append(np.stack([s, t], axis=-1).reshape(-1, 2))
+            kinds.append(np.full(len(base), kind, np.int8))
+        positions = np.concatenate(pos)
+        c = len(positions) // 4
+        return LeafCloud(
+            positions=positions,
+            normals=np.concatenate(nrm),
+            st=np.concatenate(st),
+            quads=np.arange(4 * c, dtype=np.int32).reshape(c, 4),
+            family=family,
+            kind=np.concatenate(kinds),
+        )
 
 
-def _needles(rng: np.random.Generator, model: int, cards: int) -> LeafCloud:
-    """Needle sprigs radiating from twig segments: a round brush (model 0), a flat spray of
-    level twigs (1, fir-like), upturned tufts (2, pine-like)."""
-    twigs = (12, 9, 14)[model % 3]
-    dirs = _unit(rng.normal(size=(twigs, 3)))
-    if model % 3 == 1:
-        dirs[:, 1] *= 0.25
-    elif model % 3 == 2:
-        dirs[:, 1] = np.abs(dirs[:, 1]) + 0.6
-    dirs = _unit(dirs)
-    start = 0.05 * rng.normal(size=(twigs, 3))
-    which = rng.integers(twigs, size=cards)
-    t = rng.random(cards) ** 0.6
-    base = start[which] + (0.3 * t)[:, None] * dirs[which]
-    # a sprig leaves its twig at 30-70 degrees, on any side of it
-    side = _unit(np.cross(dirs[which], rng.normal(size=(cards, 3))))
-    angle = np.radians(rng.uniform(30, 70, cards))[:, None]
-    along = np.cos(angle) * dirs[which] + np.sin(angle) * side
-    # the sprig's plane holds its twig's direction (a flat brush along the twig)
-    return _cards(base, along, dirs[which], 0.24, 0.15, RECT, RECT_ST, "needles")
+def _shoot(
+    rng: np.random.Generator, form: SprayForm, length: float, segs: int,
+    start: F64 | None = None, azimuth: float = 0.0, rise: float | None = None,
+) -> F64:  # fmt: skip
+    """``(segs + 1, 3)`` a shoot's polyline from ``start`` (the origin) heading ``azimuth``
+    radians from +z about +y: rising by the form's angle (or ``rise`` degrees) and curving a
+    little, or (hanging) arching over and falling straight down."""
+    rise_r = np.radians(rng.uniform(*form.rise) if rise is None else rise)
+    step = length / segs
+    pts = [np.zeros(3) if start is None else np.asarray(start, np.float64)]
+    for i in range(segs):
+        f = (i + 0.5) / segs
+        if form.habit == "hanging":
+            # out and up for a little, then over and down, hanging straight at the end
+            ang = rise_r - (rise_r + np.radians(88)) * min(1.0, f / 0.35) ** 0.8
+        else:
+            ang = rise_r + np.radians(rng.normal(0, 6)) - 0.25 * rise_r * f
+        side = azimuth + rng.normal(0, 0.08)
+        d = np.array([np.sin(side) * np.cos(ang), np.sin(ang), np.cos(side) * np.cos(ang)])
+        pts.append(pts[-1] + step * d)
+    return np.array(pts)
 
 
-def _strands(rng: np.random.Generator, model: int, cards: int) -> LeafCloud:
-    """Curtains of narrow leaves in chains hanging from the top of the cloud: long strands
-    over a disk (model 0), more and shorter ones (1), a ring of strands round a hollow (2)."""
-    n, lo, hi = ((16, 0.6, 0.9), (24, 0.4, 0.7), (20, 0.55, 0.85))[model % 3]
-    phi = rng.uniform(0, 2 * np.pi, n)
-    rho = 0.4 * (rng.uniform(0.6, 1.0, n) if model % 3 == 2 else np.sqrt(rng.random(n)))
-    top = np.stack([rho * np.cos(phi), 0.42 - 0.25 * rho**2, rho * np.sin(phi)], axis=1)
-    top[:, 1] += 0.03 * rng.normal(size=n)
-    length = rng.uniform(lo, hi, n)
-    strand = np.arange(cards) % n
-    per = np.bincount(strand, minlength=n)
-    rank = np.zeros(cards, np.int64)
-    order = np.argsort(strand, kind="stable")
-    rank[order] = np.arange(cards) - np.repeat(np.cumsum(per) - per, per)
-    f = (rank + rng.random(cards) * 0.5) / per[strand]  # 0 at the top, 1 at the strand's end
-    sway = 0.04 * rng.normal(size=(n, 3)) * np.array([1.0, 0.0, 1.0])
-    base = top[strand] + f[:, None] * (
-        np.array([0.0, -1.0, 0.0]) * length[strand, None] + sway[strand]
-    )
-    # leaves hang: down, splayed a little outwards and to the sides, blades turned at random
-    out = np.stack([np.cos(phi), np.zeros(n), np.sin(phi)], axis=1)[strand]
-    along = np.array([0.0, -1.0, 0.0]) + 0.35 * out + 0.3 * rng.normal(size=(cards, 3))
-    along[:, 1] = -np.abs(along[:, 1]) - 0.5
-    helper = rng.normal(size=(cards, 3)) * np.array([1.0, 0.2, 1.0])
-    return _cards(base, along, helper, 0.11, 0.045, RHOMBUS, RHOMBUS_ST, "strands")
+def _side_shoots(rng: np.random.Generator, form: SprayForm, main: F64, segs: int) -> list[F64]:
+    """The side shoots of the last order on ``main``: alternately left and right, 35-65
+    degrees off its heading, between a fifth and 85 % of its length, shorter towards the
+    tip."""
+    n = int(rng.integers(form.sides[0], form.sides[1] + 1))
+    if n == 0:
+        return []
+    length = float(np.linalg.norm(np.diff(main, axis=0), axis=1).sum())
+    s = length * (np.linspace(0.2, 0.85, n) + rng.uniform(-0.05, 0.05, n))
+    at, tangent = _along(main, s)
+    out = []
+    first = rng.choice([-1.0, 1.0])
+    for i in range(n):
+        azimuth = float(np.arctan2(tangent[i, 0], tangent[i, 2]))
+        if np.hypot(tangent[i, 0], tangent[i, 2]) < 0.3:  # a hanging shoot: any side
+            azimuth = rng.uniform(0, 2 * np.pi)
+        turn = first * (1 if i % 2 else -1) * np.radians(rng.uniform(35, 65))
+        ln = rng.uniform(*form.side) * (1.0 - 0.3 * i / max(n - 1, 1))
+        rise = float(np.degrees(np.arcsin(np.clip(tangent[i, 1], -1, 1))))
+        rise = rng.uniform(*form.rise) if form.habit == "hanging" else max(rise, 0) * 0.5 + 10
+        out.append(_shoot(rng, form, ln, segs, at[i], azimuth + turn, rise))
+    return out
 
 
-_BUILDERS = {"broadleaf": _broadleaf, "needles": _needles, "strands": _strands}
+def _along(path: F64, s: F64) -> tuple[F64, F64]:
+    """Points and unit tangents of the polyline ``path`` at arc lengths ``s``."""
+    seg = np.diff(path, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+    f = ((s - cum[i]) / seg_len[i])[:, None]
+    return path[i] + f * seg[i], _unit(seg[i])
+
+
+def _rolls(n: int, phyllotaxis: Phyllotaxis, rng: np.random.Generator) -> tuple[F64, F64]:
+    """Node index (float, 0..nodes) and roll angle (radians) of ``n`` leaves."""
+    start = rng.uniform(0, 2 * np.pi)
+    i = np.arange(n)
+    if phyllotaxis == "opposite":  # decussate pairs
+        node, roll = i // 2, (i // 2) * np.pi / 2 + (i % 2) * np.pi
+    elif phyllotaxis == "whorled":  # whorls of three, alternating
+        node, roll = i // 3, (i // 3) * np.pi / 3 + (i % 3) * 2 * np.pi / 3
+    elif phyllotaxis == "alternate":  # two ranks
+        node, roll = i, i * np.pi
+    else:
+        node, roll = i, i * np.radians(GOLDEN)
+    roll = roll + start + rng.normal(0, 0.12, n)
+    return node.astype(np.float64), roll
+
+
+def _frame(tangent: F64, roll: F64) -> F64:
+    """Radial directions round each ``tangent`` at angle ``roll`` (0: the upper side)."""
+    b = _side(tangent)
+    n = np.cross(b, tangent)
+    return np.cos(roll)[:, None] * n + np.sin(roll)[:, None] * b
+
+
+def _stem_cards(cards: _Cards, path: F64, width: float) -> None:
+    base = path[:-1]
+    along = np.diff(path, axis=0)
+    length = np.linalg.norm(along, axis=1)
+    cards.add(base, along, _side(_unit(along)), length, np.full(len(base), width),
+              (STEM_S[0], STEM_S[1], STEM_T[0], STEM_T[1]), STEM)  # fmt: skip
+
+
+def _leafy(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+           phyllotaxis: Phyllotaxis, family: Family) -> LeafCloud:  # fmt: skip
+    """A branchlet with broad or narrow leaves (habits spread and hanging): its shoot and
+    side shoots, each with a stem and its leaves."""
+    hanging = form.habit == "hanging"
+    main = _shoot(rng, form, rng.uniform(*form.shoot), 6 if hanging else 3)
+    cards = _Cards()
+    for path in [main, *_side_shoots(rng, form, main, 4 if hanging else 1)]:
+        _leaves_on(cards, rng, form, lengths, phyllotaxis, path, hanging)
+    return cards.cloud(family)
+
+
+def _leaves_on(
+    cards: _Cards, rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+    phyllotaxis: Phyllotaxis, path: F64, hanging: bool,
+) -> None:  # fmt: skip
+    """One shoot's stem cards and its leaves along it by ``phyllotaxis``."""
+    length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+    n = int(rng.integers(form.leaves[0], form.leaves[1] + 1))
+    node, roll = _rolls(n, phyllotaxis, rng)
+    nodes = node.max() + 1
+    u = (node + 0.5 + rng.uniform(-0.25, 0.25, n)) / nodes
+    s = length * (0.12 + 0.86 * (1 - (1 - u) ** form.crowd))
+    at, tangent = _along(path, s)
+    radial = _frame(tangent, roll)
+    # the youngest leaves near the tip are smaller
+    size = rng.uniform(*lengths, n) * (1 - 0.3 * np.clip((s / length - 0.85) / 0.15, 0, 1))
+    if hanging:
+        # leaves hang along their shoot, splayed outwards a little, blades facing out
+        along = _unit(tangent + 0.55 * radial + rng.normal(0, 0.12, (n, 3)))
+        along[:, 1] = np.minimum(along[:, 1], -0.35)
+        along = _unit(along)
+        across = np.cross(radial, along) + rng.normal(0, 0.3, (n, 3))
+    else:
+        # leaves leave the shoot at 50-70 degrees and turn their blades to the light: mostly
+        # level, a little drooping, a mosaic round the shoot
+        ins = np.radians(rng.uniform(50, 70, n))[:, None]
+        along = np.cos(ins) * tangent + np.sin(ins) * radial
+        along[:, 1] = 0.25 * along[:, 1] - rng.uniform(0.0, 0.25, n)
+        along = _unit(along)
+        across = _side(along) + rng.normal(0, 0.25, (n, 3)) * np.array([0.0, 1.0, 0.0])
+    _stem_cards(cards, path, form.stem)
+    # a stalk begins at the shoot's surface
+    cards.add(at + 0.5 * form.stem * radial, along, across, size, form.aspect * size)
+    if form.rosette:  # the cluster at the shoot's end, facing up and a little forwards
+        end = _unit(path[-1] - path[-2])
+        normal = _unit(UP + 0.5 * end * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
+        a = _unit(end - (end @ normal) * normal + 0.3 * rng.normal(size=3))
+        a = _unit(a - (a @ normal) * normal)
+        r = rng.uniform(*lengths) / ROSETTE_LEAF
+        cards.add((path[-1] - r * a)[None], a[None], np.cross(a, normal)[None],
+                  np.array([2 * r]), np.array([2 * r]), ROSETTE_ST, CLUSTER)  # fmt: skip
+
+
+def _tuft(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+          phyllotaxis: Phyllotaxis, family: Family) -> LeafCloud:  # fmt: skip
+    """A pine branchlet: a shoot and its side shoots, each with fans of needle pairs all
+    round its last half, pointing forwards and out (closer to the shoot towards its tip),
+    and a tuft straight ahead at its tip."""
+    main = _shoot(rng, form, rng.uniform(*form.shoot), 3)
+    cards = _Cards()
+    for path in [main, *_side_shoots(rng, form, main, 2)]:
+        length = float(np.linalg.norm(np.diff(path, axis=0), axis=1).sum())
+        n = int(rng.integers(form.leaves[0], form.leaves[1] + 1))
+        node, roll = _rolls(n, phyllotaxis, rng)
+        u = (node + rng.uniform(0, 0.5, n)) / (node.max() + 1)
+        s = length - min(0.15, 0.6 * length) * (1 - u)
+        at, tangent = _along(path, s)
+        radial = _frame(tangent, roll)
+        spread = np.radians(60 - 35 * u + rng.normal(0, 6, n))[:, None]
+        along = np.cos(spread) * tangent + np.sin(spread) * radial
+        size = rng.uniform(*lengths, n)
+        _stem_cards(cards, path, form.stem)
+        cards.add(at, along, np.cross(tangent, radial), size, form.aspect * size)
+        tip, t_end = path[-1][None], _unit(path[-1] - path[-2])[None]
+        for turn in (0.0, np.pi / 2):  # two crossed fans on the tip
+            r = _frame(t_end, np.array([turn]))
+            ln = np.array([0.8 * lengths[1]])
+            cards.add(tip - 0.01 * t_end, t_end, np.cross(t_end, r), ln, form.aspect * ln)
+    return cards.cloud(family)
+
+
+def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+           phyllotaxis: Phyllotaxis, family: Family) -> LeafCloud:  # fmt: skip
+    """A spruce branchlet: a main shoot with a few side shoots (alternately left and right,
+    at 40-60 degrees), every shoot in segments each shown by two crossed needle sprigs (the
+    picture: a twig with needles either side), so needles stand all round the shoots."""
+    length = rng.uniform(*form.shoot)
+    main = _shoot(rng, form, length, 4)
+    cards = _Cards()
+    needle = rng.uniform(*lengths)
+
+    def clothe(path: F64) -> None:
+        base = path[:-1]
+        along = np.diff(path, axis=0)
+        seg = np.linalg.norm(along, axis=1)
+        t = _unit(along)
+        turn = rng.uniform(0, np.pi)
+        for k in (0.0, np.pi / 2):
+            r = _frame(t, np.full(len(t), turn + k))
+            cards.add(base, t, r, seg, np.full(len(t), 2 * needle * form.aspect))
+
+    clothe(main)
+    sides = int(rng.integers(form.leaves[0], form.leaves[1] + 1))
+    s = length * np.linspace(0.12, 0.8, sides) + rng.uniform(-0.02, 0.02, sides)
+    at, tangent = _along(main, s)
+    for i in range(sides):
+        side = _side(tangent[i : i + 1])[0] * (1 if i % 2 else -1)
+        ang = np.radians(rng.uniform(40, 65))
+        d = _unit(np.cos(ang) * tangent[i] + np.sin(ang) * side)
+        ln = max(length - s[i], 0.1) * rng.uniform(0.5, 0.8)
+        # side shoots sag and, on the lower side, hang (the comb of a spruce's branches)
+        k = np.linspace(0, 1, 3)[:, None]
+        droop = np.array([0.0, -rng.uniform(0.15, 0.6), 0.0]) * k**1.5 * ln
+        clothe(at[i] + k * ln * d + droop)
+    return cards.cloud(family)
+
+
+_BUILDERS = {"spread": _leafy, "hanging": _leafy, "tuft": _tuft, "sprig": _sprig}
 
 
 def leaf_cloud(
-    family: Family = "broadleaf", model: int = 0, cards: int = CARDS, seed: int = LEAF_SEED
+    family: Family = "broadleaf",
+    model: int = 0,
+    seed: int = LEAF_SEED,
+    length: tuple[float, float] | None = None,
+    phyllotaxis: Phyllotaxis | None = None,
 ) -> LeafCloud:
-    """Cloud ``model`` (0 .. MODELS - 1) of ``family``: ``cards`` cards, unit diameter. The same
-    arguments give the same cloud."""
-    if family not in _BUILDERS:
+    """Spray ``model`` (0 .. MODELS - 1) of ``family`` in metres: its leaf cards ``length``
+    metres long (the family's own range without), its leaves set by ``phyllotaxis`` (the
+    family's own without). The same arguments give the same spray."""
+    if family not in FORMS:
         raise ValueError(f"leaves.family must be one of {FAMILIES}, got {family!r}")
     if not 0 <= model < MODELS:
         raise ValueError(f"model must be in [0, {MODELS}), got {model}")
+    form = FORMS[family]
     rng = np.random.default_rng([seed, FAMILIES.index(family), model])
-    return _BUILDERS[family](rng, model, cards)
+    return _BUILDERS[form.habit](
+        rng, form, length or form.length, phyllotaxis or form.phyllotaxis, family
+    )
 
 
-@lru_cache(maxsize=len(FAMILIES))
-def cloud_models(family: Family = "broadleaf") -> tuple[LeafCloud, ...]:
-    """The MODELS clouds of ``family`` (built once; do not modify their arrays)."""
-    return tuple(leaf_cloud(family, m) for m in range(MODELS))
+@lru_cache(maxsize=4 * len(FAMILIES))
+def cloud_models(
+    family: Family = "broadleaf",
+    length: tuple[float, float] | None = None,
+    phyllotaxis: Phyllotaxis | None = None,
+) -> tuple[LeafCloud, ...]:
+    """The MODELS sprays of ``family`` (built once; do not modify their arrays)."""
+    return tuple(leaf_cloud(family, m, LEAF_SEED, length, phyllotaxis) for m in range(MODELS))
 
 
-def _blade(x: F64, tt: F64, widest: float, width: float, tip: float = 0.985) -> NDArray[np.bool_]:
-    """Where a leaf blade is, in card coordinates (x across in -1..1, t along in 0..1):
-    zero width at the stem and the tip, widest at ``widest``."""
-    rise = np.sin(np.pi * 0.5 * tt / widest)
-    fall = np.cos(np.pi * 0.5 * (tt - widest) / (1 - widest))
-    half = np.where(tt < widest, rise, fall)
-    half = width * np.clip(half, 0, 1) ** 0.8 * np.clip((tt - 0.04) / 0.06, 0, 1)
-    half *= np.clip((tip - tt) / 0.05, 0, 1)
-    return np.asarray(np.abs(x) <= half)
+def _saw(u: F64, teeth: float) -> F64:
+    """A sawtooth 0..1 along the margin: ``teeth`` teeth over the blade."""
+    return np.asarray((u * teeth) % 1.0)
+
+
+def _outline(family: Family, u: F64) -> F64:
+    """Half width of the blade (0..1 of the card's half width) at ``u`` from the blade's base
+    (0) to its tip (1): the species' leaf outline with its margin."""
+    u = np.clip(u, 0.0, 1.0)
+    if family == "oak":
+        # obovate, widest beyond the middle, with 4-5 rounded lobes a side cut by deep sinuses
+        # and small ear-shaped lobes at the base
+        env = np.sin(np.pi * np.clip(u, 0, 1) ** 0.8) ** 0.7 * (0.55 + 0.45 * u)
+        lobes = 0.5 + 0.5 * np.abs(np.cos(np.pi * (4.5 * u + 0.2))) ** 0.6
+        ear = 0.35 * np.exp(-(((u - 0.04) / 0.04) ** 2))
+        return np.asarray(np.maximum(env * lobes * 1.05, ear))
+    if family in ("birch", "poplar"):
+        # triangular (deltoid): broad straight base, straight sides to a drawn-out tip
+        widest = 0.2 if family == "birch" else 0.15
+        rise = np.clip(u / widest, 0, 1) ** 0.45
+        fall = np.clip((1 - u) / (1 - widest), 0, 1) ** (1.25 if family == "birch" else 1.1)
+        teeth = 1 - (0.08 if family == "birch" else 0.05) * _saw(u, 11)
+        return np.asarray(rise * fall * teeth)
+    if family == "hazel":
+        # round with a heart-shaped base and a short point, doubly toothed
+        env = np.sqrt(np.clip(1 - ((u - 0.47) / 0.49) ** 2, 0, 1))
+        point = np.clip((1 - u) / 0.2, 0, 1) ** 0.7  # the short drawn-out tip
+        env = np.minimum(env, point) * (1 - 0.35 * np.exp(-((u / 0.07) ** 2)))
+        return np.asarray(env * (1 - 0.06 * _saw(u, 12) - 0.03 * _saw(u, 36)))
+    if family in ("willow", "strands", "almond"):
+        # lanceolate: narrow, widest a third up, a long fine point, finely toothed
+        widest = 0.35 if family == "almond" else 0.3
+        rise = np.sin(0.5 * np.pi * np.clip(u / widest, 0, 1)) ** 0.8
+        fall = np.sin(0.5 * np.pi * np.clip((1 - u) / (1 - widest), 0, 1)) ** 1.1
+        return np.asarray(rise * fall * (1 - 0.07 * _saw(u, 24)))
+    # broadleaf: ovate, widest at 40 %
+    rise = np.sin(0.5 * np.pi * np.clip(u / 0.4, 0, 1)) ** 0.8
+    fall = np.cos(0.5 * np.pi * np.clip((u - 0.4) / 0.6, 0, 1)) ** 0.8
+    return np.asarray(np.where(u < 0.4, rise, fall) * 0.95)
+
+
+def _segments(px: F64, py: F64, a: F64, b: F64, half: float) -> NDArray[np.bool_]:
+    """Where the pixels ``(px, py)`` lie within ``half`` of any segment ``a[i] -> b[i]``."""
+    hit = np.zeros(px.shape, bool)
+    for (ax, ay), (bx, by) in zip(a, b, strict=True):
+        dx, dy = bx - ax, by - ay
+        f = np.clip(((px - ax) * dx + (py - ay) * dy) / (dx * dx + dy * dy), 0, 1)
+        hit |= np.hypot(px - ax - f * dx, py - ay - f * dy) < half
+    return hit
+
+
+def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
+    """Where the family's leaf is (x across its card in -1..1, tt along it in 0..1, the stalk
+    at 0) and its neutral value there."""
+    form = FORMS[family]
+    stalk = (np.abs(x) < 0.06) & (tt > 0.005) & (tt < max(form.petiole, 0.08) + 0.02)
+    if form.habit == "sprig":
+        twig = (np.abs(x) < 0.08) & (tt > 0.005) & (tt < 0.995)
+        # needles leave the twig every 1/16 of its length at 55 degrees, nearly to the edge,
+        # thick enough to stay a few texels wide in an impostor
+        phase = (tt - 0.45 * np.abs(x)) * 16.0
+        needle = (np.abs(phase - np.round(phase)) < 0.36) & (np.abs(x) < 0.95)
+        needle &= tt - 0.45 * np.abs(x) > 0.0
+        return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
+    if form.habit == "tuft":
+        # pairs of needles from a sheath at the base, fanned out
+        ends = np.array(
+            [-0.88, -0.76, -0.52, -0.4, -0.16, -0.05, 0.1, 0.21, 0.42, 0.54, 0.76, 0.88]
+        )
+        a = np.zeros((len(ends), 2)) + np.array([0.0, 0.06])
+        b = np.stack([ends, 0.97 - 0.12 * np.abs(ends)], axis=1)
+        # the picture's x spans the card's width, its t the length: the thickness in x
+        # units is about a needle's width (1.5 mm) over the card's half width
+        needle = _segments(x, tt, a, b, 0.05)
+        return needle | stalk, np.where(stalk, 0.5, 0.75 + 0.2 * tt)
+    p = form.petiole
+    u = (tt - p) / (1 - p)
+    half = 0.94 * _outline(family, u) * np.clip(u / 0.03, 0, 1)  # a margin for mip levels
+    blade = (np.abs(x) <= half) & (u > 0) & (u < 0.995)
+    rib = np.abs(x) < 0.035
+    veins_per = {"oak": 5.0, "hazel": 7.0, "birch": 7.0, "poplar": 6.0}.get(family, 12.0)
+    vein_phase = (u - 0.5 * np.abs(x)) * veins_per
+    veins = (np.abs(vein_phase - np.round(vein_phase)) < 0.06) & (u > 0.05)
+    value = 0.7 + 0.25 * (1 - np.abs(x)) * np.clip(u * 1.5, 0, 1)
+    value = np.where(rib | veins, value * 1.15, value)
+    return blade | stalk, np.where(stalk & ~blade, 0.55, value)
+
+
+def _rosette(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
+    """An ``n`` x ``n`` picture of the family's leaves in a cluster seen from above: ROSETTE
+    leaves from the centre, each as long as the picture's half width."""
+    form = FORMS[family]
+    c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    px, py = np.meshgrid(c, c)
+    shape = np.zeros((n, n), bool)
+    value = np.zeros((n, n))
+    for j in range(ROSETTE):
+        # the youngest leaves in the middle of the cluster are smaller
+        turn = 2 * np.pi * j / ROSETTE + 0.25 * np.sin(3.0 * j)
+        scale = ROSETTE_LEAF - 0.12 * (j % 2)
+        along = (px * np.sin(turn) + py * np.cos(turn)) / scale
+        across = (px * np.cos(turn) - py * np.sin(turn)) / scale / (0.5 * form.aspect)
+        inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
+        sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
+        sh &= inside & ~shape  # the first leaves drawn lie on top
+        value = np.where(sh, val * (0.9 + 0.1 * (j % 3) / 2), value)
+        shape |= sh
+    return shape, value
 
 
 def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDArray[np.uint8]:
     """``(size, size, 4)`` RGBA8 (row 0 is t = 0, the stem end), rgb sRGB-encoded: the family's
-    leaf, alpha 255 on it and 0 around it. The rgb is neutral detail (midrib, veins, mottle,
-    shading) that the renderer multiplies by each cloud's colour. Made from code, so nothing
-    of unclear origin ships and any worker can rebuild it.
+    pictures, alpha 255 on them and 0 around them. The rgb is neutral detail (midrib, veins,
+    mottle, shading) that the renderer multiplies by each spray's colour. Made from code, so
+    nothing of unclear origin ships and any worker can rebuild it.
 
-    broadleaf: a broad blade with midrib and side veins; strands: a narrow lanceolate blade;
-    needles: a sprig, a twig along the middle with needles either side pointing forwards."""
-    if family not in _BUILDERS:
+    The left half (LEAF_ST) is one leaf, its stalk at t = 0; a stalk (or twig) runs down the
+    middle of its base (STEM_S x STEM_T), which stem cards show. The upper right quarter
+    (ROSETTE_ST) is a cluster of ROSETTE leaves seen from above (the leaves crowded at a
+    shoot's end, one card for several). Broad leaves: the species' outline (lobed oak,
+    triangular birch and poplar on long stalks, round toothed hazel, narrow willow and
+    almond) with midrib and side veins; ``pine``: a fan of needle pairs from a sheath;
+    ``spruce``/``needles``: a sprig, a twig along the middle with short needles either side
+    pointing forwards."""
+    if family not in FORMS:
         raise ValueError(f"leaves.family must be one of {FAMILIES}, got {family!r}")
+    half = size // 2
     t = (np.arange(size) + 0.5) / size
-    s, tt = np.meshgrid(t, t)  # s across (column), t along (row)
-    x = (s - 0.5) * 2.0  # -1..1 across
+    s = (np.arange(half) + 0.5) / half
+    x, tt = np.meshgrid((s - 0.5) * 2.0, t)  # x across (column) -1..1, t along (row)
+    shape = np.zeros((size, size), bool)
+    value = np.zeros((size, size))
+    shape[:, :half], value[:, :half] = _picture(family, x, tt)
+    shape[half:, half:], value[half:, half:] = _rosette(family, size - half)
     rng = np.random.default_rng([size, FAMILIES.index(family)])
-    mottle = 1.0 + 0.06 * rng.standard_normal((size, size))
-    if family == "needles":
-        twig = (np.abs(x) < 0.06) & (tt > 0.03) & (tt < 0.97)
-        # needles leave the twig every 1/11 of its length at 55 degrees, 0.9 half-widths long,
-        # thick enough to stay a few texels wide in a 256-texel impostor of the cloud
-        phase = (tt - 0.7 * np.abs(x)) * 11.0
-        needle = (np.abs(phase - np.round(phase)) < 0.24) & (np.abs(x) < 0.92)
-        needle &= (tt - 0.7 * np.abs(x) > 0.02) & (tt < 0.99)
-        shape = twig | needle
-        value = np.where(twig, 0.55, 0.8 + 0.2 * np.abs(x)) * mottle
-    else:
-        widest, width = (0.4, 0.95) if family == "broadleaf" else (0.3, 0.9)
-        shape = _blade(x, tt, widest, width)
-        rib = np.abs(x) < 0.045
-        vein_phase = (tt - 0.55 * np.abs(x)) * (9.0 if family == "broadleaf" else 14.0)
-        veins = (np.abs(vein_phase - np.round(vein_phase)) < 0.07) & (tt > 0.1)
-        value = (0.72 + 0.25 * (1 - np.abs(x)) * np.clip(tt * 1.5, 0, 1)) * mottle
-        value = np.where(rib | veins, value * 1.15, value)
+    value = value * (1.0 + 0.06 * rng.standard_normal((size, size)))
     # neutral with a touch of warmth in the lighter parts (veins and midribs yellow a little)
     rgb = np.clip(value[..., None] * np.array([1.0, 1.0, 0.93]), 0, 1)
     out = np.zeros((size, size, 4), np.uint8)
@@ -316,14 +685,16 @@ def cloud_colors(
 
 @dataclass(frozen=True, eq=False)
 class FoliageAnchors:
-    """instance : (k,) int32 piece instance each cloud sits on
+    """instance : (k,) int32 piece instance each spray grows from
     bone : (k,) int32 the palette entry it follows (the instance's bone offset + HUB)
     rest : (k, 3) float64 its point in the piece's model space
-    size : (k,) float64 cloud diameter, metres
-    model : (k,) int32 which of the family's MODELS clouds it shows
+    size : (k,) float64 the spray's scale (its model is in metres: a jitter about 1)
+    model : (k,) int32 which of the family's MODELS sprays it shows
     yaw : (k,) float64 radians about the vertical (+y), a multiple of 2 pi / YAW_STEPS
     color : (k, 3) float32 linear RGB tint
-    family : the leaf family of every cloud"""
+    family : the leaf family of every spray; length, phyllotaxis: the grammar's overrides of
+    the family's leaf length and arrangement (None: the family's own), which pick the
+    models (:meth:`models`)"""
 
     instance: NDArray[np.int32]
     bone: NDArray[np.int32]
@@ -333,14 +704,29 @@ class FoliageAnchors:
     yaw: F64
     color: NDArray[np.float32]
     family: Family = "broadleaf"
+    length: tuple[float, float] | None = None
+    phyllotaxis: Phyllotaxis | None = None
 
     def __len__(self) -> int:
         return len(self.instance)
 
+    def models(self) -> tuple[LeafCloud, ...]:
+        """The spray models the anchors' ``model`` indexes."""
+        return cloud_models(self.family, self.length, self.phyllotaxis)
+
     def positions(self, palette: F64, row_vectors: bool = False) -> F64:
-        """``(k, 3)`` cloud centres: each anchor's palette matrix applied to its rest point
+        """``(k, 3)`` spray origins: each anchor's palette matrix applied to its rest point
         (``palette`` in column-vector form, or USD's row-vector form with ``row_vectors``)."""
         return anchor_positions(palette, self.bone, self.rest, row_vectors)
+
+    def select(self, pick: NDArray[np.intp]) -> FoliageAnchors:
+        """The anchors ``pick`` (indices), same family and models."""
+        return FoliageAnchors(
+            instance=self.instance[pick], bone=self.bone[pick], rest=self.rest[pick],
+            size=self.size[pick], model=self.model[pick], yaw=self.yaw[pick],
+            color=self.color[pick], family=self.family, length=self.length,
+            phyllotaxis=self.phyllotaxis,
+        )  # fmt: skip
 
 
 def anchor_positions(
@@ -361,50 +747,132 @@ def yaw_quaternions(yaw: F64) -> F64:
     return np.stack([z, np.sin(half), z, np.cos(half)], axis=-1)
 
 
-def foliage_anchors(
+def snap_yaw(yaw: F64) -> F64:
+    """``yaw`` (radians) rounded to the nearest of the YAW_STEPS headings, in [0, 2 pi)."""
+    step = np.round(np.asarray(yaw, np.float64) / (2 * np.pi / YAW_STEPS)).astype(np.int64)
+    return (np.mod(step, YAW_STEPS) * (2 * np.pi / YAW_STEPS)).astype(np.float64)
+
+
+def _outer(pos: F64, tree: NDArray[np.int32], bands: int = 10) -> F64:
+    """``(k,)`` how far out in its tree's crown each point lies: 0 on the crown's axis at mid
+    height, 1 on its outer surface: across, the distance from the axis over the crown's
+    radius at that height (95th percentile of a tenth of the crown's height, so a cone's
+    narrow top is as much outside as its broad base); up and down, over the half height."""
+    out = np.zeros(len(pos))
+    for t in np.unique(tree):
+        sel = np.flatnonzero(tree == t)
+        p = pos[sel]
+        lo, hi = np.percentile(p[:, 1], [2, 98])
+        h = max(0.5 * float(hi - lo), 1e-6)
+        across = np.hypot(p[:, 0] - p[:, 0].mean(), p[:, 2] - p[:, 2].mean())
+        band = np.clip(((p[:, 1] - lo) / (2 * h) * bands).astype(np.int64), 0, bands - 1)
+        radius = np.ones(bands)
+        for b in np.unique(band):
+            radius[b] = max(float(np.percentile(across[band == b], 95)), 1e-6)
+        out[sel] = np.maximum(across / radius[band], np.abs(p[:, 1] - lo - h) / h)
+    return out
+
+
+def spray_anchors(
     instance: NDArray[np.int32],
     piece: NDArray[np.int32],
     bone_offset: NDArray[np.int32],
-    hub_rest: F64,
-    radius: F64,
+    joint_rest: list[F64],
+    hub_frame: F64,
     tree: NDArray[np.int32],
+    ground: F64,
     leaves: Leaves,
     rng: np.random.Generator,
     season: Season = "summer",
-    heading: F64 | None = None,
 ) -> FoliageAnchors:
-    """Anchors at the hubs of the foliage-bearing ``instance``\\ s (k of them).
+    """Leaf sprays on the foliage-bearing ``instance``\\ s (k of them).
 
-    radius : (k,) float64 the branch radius (metres) at each anchor: the cloud's diameter is
-    ``leaves.size`` of it. tree : (k,) int32 the tree of each anchor (one base colour per
-    tree). Model, heading and colour are drawn from ``rng``, so a seed gives the same clouds;
-    ``season="autumn"`` takes the colours from ``leaves.autumn_colors`` (the summer palette
-    when that is empty). heading : (k,) float64 radians, the azimuth of each anchor's branch:
-    clouds turn with their branch (snapped to the YAW_STEPS headings) instead of at random."""
+    piece : (n,) the piece of every instance; joint_rest : per piece its joints' rest frames
+    (model space); hub_frame : (k, 4, 4) each bearer's hub bone as the tree stands (palette,
+    column vectors); tree : (k,) its tree (one base colour per tree); ground : (k,) the height
+    of its tree's foot.
+
+    Each bearer carries ``leaves.sprays`` sprays on its axis between the hub and a terminal,
+    denser towards the terminal, turned out to the sides of the branch (the last one or two
+    ahead), every spray a random model, scale and colour. Then, per tree: none below
+    ``leaves.min_height`` above the foot; none reaching lower than 0.3-0.8 m above the ground
+    (a shorter model or a smaller scale first, so willow curtains end above the grass); none
+    inside ``leaves.shell`` of the crown; and when a tree's leaves would pass
+    ``leaves.max_triangles``, the innermost sprays go. The same rng gives the same sprays."""
     if season not in SEASONS:
         raise ValueError(f"season must be one of {SEASONS}, got {season!r}")
     idx = np.asarray(instance, np.int32)
     k = len(idx)
-    radius = np.asarray(radius, np.float64)
     tree = np.asarray(tree, np.int32)
-    for name, arr in (("radius", radius), ("tree", tree)):
+    ground = np.asarray(ground, np.float64)
+    for name, arr in (("tree", tree), ("ground", ground)):
         if arr.shape != (k,):
             raise ValueError(f"{name} must have shape ({k},), got {arr.shape}")
-    if not (np.isfinite(radius).all() and (radius > 0).all()):
-        raise ValueError("radius must be finite and positive")
+    form_len = leaves.length
+    models = cloud_models(leaves.family, form_len, leaves.phyllotaxis)
     palette = leaves.autumn_colors if season == "autumn" and leaves.autumn_colors else leaves.colors
-    model = rng.integers(MODELS, size=k).astype(np.int32)
-    step = rng.integers(YAW_STEPS, size=k)
-    if heading is not None:  # turned with its branch: the heading nearest the branch's
-        step = np.round(np.asarray(heading, np.float64) / (2 * np.pi / YAW_STEPS)).astype(int)
-    yaw = (np.mod(step, YAW_STEPS) * (2 * np.pi / YAW_STEPS)).astype(np.float64)
+    lo, hi = leaves.sprays
+    count = rng.integers(lo, hi + 1, size=k)
+    bearer = np.repeat(np.arange(k), count)
+    m = len(bearer)
+    bp = piece[idx][bearer]
+    hub = np.stack([joint_rest[p][HUB, :3, 3] for p in range(len(joint_rest))])
+    n_tips = np.array([len(j) - TIP0 for j in joint_rest])
+    tips = np.zeros((len(joint_rest), max(int(n_tips.max()), 1), 3))
+    for p, j in enumerate(joint_rest):
+        tips[p, : n_tips[p]] = j[TIP0:, :3, 3]
+    which = (rng.random(m) * np.maximum(n_tips[bp], 1)).astype(np.int64)
+    tip = np.where((n_tips[bp] > 0)[:, None], tips[bp, which], hub[bp] + UP)
+    # density grows along the piece towards its terminal (pdf 2 f)
+    f = np.sqrt(rng.random(m))
+    rest = hub[bp] + f[:, None] * (tip - hub[bp])
+    frame = hub_frame[bearer]
+    world = np.einsum("nij,nj->ni", frame[:, :3, :3], rest) + frame[:, :3, 3]
+    axis = np.einsum("nij,nj->ni", frame[:, :3, :3], tip - hub[bp])
+    flat = np.hypot(axis[:, 0], axis[:, 2]) < 0.2 * np.linalg.norm(axis, axis=1)
+    heading = np.where(flat, rng.uniform(0, 2 * np.pi, m), np.arctan2(axis[:, 0], axis[:, 2]))
+    ahead = (f > 0.85) & (rng.random(m) < 0.5)
+    side = np.where(rng.random(m) < 0.5, -1.0, 1.0) * np.radians(rng.uniform(35, 100, m))
+    yaw = snap_yaw(heading + np.where(ahead, np.radians(rng.normal(0, 15, m)), side))
+    model = rng.integers(MODELS, size=m).astype(np.int32)
+    size = rng.uniform(*leaves.scale, m)
+    keep = world[:, 1] - ground[bearer] >= leaves.min_height
+    # nothing below the ground: a spray that would reach lower than its clearance takes the
+    # longest model that fits, else the shortest at a smaller scale, else none
+    drop = np.array([-min(c.positions[:, 1].min(), 0.0) for c in models])
+    clearance = ground[bearer] + rng.uniform(0.3, 0.8, m)
+    room = world[:, 1] - clearance
+    low = keep & (size * drop[model] > room)
+    order = np.argsort(drop)
+    for i in np.flatnonzero(low):
+        fits = order[size[i] * drop[order] <= room[i]]
+        if len(fits):
+            model[i] = fits[-1]
+        elif room[i] > 0 and room[i] / drop[order[0]] >= 0.6 * leaves.scale[0]:
+            model[i], size[i] = order[0], room[i] / drop[order[0]]
+        else:
+            keep[i] = False
+    out = _outer(world, tree[bearer]) if m else np.zeros(0)
+    keep &= out >= leaves.shell
+    if leaves.max_triangles is not None:
+        tris = np.array([2 * c.n_cards for c in models])[model]
+        score = out + 0.15 * rng.random(m)  # outer sprays first, a little shuffled
+        for t in np.unique(tree[bearer]):
+            sel = np.flatnonzero(keep & (tree[bearer] == t))
+            sel = sel[np.argsort(-score[sel], kind="stable")]
+            over = np.cumsum(tris[sel]) > leaves.max_triangles
+            keep[sel[over]] = False
+    pick = np.flatnonzero(keep)
+    b = bearer[pick]
     return FoliageAnchors(
-        instance=idx,
-        bone=(bone_offset[idx] + HUB).astype(np.int32),
-        rest=hub_rest[piece[idx]],
-        size=leaves.size * radius,
-        model=model,
-        yaw=yaw,
-        color=cloud_colors(list(palette), tree, rng),
+        instance=idx[b],
+        bone=(bone_offset[idx[b]] + HUB).astype(np.int32),
+        rest=rest[pick],
+        size=size[pick],
+        model=model[pick],
+        yaw=yaw[pick],
+        color=cloud_colors(list(palette), tree[b], rng),
         family=leaves.family,
+        length=form_len,
+        phyllotaxis=leaves.phyllotaxis,
     )

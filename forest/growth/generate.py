@@ -19,7 +19,7 @@ from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
 from forest.growth.compile import compile_grammar
 from forest.growth.expand import PieceGraph, end_branches
-from forest.growth.foliage import FoliageAnchors, Season, foliage_anchors
+from forest.growth.foliage import FoliageAnchors, Season, spray_anchors
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.keyed import GROW, tree_keys
 from forest.growth.parallel import block_threads, expand_in_groups
@@ -157,27 +157,34 @@ class Forest:
         return rest_palette(self.bones, self.transforms)
 
     def foliage_anchors(self) -> FoliageAnchors:
-        """Where leaf clouds sit: the hub of each foliage-bearing piece, following its hub bone
-        (see :mod:`forest.growth.foliage`)."""
-        hubs = np.stack([p.joint_rest[HUB, :3, 3] for p in self.pieces])
+        """Where leaf sprays grow: along the foliage-bearing pieces, each following its piece's
+        hub bone (see :func:`forest.growth.foliage.spray_anchors`)."""
         idx = self.foliage_instance
-        # the branch's axis: posed where generation kept the still palette, else at rest
+        # the tree as it stands: posed where generation kept the still palette, else at rest
         frames = (
             self.still_palette[self.bones.offset[idx] + HUB]
             if self.still_palette is not None
             else self.transforms[idx]
         )
-        axis = frames[:, :3, 1]
-        return foliage_anchors(
-            idx, self.graph.piece, self.bones.offset, hubs, self.graph.scale[idx],
-            self.graph.tree[idx],
-            self.grammar.leaves, np.random.default_rng([self.seed, 0xF011A6E]),
-            self.options.season, heading=np.arctan2(axis[:, 0], axis[:, 2]),
+        tree = self.graph.tree[idx]
+        return spray_anchors(
+            idx, self.graph.piece, self.bones.offset, [p.joint_rest for p in self.pieces],
+            frames, tree, self.tree_transforms[tree, 1, 3], self.grammar.leaves,
+            np.random.default_rng([self.seed, 0xF011A6E]), self.options.season,
         )  # fmt: skip
 
 
+def foliage_or_none(forest: Forest) -> FoliageAnchors | None:
+    """The forest's leaf sprays, or None where it bears none (no foliage piece, or every
+    spray left out by height, ground, shell or budget)."""
+    if not len(forest.foliage_instance):
+        return None
+    anchors = forest.foliage_anchors()
+    return anchors if len(anchors) else None
+
+
 def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:
-    """``(k,)`` the instances that bear leaf clouds: of a foliage symbol, not a cap, and no
+    """``(k,)`` the instances that bear leaf sprays: of a foliage symbol, not a cap, and no
     thicker than the leaves' ``max_radius`` (leaves live on the last orders, not on trunks
     and main limbs)."""
     bears = cg.foliage[graph.symbol]

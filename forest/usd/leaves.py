@@ -8,7 +8,7 @@ from pxr import Sdf, Usd, UsdGeom, Vt
 
 from forest.geometry.pieces import HUB
 from forest.geometry.transforms import F64
-from forest.growth.foliage import FoliageAnchors, LeafCloud, cloud_models, yaw_quaternions
+from forest.growth.foliage import FoliageAnchors, LeafCloud, yaw_quaternions
 from forest.growth.generate import Forest
 from forest.usd.contract import (
     BONE_OFFSET,
@@ -65,7 +65,7 @@ def write_foliage(
     prim = inst.GetPrim()
     UsdGeom.Scope.Define(stage, FOLIAGE_PROTOTYPES)
     material = leaf_material(stage, anchors.color, leaf_file)
-    models = cloud_models(anchors.family)
+    models = anchors.models()
     meshes = [
         write_leaf_cloud(stage, f"{FOLIAGE_CLOUD}{m}", cloud, material)
         for m, cloud in enumerate(models)

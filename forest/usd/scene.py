@@ -13,7 +13,7 @@ from pathlib import Path
 from pxr import Sdf, Usd
 
 from forest.geometry.transforms import F64
-from forest.growth.generate import Forest
+from forest.growth.generate import Forest, foliage_or_none
 from forest.usd.contract import (
     ENGINE,
     FOLIAGE,
@@ -113,7 +113,7 @@ def write_scene(
     try:
         setup_stage(stage, forest)
         vset, targets = representation_variants(stage, skinned)
-        anchors = forest.foliage_anchors() if len(forest.foliage_instance) else None
+        anchors = foliage_or_none(forest)
         leaf_file = None
         if out.suffix.lower() == ".usdz" and anchors is not None:
             # the leaf picture goes inside: written beside the layer (an absolute path: the

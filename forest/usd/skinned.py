@@ -29,7 +29,7 @@ from forest.geometry.transforms import (
     transform_vectors,
 )
 from forest.geometry.weld import close_pairs, weld_labels
-from forest.growth.foliage import FoliageAnchors, anchor_positions, cloud_models
+from forest.growth.foliage import FoliageAnchors, anchor_positions
 from forest.growth.generate import Forest
 from forest.usd.contract import (
     ASSET_SEED,
@@ -219,7 +219,7 @@ def leaves_mesh(
     if not len(sel):
         return None
     of_bone = dcc_joints(forest).of_bone
-    models = cloud_models(anchors.family)
+    models = anchors.models()
     centre = anchor_positions(still, anchors.bone[sel], anchors.rest[sel])
     pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
     base = 0

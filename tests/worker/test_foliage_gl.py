@@ -21,8 +21,9 @@ from pxr import Usd, UsdGeom
 
 from bench.render import run_render_bench
 from cli import main
-from forest.growth.foliage import MODELS, YAW_STEPS
+from forest.growth.foliage import MODELS, YAW_STEPS, cloud_models
 from forest.growth.generate import ForestOptions, generate_forest
+from forest.growth.presets import load_preset
 from forest.usd.contract import FOLIAGE
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
@@ -40,7 +41,7 @@ TESS = TessSettings(max_level=2.0)
 SMALL = {
     "name": "small-crown",
     "axiom": "T",
-    "max_depth": 4,
+    "max_depth": 7,
     "trunk_radius": 0.15,
     "rules": {
         "T": [
@@ -53,13 +54,21 @@ SMALL = {
         "B": [
             {
                 "piece": "Y",
-                "successors": [{"symbol": "L"}, {"symbol": "L"}],
-                "pose": {"spread": [20, 30]},
-            }
+                "successors": [
+                    {"symbol": "B", "length": [1.2, 1.4]},
+                    {"symbol": "B", "length": [1.2, 1.4]},
+                ],
+                "pose": {"spread": [20, 35]},
+                "max_depth": 5,
+            },
+            {"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}, "min_depth": 6},
         ],
-        "L": [{"piece": "I", "successors": [None], "pose": {"bend": [5, 15]}}],
     },
-    "foliage": ["L", "B"],
+    "foliage": ["B"],
+    # a crown of sprays a little larger than life, so the leaves fill a good part of the
+    # picture and branches cross them both ways (these tests compare the impostors with the
+    # real cards, not botany)
+    "leaves": {"sprays": [3, 4], "scale": [1.5, 2.0]},
 }
 
 
@@ -108,6 +117,11 @@ def render(
     return eye_depth(r.read_depth(), cam), r.read_color()
 
 
+def radii(scene: SceneArrays) -> NDArray[np.float64]:
+    """``(k,)`` each spray's model's bounding radius (before its size)."""
+    return np.array([c.radius for c in scene_models(scene)])[scene.foliage_model]
+
+
 def covered(depth: NDArray[np.float64]) -> NDArray[np.bool_]:
     return depth < EMPTY
 
@@ -132,18 +146,19 @@ def near_agreement(a: NDArray[np.float64], b: NDArray[np.float64], shift: int) -
 
 # -- depth -----------------------------------------------------------------------------------
 
-# Thresholds, as fractions of the clouds' median diameter D, over pixels both renders cover.
+# Thresholds, as fractions of the sprays' median diameter D, over pixels both renders cover.
 # Near-orthographic view (4 degrees): the impostor is exact up to sampling: a pixel and the
-# texel it reads sample the cloud at points up to half a texel apart, and where a leaf card is
-# seen edge-on the depth jumps by up to a card (0.2 D) between them; such silhouette pixels
-# are about one in ten, so 85 % within 0.05 D (measured: 92-95 %) and an IoU of the
-# silhouettes of 0.95 (measured 0.98).
-# Preview view (40 degrees, close): one picture serves every cloud, but a cloud off the view
+# texel it reads sample the spray at points up to half a texel apart, and where a leaf card
+# is seen edge-on the depth jumps between them. A leaf is only 4-5 pixels long here, so most
+# of the sprays' pixels are edge pixels: 75 % within 0.05 D (measured 79-81 %, at impostor
+# sizes 128 and 256 alike: sampling, not resolution) and an IoU of the silhouettes of 0.85
+# (measured 0.90-0.91; the leaf clouds' round blobs measured 0.98).
+# Preview view (40 degrees, close): one picture serves every spray, but a spray off the view
 # axis by theta is seen along its own ray, so a leaf at s from the billboard plane shows
-# shifted by s tan(theta) (up to 0.18 D here, a few pixels): compared allowing one pixel of
-# registration, 85 % within 0.1 D (measured 93-95 %), IoU 0.85 (measured 0.91).
-ORTHO = {"fov": 4.0, "shift": 0, "tol": 0.05, "within": 0.85, "iou": 0.95, "occlusion": 0.9}
-PREVIEW = {"fov": 40.0, "shift": 1, "tol": 0.10, "within": 0.85, "iou": 0.85, "occlusion": 0.75}
+# shifted by s tan(theta) (a few pixels): compared allowing one pixel of registration, 85 %
+# within 0.1 D (measured 93 %), IoU 0.75 (measured 0.81).
+ORTHO = {"fov": 4.0, "shift": 0, "tol": 0.05, "within": 0.75, "iou": 0.85, "occlusion": 0.9}
+PREVIEW = {"fov": 40.0, "shift": 1, "tol": 0.10, "within": 0.85, "iou": 0.75, "occlusion": 0.75}
 
 
 @pytest.mark.parametrize("case", [ORTHO, PREVIEW], ids=["near-orthographic", "preview"])
@@ -158,7 +173,7 @@ def test_impostor_depth_agrees_with_the_real_leaf_clouds(
     assert iou(ci, cg) >= case["iou"]
     both = ci & cg
     err = near_agreement(imp, geo, int(case["shift"]))[both]
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
     assert (err <= case["tol"] * d).mean() >= case["within"]
 
 
@@ -171,7 +186,9 @@ def test_branches_and_clouds_hide_each_other_exactly_where_they_should(
     both, both_rgb = render(renderers["impostor"], cam)
     in_front = covered(wood) & covered(leaves) & (wood < leaves)
     behind = covered(wood) & covered(leaves) & (leaves < wood)
-    assert in_front.sum() > 50 and behind.sum() > 50  # branches cross clouds both ways
+    # branches cross sprays both ways (measured 25 and 709 pixels: sprays grow out of the
+    # crown's branches, so few branches pass in front of them)
+    assert in_front.sum() > 10 and behind.sum() > 50
     # the depth test composes the two renders pixel by pixel: nearest wins, exactly
     np.testing.assert_array_equal(both, np.minimum(wood, leaves))
     np.testing.assert_array_equal(both_rgb[in_front], wood_rgb[in_front])
@@ -201,7 +218,7 @@ def test_the_picture_turns_with_the_view_and_matches_the_real_silhouettes(
 ) -> None:
     imp, geo = renderers["impostor"], renderers["geometry"]
     assert imp.foliage is not None
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
 
     def agreement(a: NDArray[np.float64], b: NDArray[np.float64]) -> tuple[float, float]:
         """Silhouette IoU, and the share of pixels both cover whose depths agree within
@@ -241,8 +258,9 @@ def test_pass_one_reruns_only_when_the_view_direction_changes(
     first = r.draw(cam, TESS, frame=0)
     assert first.foliage is not None and first.foliage.impostor_rendered
     # every model at every heading, one instanced call per model
-    assert r.foliage.n_triangles == MODELS * 512
-    assert first.foliage.impostor.primitives == YAW_STEPS * MODELS * 512
+    tris = sum(2 * c.n_cards for c in crown.foliage_clouds)
+    assert r.foliage.n_triangles == tris
+    assert first.foliage.impostor.primitives == YAW_STEPS * tris
     assert first.foliage.impostor.draw_calls == MODELS
     again = r.draw(cam, TESS, frame=1)  # wind: same view direction
     closer = dataclasses.replace(cam, eye=cam.eye + 0.3 * (cam.target - cam.eye))
@@ -349,7 +367,11 @@ def test_clouds_follow_their_bones_in_the_wind(
 def test_render_draws_foliage_by_default_and_counts_both_passes(
     gl_session: Any, crown_path: Path, tmp_path: Path
 ) -> None:
-    n_types = len(set(read_scene(crown_path).proto_indices.tolist()))
+    scene = read_scene(crown_path)
+    n_types = len(set(scene.proto_indices.tolist()))
+    k = scene.n_foliage
+    per_model = np.array([2 * c.n_cards for c in scene.foliage_clouds])
+    geo_tris = int(per_model[scene.foliage_model].sum())
     runs = {}
     for name, extra in (("on", []), ("off", ["--no-foliage"]), ("geo", ["--foliage-geometry"])):
         met = tmp_path / f"{name}.json"
@@ -359,22 +381,22 @@ def test_render_draws_foliage_by_default_and_counts_both_passes(
              str(met), "--width", "48", "--height", "48", "--frames", "2", "--bare", *extra],
         )  # fmt: skip
         assert res.exit_code == 0, res.output
-        assert ("foliage: 6 leaf clouds" in res.output) == (name != "off")
+        assert (f"foliage: {k} leaf clouds" in res.output) == (name != "off")
         runs[name] = RenderMetrics.model_validate(json.loads(met.read_text()))
     on, off, geo = runs["on"], runs["off"], runs["geo"]
     assert off.foliage is None and all(f.foliage is None for f in off.frames)
     assert all(f.draw_calls == n_types for f in off.frames)
-    assert on.foliage is not None and on.foliage.mode == "impostor" and on.foliage.clouds == 6
+    assert on.foliage is not None and on.foliage.mode == "impostor" and on.foliage.clouds == k
     assert on.foliage.impostor_renders == 1  # in the warm-up frame: the view never turns
     for f in on.frames:
         assert f.foliage is not None and not f.foliage.impostor_rendered
         assert f.draw_calls == n_types + 1
-        assert f.foliage.billboards.primitives == 12
+        assert f.foliage.billboards.primitives == 2 * k
     assert geo.foliage is not None and geo.foliage.impostor_size is None
     assert geo.frames[0].foliage is not None
-    assert geo.frames[0].foliage.billboards.primitives == 6 * 512
+    assert geo.frames[0].foliage.billboards.primitives == geo_tris
     # the same camera (framing the clouds too) and the same branches in both
-    assert on.frames[0].primitives - 12 == geo.frames[0].primitives - 6 * 512
+    assert on.frames[0].primitives - 2 * k == geo.frames[0].primitives - geo_tris
 
 
 def test_render_counts_pass_one_in_the_frame_that_runs_it(
@@ -385,11 +407,12 @@ def test_render_counts_pass_one_in_the_frame_that_runs_it(
             scene=crown_path, output=tmp_path / "p.png", width=32, height=32, frames=2, warmup=0
         )
     )
-    n_types = len(set(read_scene(crown_path).proto_indices.tolist()))
+    scene = read_scene(crown_path)
+    n_types = len(set(scene.proto_indices.tolist()))
     first, second = m.frames
     assert first.foliage is not None and second.foliage is not None
     assert first.foliage.impostor_rendered and not second.foliage.impostor_rendered
-    pass1 = YAW_STEPS * MODELS * 512
+    pass1 = YAW_STEPS * sum(2 * c.n_cards for c in scene.foliage_clouds)
     assert first.foliage.impostor.model_dump() == {"draw_calls": MODELS, "primitives": pass1}
     assert first.draw_calls == n_types + 1 + MODELS and second.draw_calls == n_types + 1
     # the rest is the branches (their tessellation may change by a few triangles with the
@@ -413,8 +436,10 @@ def test_bench_puts_impostors_beside_the_real_clouds(gl_session: Any) -> None:
     for imp, geo in zip(rows[::2], rows[1::2], strict=True):
         assert imp.clouds == geo.clouds > 0
         # both passes, every frame
-        assert imp.foliage_triangles == YAW_STEPS * MODELS * 512 + 2 * imp.clouds
-        assert geo.foliage_triangles == 512 * geo.clouds
+        # the bench preset's sprays (default leaves), whose models differ in card count
+        tris = [2 * c.n_cards for c in cloud_models(load_preset("alternating").leaves.family)]
+        assert imp.foliage_triangles == YAW_STEPS * sum(tris) + 2 * imp.clouds
+        assert min(tris) * geo.clouds <= geo.foliage_triangles <= max(tris) * geo.clouds
         # impostors: a pass-1 call per model and the billboards; geometry: a call per model
         # that some cloud shows
         assert 1 <= imp.draw_calls - geo.draw_calls <= MODELS
@@ -429,8 +454,14 @@ def close_up(scene: SceneArrays, on_screen: float) -> tuple[Camera, int]:
     """A camera looking at the largest cloud from where it covers ``on_screen`` pixels of
     the SIZE view, and that cloud."""
     i = int(np.argmax(scene.foliage_sizes))
-    centre = scene.foliage_at(0)[i]
-    half = float(scene.foliage_sizes[i]) * scene_models(scene)[scene.foliage_model[i]].radius
+    model = scene_models(scene)[scene.foliage_model[i]]
+    # the spray grows from its anchor: look at the middle of its cards, turned by its yaw
+    mid = scene.foliage_sizes[i] * model.positions.mean(axis=0)
+    c, s = np.cos(scene.foliage_yaw[i]), np.sin(scene.foliage_yaw[i])
+    centre = scene.foliage_at(0)[i] + np.array(
+        [c * mid[0] + s * mid[2], mid[1], c * mid[2] - s * mid[0]]
+    )
+    half = float(scene.foliage_sizes[i]) * model.radius
     focal = SIZE[1] / (2.0 * np.tan(np.radians(40.0) / 2.0))
     depth = 2.0 * half * focal / on_screen
     eye = centre + depth * np.array([0.6, 0.3, 0.74]) / np.linalg.norm([0.6, 0.3, 0.74])
@@ -458,5 +489,5 @@ def test_close_clouds_are_drawn_as_their_leaf_cards(
     assert cg.mean() > 0.3
     assert iou(ci, cg) >= 0.97
     both = ci & cg
-    d = float(np.median(crown.foliage_sizes))
+    d = float(np.median(2 * crown.foliage_sizes * radii(crown)))
     assert (np.abs(depth_imp - depth_geo)[both] <= 0.02 * d).mean() >= 0.95
