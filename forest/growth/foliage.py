@@ -129,7 +129,7 @@ FORMS: dict[str, SprayForm] = {
     "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
-    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.4, 0.7),
+    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.5, 0.9),
                         habit="sprig", rise=(-15.0, 10.0)),
     "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (4, 6), (0.3, 0.55), crowd=1.6,
                            sides=(2, 4), side=(0.1, 0.2), rosette=True),
@@ -557,14 +557,17 @@ def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
         return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
     if form.habit == "tuft":
         # pairs of needles from a sheath at the base, fanned out
-        ends = np.array(
-            [-0.88, -0.76, -0.52, -0.4, -0.16, -0.05, 0.1, 0.21, 0.42, 0.54, 0.76, 0.88]
-        )
+        # seven pairs, each pair's two needles splayed from one sheath up the shoot: a
+        # brush of fine needles rather than a palm of leaflets
+        fan = np.linspace(-0.8, 0.8, 7)
+        ends = np.concatenate([fan - 0.08, fan + 0.08])
         a = np.zeros((len(ends), 2)) + np.array([0.0, 0.06])
-        b = np.stack([ends, 0.97 - 0.12 * np.abs(ends)], axis=1)
+        a[:, 0] = 0.08 * np.concatenate([fan, fan])
+        a[:, 1] += 0.3 * (1 - np.abs(a[:, 0]) / 0.08)
+        b = np.stack([ends, 0.97 - 0.15 * np.abs(ends)], axis=1)
         # the picture's x spans the card's width, its t the length: the thickness in x
-        # units is about a needle's width (1.5 mm) over the card's half width
-        needle = _segments(x, tt, a, b, 0.05)
+        # units is about a needle's width (1.2 mm) over the card's half width
+        needle = _segments(x, tt, a, b, 0.03)
         return needle | stalk, np.where(stalk, 0.5, 0.75 + 0.2 * tt)
     p = form.petiole
     u = (tt - p) / (1 - p)
