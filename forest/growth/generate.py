@@ -18,7 +18,7 @@ from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceA
 from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
 from forest.growth.compile import compile_grammar
-from forest.growth.expand import PieceGraph, end_branches
+from forest.growth.expand import MAX_FINISH, PieceGraph, end_branches
 from forest.growth.foliage import FoliageAnchors, Season, spray_anchors
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.keyed import GROW, tree_keys
@@ -34,7 +34,7 @@ from schemas.grammar import Grammar
 from schemas.tileset import TileSetManifest
 
 Progress = Callable[[str, int, int], None]
-GROUND_PASSES = 3  # the cuts of branches under the ground: enough for the caps they make
+GROUND_PASSES = 4  # the cuts of branches under the ground: enough for the caps they make
 MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
 
 
@@ -250,13 +250,13 @@ def generate_forest(
         )
     posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
     for _ in range(GROUND_PASSES):
-        under = _under_ground(graph, posed, pieces, trees, grammar.ground_clearance)
+        under = _under_ground(graph, posed, pieces, trees, grammar.ground_clearance, cg)
         if not under.any():
             break
         # branches that would bend under the ground end where they reach it (a cap that
         # still dips under ends its branch one piece sooner on the next pass); the rest of
         # each tree keeps its keys, so it grows and poses exactly as before
-        graph = end_branches(graph, under, cg.cap_alt)
+        graph = end_branches(graph, under, cg)
         posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
     transforms, bones, pose, still, tiles = posed
     note("done", 5, 5)
@@ -334,6 +334,7 @@ def _under_ground(
     pieces: tuple[PieceArrays, ...],
     trees: F64,
     clearance: float,
+    cg: CompiledGrammar,
 ) -> NDArray[np.bool_]:
     """``(n,)`` pieces to end branches at: those (not a tree's root piece) whose hub or a
     leaf-rim centre lies lower than their root and than ``clearance`` above their tree's
@@ -356,5 +357,13 @@ def _under_ground(
     caps = np.flatnonzero(under & (graph.piece == PIECE_NAMES.index("Cap")))
     under[caps] = False
     under[graph.parent[caps]] = True
+    # so is a finishing chain (forest.growth.expand.end_branches): the piece below the chain
+    # ends the branch instead, one piece sooner
+    for _ in range(MAX_FINISH + 1):
+        chain = np.flatnonzero(under & (graph.alt == cg.finish_alt) & (graph.parent >= 0))
+        if not len(chain):
+            break
+        under[chain] = False
+        under[graph.parent[chain]] = True
     under &= graph.parent >= 0
     return under
