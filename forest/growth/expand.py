@@ -12,7 +12,14 @@ from numpy.typing import NDArray
 
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
-from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, piece_library
+from forest.geometry.pieces import (
+    CAP_APEX,
+    CAP_TOP,
+    HUB,
+    MAX_LEAF_RIMS,
+    PIECE_NAMES,
+    piece_library,
+)
 from forest.geometry.transforms import similarity_scale
 from forest.growth import keyed
 from forest.growth.grammar import CompiledGrammar
@@ -197,6 +204,24 @@ def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 I_PIECE = PIECE_NAMES.index("I")
+GROUND_MARGIN = 0.05  # model units (root radii) a root piece's skin keeps above its root
+
+
+@cache
+def root_min_length() -> NDArray[np.float64]:
+    """``(p,)`` the shortest length scale of each piece as a tree's root that keeps its skin
+    above its root rim's plane. A length scale moves each joint to that multiple of its rest
+    place, while a vertex keeps its rest offset from the joints it follows: unposed, a vertex
+    at rest height ``y`` following joints of weighted rest height ``m`` lands at
+    ``y + (length - 1) * m``, under the root where the piece is squashed (a stool)."""
+    out = np.zeros(len(piece_library()))
+    for i, p in enumerate(piece_library()):
+        joint_y = p.joint_rest[:, 1, 3]
+        m = (p.joint_weights * joint_y[p.joint_indices]).sum(axis=1)
+        y = p.positions[:, 1] - GROUND_MARGIN
+        up = m > 1e-9
+        out[i] = max(0.0, float(np.max(1.0 - y[up] / m[up], initial=0.0)))
+    return out
 
 
 class _Open:
@@ -305,6 +330,8 @@ def expand(
             shed = (f.order == 0) & (np.take(rims_t, piece) > 1)
             shed &= leaves_at < crown.base * np.take(tree_h, f.tree)
             piece = np.where(shed, I_PIECE, piece).astype(np.int32)
+        if depth == 0:  # a tree's root piece, squashed too short, folds its skin underground
+            f.cols["len"] = np.maximum(f.len, np.take(root_min_length(), piece))
         ids = np.arange(count, count + m, dtype=np.int32)
         count += m
         per_tree += np.bincount(f.tree, minlength=n_trees)
@@ -468,13 +495,19 @@ def children_radius(graph: PieceGraph, radius: NDArray[np.float64]) -> NDArray[n
     return out
 
 
-def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cg: CompiledGrammar) -> PieceGraph:
+def end_branches(
+    graph: PieceGraph,
+    at: NDArray[np.bool_],
+    cg: CompiledGrammar,
+    bare: NDArray[np.bool_] | None = None,
+) -> PieceGraph:
     """``graph`` with each instance marked in ``at`` (and below no other marked one)
     replaced by a cap piece of length scale 1 and everything above it dropped: the branch
     ends where it would have grown that piece. An end thicker than a twig's
     (:data:`TIP_RADIUS_M`) is finished as in :func:`expand`: short straight pieces (length
     scale 0.5, to stay where the branch stopped) tapering by :data:`FINISH_TAPER` at most,
-    then the cap. What stays keeps its keys, so its draws, pose and place are unchanged."""
+    then the cap; unless marked in ``bare`` (where a chain would reach too far: a cap alone).
+    What stays keeps its keys, so its draws, pose and place are unchanged."""
     cap = PIECE_NAMES.index("Cap")
     gone = np.zeros(len(graph), bool)
     by_depth = LevelBlock.of(graph.depth, 0, len(graph))
@@ -507,7 +540,8 @@ def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cg: CompiledGrammar) 
         "key": graph.key[keep],
     }
     if cg.finish_alt >= 0:
-        _finish_cuts(cols, np.flatnonzero(cut_k), cg)
+        ends = cut_k if bare is None else cut_k & ~bare[keep]
+        _finish_cuts(cols, np.flatnonzero(ends), cg)
     order = np.argsort(cols["tree"], kind="stable")  # appended chains: after their parents
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
@@ -515,6 +549,22 @@ def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cg: CompiledGrammar) 
     cols = {k: v[order] for k, v in cols.items()}
     cols["parent"] = np.where(par >= 0, rank[np.maximum(par, 0)], -1).astype(np.int32)
     return PieceGraph(**cols)
+
+
+def finish_reach(scale: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n,)`` metres from the root rim to the apex of what :func:`end_branches` grows in
+    place of pieces whose root rims have radius ``scale`` (metres): its finishing chain, if
+    any, and the cap; straight pieces, so along the cut piece's root axis."""
+    sc = np.asarray(scale, np.float64).copy()
+    reach = np.zeros_like(sc)
+    rim_y = rim_tables().rim_y[I_PIECE, 0]
+    for _ in range(MAX_FINISH):
+        thick = sc > TIP_RADIUS_M
+        if not thick.any():
+            break
+        reach[thick] += rim_y * 0.5 * sc[thick]
+        sc[thick] *= np.maximum(TIP_RADIUS_M / sc[thick], FINISH_TAPER)
+    return reach + (CAP_TOP + CAP_APEX) * sc
 
 
 def _finish_cuts(cols: dict[str, NDArray], ends: NDArray[np.intp], cg: CompiledGrammar) -> None:
