@@ -18,7 +18,13 @@ from forest.geometry import rim
 from forest.geometry.pieces import PieceArrays, piece_library, skinning_rest_inverse
 from forest.geometry.transforms import axis_angle_matrix, similarity_scale
 from forest.growth.compile import compile_grammar
-from forest.growth.expand import crown_shape, rim_tables
+from forest.growth.expand import (
+    FINISH_TAPER,
+    MAX_FINISH,
+    TIP_RADIUS_M,
+    crown_shape,
+    rim_tables,
+)
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.poser import piece_tables
@@ -50,6 +56,7 @@ def baseline_generate(
     g = cg.grammar
     crown = g.crown
     close = g.close_tips and cg.cap_alt >= 0
+    last_finish = cg.max_depth + MAX_FINISH
     trees = tree_transforms(n_trees, (20.0, 20.0), g.trunk_radius, g.tree_scale, seed, "grid")
     total = 0
 
@@ -82,6 +89,9 @@ def baseline_generate(
                 if not close:
                     continue
                 a = cg.cap_alt
+                # a branch stopped thicker than a twig finishes as tapering straight pieces
+                if cg.finish_alt >= 0 and scale > TIP_RADIUS_M and depth <= last_finish:
+                    a = cg.finish_alt
             else:
                 a = rng.choices(alts, weights=[float(cg.alt_weight[i]) for i in alts])[0]
             piece = int(cg.alt_piece[a])
@@ -124,6 +134,8 @@ def baseline_generate(
                 s = [taper * x / norm for x in w]
             else:
                 s = [taper * sigma[piece, r] * w[r] for r in range(n_rims)]
+            if a == cg.finish_alt:
+                s = [max(TIP_RADIUS_M / scale, FINISH_TAPER)]
             for r in range(n_rims):
                 c_h, bare = kids[r]
                 lo, hi = cg.alt_spread[a]

@@ -443,7 +443,8 @@ def _ends_by_fixpoint(cg: Any) -> set[str]:
         new = {
             cg.symbols[s]
             for a, s in enumerate(cg.alt_symbol)
-            if a != cg.cap_alt and all(r < 0 or cg.symbols[r] in ends for r in cg.alt_succ[a])
+            if a not in (cg.cap_alt, cg.finish_alt)
+            and all(r < 0 or cg.symbols[r] in ends for r in cg.alt_succ[a])
         }
         if new == ends:
             return ends

@@ -53,7 +53,10 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
             rows.append((sid[s], alt))
     raise_all(errors)
     has_cap = "Cap" in PIECE_NAMES
-    if has_cap:  # never drawn (weight 0): expansion puts it on every tip it closes
+    if has_cap:  # never drawn (weight 0): expansion puts them on every tip it closes
+        # a straight piece that ends a branch stopped while thicker than a twig, tapering it
+        # (forest.growth.expand.FINISH_TAPER) until the cap closes a twig-thin rim
+        rows.append((0, Alternative(piece="I", weight=1.0, successors=[None])))
         rows.append((0, Alternative(piece="Cap", weight=1.0, successors=[])))
     n_alt = len(rows)
     big = np.iinfo(np.int32).max
@@ -68,6 +71,7 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
                 alt_radius[a, r] = succ.radius
     max_depth = g.max_depth if g.max_depth is not None else settings.depth_limit
     cap_alt = n_alt - 1 if has_cap else -1
+    finish_alt = n_alt - 2 if has_cap else -1
     alts = [alt for _, alt in rows]
     nan2 = (float("nan"), float("nan"))
     cg = CompiledGrammar(
@@ -77,7 +81,8 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         max_depth=max_depth,
         alt_symbol=np.array([s for s, _ in rows], np.int32),
         alt_piece=np.array([PIECE_NAMES.index(alt.piece) for _, alt in rows], np.int32),
-        alt_weight=np.array([alt.weight for _, alt in rows]) * (np.arange(n_alt) != cap_alt),
+        alt_weight=np.array([alt.weight for _, alt in rows])
+        * ~np.isin(np.arange(n_alt), [cap_alt, finish_alt]),
         alt_depth=np.array(
             [[alt.min_depth, big if alt.max_depth is None else alt.max_depth] for _, alt in rows],
             np.int32,
@@ -101,6 +106,7 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         ).reshape(n_alt, 2),
         foliage=np.isin(np.arange(len(symbols)), [sid[s] for s in g.foliage]),
         cap_alt=cap_alt,
+        finish_alt=finish_alt,
         pipe_exponent=g.pipe_exponent,
         expected_pieces=0.0,
     )
@@ -184,7 +190,7 @@ def _check_terminates(cg: CompiledGrammar) -> None:
     for a, s in rims:
         waiting_on[s].append(a)
         pending[a] += 1
-    live = np.arange(n_alt) != cg.cap_alt
+    live = ~np.isin(np.arange(n_alt), [cg.cap_alt, cg.finish_alt])
     ends = np.zeros(n, bool)
     todo: list[int] = []
 

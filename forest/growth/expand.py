@@ -12,7 +12,14 @@ from numpy.typing import NDArray
 
 from forest.errors import GrammarError, LimitError
 from forest.geometry import rim
-from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, piece_library
+from forest.geometry.pieces import (
+    CAP_APEX,
+    CAP_TOP,
+    HUB,
+    MAX_LEAF_RIMS,
+    PIECE_NAMES,
+    piece_library,
+)
 from forest.geometry.transforms import similarity_scale
 from forest.growth import keyed
 from forest.growth.grammar import CompiledGrammar
@@ -23,6 +30,14 @@ I32 = NDArray[np.int32]
 # amortise numpy's per-call cost, small enough that a level's temporaries stay in cache
 BLOCK_PIECES = 16384
 LEVELS_PER_BLOCK = 8
+# SPECIES.md: twigs end 0.5-1 cm across whatever the tree. A branch that stops thicker (the
+# leader at the crown's top, max_depth, a grammar with no eligible alternative) goes on as a
+# short chain of straight pieces, each narrowing to at most FINISH_TAPER of its root (strong
+# taper the pieces' skinning takes, like the trunk's cone), until its cap closes a rim no
+# wider than this radius (metres)
+TIP_RADIUS_M = 0.0048
+FINISH_TAPER = 0.4
+MAX_FINISH = 8  # pieces: 0.4 ** 8 takes a 7 m radius to a twig's
 
 
 @dataclass(frozen=True, eq=False)
@@ -189,6 +204,24 @@ def crown_shape(shape: str, t: NDArray[np.float64]) -> NDArray[np.float64]:
 
 
 I_PIECE = PIECE_NAMES.index("I")
+GROUND_MARGIN = 0.05  # model units (root radii) a root piece's skin keeps above its root
+
+
+@cache
+def root_min_length() -> NDArray[np.float64]:
+    """``(p,)`` the shortest length scale of each piece as a tree's root that keeps its skin
+    above its root rim's plane. A length scale moves each joint to that multiple of its rest
+    place, while a vertex keeps its rest offset from the joints it follows: unposed, a vertex
+    at rest height ``y`` following joints of weighted rest height ``m`` lands at
+    ``y + (length - 1) * m``, under the root where the piece is squashed (a stool)."""
+    out = np.zeros(len(piece_library()))
+    for i, p in enumerate(piece_library()):
+        joint_y = p.joint_rest[:, 1, 3]
+        m = (p.joint_weights * joint_y[p.joint_indices]).sum(axis=1)
+        y = p.positions[:, 1] - GROUND_MARGIN
+        up = m > 1e-9
+        out[i] = max(0.0, float(np.max(1.0 - y[up] / m[up], initial=0.0)))
+    return out
 
 
 class _Open:
@@ -253,7 +286,9 @@ def expand(
     out: list[tuple[NDArray, ...]] = []
     count = 0
     per_tree = np.zeros(n_trees, np.int64)
-    for depth in range(cg.max_depth + 2):  # the last level holds only caps
+    finishing = close and cg.finish_alt >= 0
+    last = cg.max_depth + 1 + (MAX_FINISH if finishing else 0)
+    for depth in range(last + 1):  # the last level holds only caps
         # np.take: several times faster than fancy indexing for these row gathers
         cum = np.take(cg.choice_table(depth), f.sym, axis=0)
         if thick is not None:  # thickness conditions: each piece's own eligible weights
@@ -264,8 +299,12 @@ def expand(
         u = keyed.lane(h_piece, 0) * total
         alt = (u[:, None] >= cum).sum(axis=1).astype(np.int32)
         ends = f.cap | (total <= 0)  # no eligible alternative at this depth: a tip
+        finish = np.zeros(len(alt), bool)
         if close:
             alt[ends] = cg.cap_alt
+            if finishing and depth < last:
+                finish = ends & (f.scale > TIP_RADIUS_M)
+                alt[finish] = cg.finish_alt
         elif ends.any():
             f, alt, h_piece = f.take(~ends), alt[~ends], h_piece[~ends]
         m = len(alt)
@@ -291,6 +330,8 @@ def expand(
             shed = (f.order == 0) & (np.take(rims_t, piece) > 1)
             shed &= leaves_at < crown.base * np.take(tree_h, f.tree)
             piece = np.where(shed, I_PIECE, piece).astype(np.int32)
+        if depth == 0:  # a tree's root piece, squashed too short, folds its skin underground
+            f.cols["len"] = np.maximum(f.len, np.take(root_min_length(), piece))
         ids = np.arange(count, count + m, dtype=np.int32)
         count += m
         per_tree += np.bincount(f.tree, minlength=n_trees)
@@ -327,12 +368,15 @@ def expand(
         else:
             s = sigma * w
         taper = _uniform(keyed.lane(h_piece, 1), np.take(cg.alt_taper, alt, axis=0))
+        if finish.any():  # exactly down to a twig's end, or by FINISH_TAPER on the way
+            want = np.maximum(TIP_RADIUS_M / f.scale, FINISH_TAPER)
+            taper = np.where(finish, want / s[:, 0], taper)
         s *= taper[:, None]
         if crown:
             # the trunk's axis narrows like a cone to the crown's top (apical control)
             top = np.take(tree_h, f.tree)
             want = np.take(radius0, f.tree) * np.maximum(1.0 - c_h[:, 0] / top, 0.02)
-            trunk = f.order == 0
+            trunk = (f.order == 0) & ~finish
             cone = np.ones(m)
             cone[trunk] = np.clip(want[trunk] / (s[trunk, 0] * f.scale[trunk]), 0.3, 1.0)
             s *= cone[:, None]
@@ -379,7 +423,9 @@ def expand(
             parent=ids[i],
             rim=r,
             sym=np.where(grows.ravel()[flat], succ.ravel()[flat], f.sym[i]).astype(np.int32),
-            len=c_len.ravel()[flat],
+            # a cap at length 1, as end_branches makes them: a stretched one reads (and its
+            # best-fit similarity measures) as a thicker end than its rim
+            len=np.where(grows.ravel()[flat], c_len.ravel()[flat], 1.0),
             rad=(s / sigma).ravel()[flat],
             scale=c_scale.ravel()[flat],
             order=c_order.ravel()[flat].astype(np.int32),
@@ -449,11 +495,19 @@ def children_radius(graph: PieceGraph, radius: NDArray[np.float64]) -> NDArray[n
     return out
 
 
-def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cap_alt: int) -> PieceGraph:
+def end_branches(
+    graph: PieceGraph,
+    at: NDArray[np.bool_],
+    cg: CompiledGrammar,
+    bare: NDArray[np.bool_] | None = None,
+) -> PieceGraph:
     """``graph`` with each instance marked in ``at`` (and below no other marked one)
     replaced by a cap piece of length scale 1 and everything above it dropped: the branch
-    ends where it would have grown that piece. What stays keeps its keys, so its draws, pose
-    and place are unchanged."""
+    ends where it would have grown that piece. An end thicker than a twig's
+    (:data:`TIP_RADIUS_M`) is finished as in :func:`expand`: short straight pieces (length
+    scale 0.5, to stay where the branch stopped) tapering by :data:`FINISH_TAPER` at most,
+    then the cap; unless marked in ``bare`` (where a chain would reach too far: a cap alone).
+    What stays keeps its keys, so its draws, pose and place are unchanged."""
     cap = PIECE_NAMES.index("Cap")
     gone = np.zeros(len(graph), bool)
     by_depth = LevelBlock.of(graph.depth, 0, len(graph))
@@ -468,20 +522,86 @@ def end_branches(graph: PieceGraph, at: NDArray[np.bool_], cap_alt: int) -> Piec
     parent = graph.parent[keep]
     parent = np.where(parent >= 0, new_index[np.maximum(parent, 0)], -1).astype(np.int32)
     cut_k = cut[keep]
-    return PieceGraph(
-        tree=graph.tree[keep],
-        parent=parent,
-        parent_rim=graph.parent_rim[keep],
-        depth=graph.depth[keep],
-        piece=np.where(cut_k, cap, graph.piece[keep]).astype(np.int32),
-        symbol=graph.symbol[keep],
-        alt=np.where(cut_k, cap_alt, graph.alt[keep]).astype(np.int32),
-        twist=graph.twist[keep],
-        length=np.where(cut_k, 1.0, graph.length[keep]),
-        radius=graph.radius[keep],
-        scale=graph.scale[keep],
-        order=graph.order[keep],
-        height=graph.height[keep],
-        taper=np.where(cut_k, 1.0, graph.taper[keep]),
-        key=graph.key[keep],
-    )
+    cols = {
+        "tree": graph.tree[keep],
+        "parent": parent,
+        "parent_rim": graph.parent_rim[keep],
+        "depth": graph.depth[keep],
+        "piece": np.where(cut_k, cap, graph.piece[keep]).astype(np.int32),
+        "symbol": graph.symbol[keep],
+        "alt": np.where(cut_k, cg.cap_alt, graph.alt[keep]).astype(np.int32),
+        "twist": graph.twist[keep],
+        "length": np.where(cut_k, 1.0, graph.length[keep]),
+        "radius": graph.radius[keep],
+        "scale": graph.scale[keep],
+        "order": graph.order[keep],
+        "height": graph.height[keep],
+        "taper": np.where(cut_k, 1.0, graph.taper[keep]),
+        "key": graph.key[keep],
+    }
+    if cg.finish_alt >= 0:
+        ends = cut_k if bare is None else cut_k & ~bare[keep]
+        _finish_cuts(cols, np.flatnonzero(ends), cg)
+    order = np.argsort(cols["tree"], kind="stable")  # appended chains: after their parents
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    par = cols["parent"][order]
+    cols = {k: v[order] for k, v in cols.items()}
+    cols["parent"] = np.where(par >= 0, rank[np.maximum(par, 0)], -1).astype(np.int32)
+    return PieceGraph(**cols)
+
+
+def finish_reach(scale: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``(n,)`` metres from the root rim to the apex of what :func:`end_branches` grows in
+    place of pieces whose root rims have radius ``scale`` (metres): its finishing chain, if
+    any, and the cap; straight pieces, so along the cut piece's root axis."""
+    sc = np.asarray(scale, np.float64).copy()
+    reach = np.zeros_like(sc)
+    rim_y = rim_tables().rim_y[I_PIECE, 0]
+    for _ in range(MAX_FINISH):
+        thick = sc > TIP_RADIUS_M
+        if not thick.any():
+            break
+        reach[thick] += rim_y * 0.5 * sc[thick]
+        sc[thick] *= np.maximum(TIP_RADIUS_M / sc[thick], FINISH_TAPER)
+    return reach + (CAP_TOP + CAP_APEX) * sc
+
+
+def _finish_cuts(cols: dict[str, NDArray], ends: NDArray[np.intp], cg: CompiledGrammar) -> None:
+    """Turn the caps ``ends`` of ``cols`` thicker than a twig into finishing pieces, appending
+    the chain each grows (more finishing pieces, then its cap) to ``cols``, in place."""
+    cap = PIECE_NAMES.index("Cap")
+    sigma = rim_tables().sigma[I_PIECE, 0]
+    rim_y = rim_tables().rim_y[I_PIECE, 0]
+    for _ in range(MAX_FINISH):
+        ends = ends[cols["scale"][ends] > TIP_RADIUS_M]
+        if not len(ends):
+            return
+        sc = cols["scale"][ends]
+        want = np.maximum(TIP_RADIUS_M / sc, FINISH_TAPER)
+        s_pre = 1.0 if cg.pipe_exponent is not None else sigma
+        cols["piece"][ends] = I_PIECE
+        cols["alt"][ends] = cg.finish_alt
+        cols["length"][ends] = 0.5
+        cols["taper"][ends] = want / s_pre
+        n = len(cols["tree"])
+        child = {
+            "tree": cols["tree"][ends],
+            "parent": ends.astype(np.int32),
+            "parent_rim": np.zeros(len(ends), np.int32),
+            "depth": cols["depth"][ends] + 1,
+            "piece": np.full(len(ends), cap, np.int32),
+            "symbol": cols["symbol"][ends],
+            "alt": np.full(len(ends), cg.cap_alt, np.int32),
+            "twist": np.zeros(len(ends), np.int32),
+            "length": np.ones(len(ends)),
+            "radius": want / sigma,
+            "scale": sc * want,
+            "order": cols["order"][ends],
+            "height": cols["height"][ends] + rim_y * sc * 0.5,
+            "taper": np.ones(len(ends)),
+            "key": keyed.hashes(cols["key"][ends], _RIM, MAX_LEAF_RIMS)[:, 0].copy(),
+        }
+        for k, v in child.items():
+            cols[k] = np.concatenate([cols[k], v.astype(cols[k].dtype)])
+        ends = np.arange(n, n + len(ends))

@@ -18,7 +18,7 @@ from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceA
 from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
 from forest.growth.compile import compile_grammar
-from forest.growth.expand import PieceGraph, end_branches
+from forest.growth.expand import MAX_FINISH, PieceGraph, end_branches, finish_reach
 from forest.growth.foliage import FoliageAnchors, Season, spray_anchors
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.keyed import GROW, tree_keys
@@ -34,7 +34,7 @@ from schemas.grammar import Grammar
 from schemas.tileset import TileSetManifest
 
 Progress = Callable[[str, int, int], None]
-GROUND_PASSES = 3  # the cuts of branches under the ground: enough for the caps they make
+GROUND_PASSES = 4  # the cuts of branches under the ground: enough for the caps they make
 MAX_AREA = 1e6  # metres per side: beyond this float32 USD positions lose centimetres
 
 
@@ -250,13 +250,13 @@ def generate_forest(
         )
     posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
     for _ in range(GROUND_PASSES):
-        under = _under_ground(graph, posed, pieces, trees, grammar.ground_clearance)
+        under, bare = _under_ground(graph, posed, pieces, trees, grammar.ground_clearance, cg)
         if not under.any():
             break
         # branches that would bend under the ground end where they reach it (a cap that
         # still dips under ends its branch one piece sooner on the next pass); the rest of
         # each tree keeps its keys, so it grows and poses exactly as before
-        graph = end_branches(graph, under, cg.cap_alt)
+        graph = end_branches(graph, under, cg, bare)
         posed = _assemble(cg, graph, pieces, trees, manifest, seed, note)
     transforms, bones, pose, still, tiles = posed
     note("done", 5, 5)
@@ -334,27 +334,60 @@ def _under_ground(
     pieces: tuple[PieceArrays, ...],
     trees: F64,
     clearance: float,
-) -> NDArray[np.bool_]:
-    """``(n,)`` pieces to end branches at: those (not a tree's root piece) whose hub or a
-    leaf-rim centre lies lower than their root and than ``clearance`` above their tree's
-    base, posed without wind, and the pieces that bear caps lying that low."""
+    cg: CompiledGrammar,
+) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """``(n,)`` pieces to end branches at: those (not a tree's root piece) heading down (their
+    hub or a leaf-rim centre lower than their root) whose hub or leaf rims' bark lies lower
+    than ``clearance`` above their tree's base, posed without wind, and the pieces that bear
+    caps lying that low; each moved down its branch while what :func:`end_branches` would grow
+    in its place (a straight finishing chain and cap) would reach that low; and ``(n,)``
+    those of them that still would (a branch's first piece): they end in a bare cap."""
     transforms, bones, pose, still, _ = posed
     pal = still
     if pal is None:
         pal = Poser(graph, bones, pieces, trees, transforms, pose).palette()
-    low = np.full(len(graph), np.inf)
+    centre = np.full(len(graph), np.inf)
+    bark = np.full(len(graph), np.inf)
     for j in range(HUB, TIP0 + MAX_LEAF_RIMS):
         at = np.flatnonzero(np.array([p.n_joints > j for p in pieces])[graph.piece])
-        rest = np.stack([p.joint_rest[min(j, p.n_joints - 1), :3, 3] for p in pieces])
+        rest = np.stack([p.joint_rest[min(j, p.n_joints - 1)] for p in pieces])[graph.piece[at]]
         m = pal[bones.offset[at] + j]
-        y = np.einsum("nj,nj->n", m[:, 1, :3], rest[graph.piece[at]]) + m[:, 1, 3]
-        low[at] = np.minimum(low[at], y)
+        y = np.einsum("nj,nj->n", m[:, 1, :3], rest[:, :3, 3]) + m[:, 1, 3]
+        centre[at] = np.minimum(centre[at], y)
+        if j >= TIP0:  # a rim: a circle of radius 1 in its joint frame's xz plane
+            ring = np.einsum("nj,njk->nk", m[:, 1, :3], rest[:, :3, [0, 2]])
+            y = y - np.linalg.norm(ring, axis=1)
+        bark[at] = np.minimum(bark[at], y)
+    base = trees[graph.tree, 1, 3]
     root = pal[bones.offset, 1, 3]  # the root joint's rest frame is the identity
     # only pieces that head down: a stem rising from the ground is never cut
-    under = (low - trees[graph.tree, 1, 3] < clearance) & (low < root) & (graph.parent >= 0)
+    under = (bark - base < clearance) & (centre < root) & (graph.parent >= 0)
     # a cap that dips under is its branch's end: the piece it closes ends the branch instead
     caps = np.flatnonzero(under & (graph.piece == PIECE_NAMES.index("Cap")))
     under[caps] = False
     under[graph.parent[caps]] = True
+    # so is a finishing chain (forest.growth.expand.end_branches): the piece below the chain
+    # ends the branch instead, one piece sooner
+    for _ in range(MAX_FINISH + 1):
+        chain = np.flatnonzero(under & (graph.alt == cg.finish_alt) & (graph.parent >= 0))
+        if not len(chain):
+            break
+        under[chain] = False
+        under[graph.parent[chain]] = True
+    # and a piece whose replacement would reach that low (it grows straight on along the
+    # piece's root axis: its lowest point is the root rim's circle or the end of that reach)
+    # ends its branch one piece sooner, down to the branch's first piece
+    axis = pal[bones.offset, :3, 1]
+    down = axis[:, 1] / np.maximum(np.linalg.norm(axis, axis=1), 1e-30)
+    side = graph.scale * np.sqrt(np.maximum(1.0 - down**2, 0.0))
+    reach = root + np.minimum(down, 0.0) * finish_reach(graph.scale) - side
+    dips = (reach - base < clearance) & (graph.parent >= 0)
+    along = dips & (graph.order[np.maximum(graph.parent, 0)] == graph.order)
+    for _ in range(int(graph.depth.max(initial=0)) + 1):
+        move = np.flatnonzero(under & along)
+        if not len(move):
+            break
+        under[move] = False
+        under[graph.parent[move]] = True
     under &= graph.parent >= 0
-    return under
+    return under, under & dips

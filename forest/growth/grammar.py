@@ -87,6 +87,9 @@ class CompiledGrammar:
     foliage : (S,) bool
     cap_alt : the alternative (last, weight 0, never drawn) that closes a tip with the Cap
     piece; -1 when the piece library has none
+    finish_alt : the alternative (weight 0, never drawn, just before ``cap_alt``) that
+    continues a branch stopped while thicker than a twig's end as a tapering straight piece;
+    -1 when the piece library has no cap
     """
 
     grammar: Grammar
@@ -110,6 +113,7 @@ class CompiledGrammar:
     alt_thickness: NDArray[np.float64]
     foliage: NDArray[np.bool_]
     cap_alt: int
+    finish_alt: int
     pipe_exponent: float | None
     expected_pieces: float
 
