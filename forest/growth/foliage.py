@@ -129,7 +129,7 @@ FORMS: dict[str, SprayForm] = {
     "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
-    "spruce": SprayForm((0.012, 0.022), 1.0, 0.0, "spiral", (4, 7), (0.5, 0.9),
+    "spruce": SprayForm((0.016, 0.026), 1.0, 0.0, "spiral", (4, 7), (0.8, 1.3),
                         habit="sprig", rise=(-15.0, 10.0)),
     "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (4, 6), (0.3, 0.55), crowd=1.6,
                            sides=(2, 4), side=(0.1, 0.2), rosette=True),
