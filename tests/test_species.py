@@ -103,14 +103,13 @@ def test_willow_curtains_stop_above_the_ground() -> None:
 
 
 def test_broadleaf_crowns_are_round_from_above() -> None:
-    # the median over a dozen trees of each species, and of all of them: single trees vary
-    # (a crown of five limbs is irregular), a fan of one plane would be far below
+    # the median over a dozen trees of each species: single trees still vary (a crown of five
+    # limbs is irregular, down to 0.57 for an almond), a fan of one plane would be far below
     medians = {}
     for name in ROUND_CROWNS:
         r = [tree_figures(forest(name, seed, trees=6)).crown_roundness for seed in (3, 7)]
         medians[name] = float(np.median(np.concatenate(r)))
-    assert np.median(list(medians.values())) >= ROUNDNESS_MIN, medians
-    assert min(medians.values()) >= ROUNDNESS_MIN - 0.1, medians
+    assert min(medians.values()) >= ROUNDNESS_MIN, medians
 
 
 def test_oak_forks_low_under_a_dome_within_its_bark_budget() -> None:
