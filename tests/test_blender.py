@@ -251,12 +251,14 @@ def test_blender_renders_green_leaves(tmp_path: Path) -> None:
         scene = write_scene(forest, tmp_path / f"{preset}.usdc")
         out = tmp_path / f"{preset}.png"
         proc = subprocess.run(
-            [str(BLENDER_PY), str(RENDER), str(scene), str(out), "--size", "96", "--samples", "4"],
+            [str(BLENDER_PY), str(RENDER), str(scene), str(out), "--size", "128", "--samples", "4"],
             capture_output=True, text=True, timeout=300, cwd=tmp_path,
         )  # fmt: skip
         assert proc.returncode == 0 and out.exists(), proc.stdout[-2000:] + proc.stderr[-2000:]
         rgb = read_pixels(out)[..., :3].astype(np.float64)
-        green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > 1.15 * rgb[..., 2])
+        # leaf green, blue-green included (a Scots pine's needles): greener than red by a
+        # margin and than blue at all (the sky is bluer than green, the ground grey)
+        green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > rgb[..., 2])
         assert green.mean() > 0.005, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
 
 

@@ -80,12 +80,14 @@ def _slices(forest: Forest) -> list[tuple[slice, slice]]:
 def test_textures_are_packed_and_used(blender_run: Run) -> None:
     forest, report, _ = blender_run
     images = report["images"]
-    assert set(images) == {f"bark-{forest.grammar.bark}", "leaf-broadleaf"}
+    assert set(images) == {f"bark-{forest.grammar.bark}", f"leaf-{forest.grammar.leaves.family}"}
     assert all(im["packed"] and min(im["size"]) > 0 for im in images.values())
     assert report["materials"]["Bark"]["images"] == [f"bark-{forest.grammar.bark}"]
     leaves = [m for n, m in report["materials"].items() if n.startswith("Leaves_")]
-    assert len(leaves) == TREES and all(m["images"] == ["leaf-broadleaf"] for m in leaves)
-    assert report["leaf_cards"] == len(forest.foliage_instance)
+    assert len(leaves) == TREES and all(
+        m["images"] == [f"leaf-{forest.grammar.leaves.family}"] for m in leaves
+    )
+    assert report["leaf_cards"] == len(forest.foliage_anchors())  # one per spray
     assert report["leaf_card_parent_types"] == ["BONE"]
 
 
