@@ -167,7 +167,7 @@ def test_usdz_follows_arkit_rules(scenes: dict[str, Path]) -> None:
     assert {Path(n).suffix for n in names[1:]} == {".png"}
     tiles = [n for n in names if Path(n).name.startswith("bark.")]
     assert len(tiles) == len(list(default_dir().glob("bark.*.png")))
-    assert [Path(n).name for n in names[1:] if n not in tiles] == ["leaf-broadleaf.png"]
+    assert [Path(n).name for n in names[1:] if n not in tiles] == ["leaf-almond.png"]
 
     types = Counter(p.GetTypeName() for p in stage.Traverse())
     assert set(types) <= ARKIT_PRIM_TYPES, types
