@@ -350,12 +350,14 @@ def _under_ground(
     bark = np.full(len(graph), np.inf)
     for j in range(HUB, TIP0 + MAX_LEAF_RIMS):
         at = np.flatnonzero(np.array([p.n_joints > j for p in pieces])[graph.piece])
-        rest = np.stack([p.joint_rest[min(j, p.n_joints - 1)] for p in pieces])[graph.piece[at]]
-        m = pal[bones.offset[at] + j]
-        y = np.einsum("nj,nj->n", m[:, 1, :3], rest[:, :3, 3]) + m[:, 1, 3]
+        rest = np.stack([p.joint_rest[min(j, p.n_joints - 1)] for p in pieces])
+        kind = graph.piece[at]
+        # heights only: the bones' y rows (a quarter of the matrices) gathered once
+        row = pal[bones.offset[at] + j, 1]
+        y = np.einsum("nj,nj->n", row[:, :3], rest[kind, :3, 3]) + row[:, 3]
         centre[at] = np.minimum(centre[at], y)
         if j >= TIP0:  # a rim: a circle of radius 1 in its joint frame's xz plane
-            ring = np.einsum("nj,njk->nk", m[:, 1, :3], rest[:, :3, [0, 2]])
+            ring = np.einsum("nj,njk->nk", row[:, :3], rest[kind][:, :3][:, :, [0, 2]])
             y = y - np.linalg.norm(ring, axis=1)
         bark[at] = np.minimum(bark[at], y)
     base = trees[graph.tree, 1, 3]
