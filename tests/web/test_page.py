@@ -157,7 +157,9 @@ def test_other_tenant_jobs_hidden(seen: dict[str, Any]) -> None:
 def test_viewer_draws_the_tree_in_the_wind(seen: dict[str, Any]) -> None:
     s = seen["steps"]
     canvas = s["canvas"]
-    assert canvas["drawn"] > 0.02 * canvas["total"], canvas  # the tree covers the canvas
+    # the tree covers the canvas: a birch is slender, and since 0.3.0 its leaves are small
+    # (5-7 cm) on thin twigs, so it covers about 1.5 % of the pixels (was over 2 %)
+    assert canvas["drawn"] > 0.01 * canvas["total"], canvas
     assert s["clips"] == "Wind"
     assert canvas["changed_between_frames"] > 0, canvas  # the animation plays
 
