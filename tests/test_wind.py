@@ -32,8 +32,28 @@ def test_frequencies_snap_to_distinct_multiples() -> None:
     np.testing.assert_allclose(k, np.round(k), atol=1e-12)
     assert (np.diff(k) >= 1).all() and k[0] >= 1
     assert Wind().frequencies() == (0.4, 0.7, 0.7 * 2.3, 2.6)  # no loop: as asked
-    # a clip far shorter than the sway's period does not loop: no 8 Hz sway for 3 frames
+    # a clip far shorter than the sway's period keeps them (no 8 Hz sway for 3 frames): it
+    # closes its loop by blending instead (test_every_clip_loops)
     assert Wind(loop_s=3 / 24).frequencies() == Wind().frequencies()
+    assert not Wind(loop_s=3 / 24).snaps and Wind(loop_s=2.0).snaps
+
+
+@pytest.mark.parametrize(("frames", "fps"), [(2, 24.0), (5, 24.0), (12, 24.0), (15, 24.0),
+                                             (24, 24.0), (37, 30.0)])  # fmt: skip
+def test_every_clip_loops(frames: int, fps: float) -> None:
+    """The joints' pose one frame after the last (at frames / fps, where a looping player
+    wraps) is frame 0's, whether the clip is long enough for the frequencies to snap or not,
+    and the step from the last frame back to the first is a step like the clip's others."""
+    from forest.usd.skinned import joint_frames
+
+    f = forest("alternating", 1, frames, fps)
+    joints = joint_frames(f)
+    times = [i / fps for i in range(frames + 1)]
+    pose = np.stack([joints.locals(f, t) for t in times])
+    np.testing.assert_allclose(pose[-1], pose[0], rtol=0, atol=1e-9)
+    steps = np.abs(np.diff(pose, axis=0)).max(axis=(1, 2, 3))
+    assert steps[:-1].max() > 1e-4  # it moves
+    assert steps[-1] <= 1.5 * steps[:-1].max(), steps
 
 
 def _hub_positions(f: Forest, times: np.ndarray) -> np.ndarray:

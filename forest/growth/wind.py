@@ -13,8 +13,9 @@ from numpy.typing import NDArray
 from forest.geometry.transforms import F64
 from forest.growth.expand import PieceGraph
 
-# a clip loops when it lasts at least this many periods of the slow sway (the sway then runs
-# at most four times as fast as asked); shorter clips are sampled at the frequencies as asked
+# a clip's frequencies snap to its loop when it lasts at least this many periods of the slow
+# sway (the sway then runs at most four times as fast as asked); a shorter clip keeps the
+# frequencies as asked and closes its loop by a linear blend (see wind_vectors)
 LOOP_MIN_CYCLES = 0.25
 
 
@@ -35,9 +36,10 @@ class Wind:
     ``amp`` grows linearly with depth from ``strength * base`` at the trunk to ``strength`` at
     the deepest pieces, and with thinness: times ``(trunk radius / radius) ** radius_power``,
     at most ``4``. With ``loop_s`` (a clip of that many seconds; ForestOptions sets it to
-    ``frames / fps``) of at least ``LOOP_MIN_CYCLES`` sway periods, every frequency is rounded
-    to a distinct non-zero multiple of ``1 / loop_s``, so the pose at ``loop_s`` equals the
-    pose at 0 and the clip loops.
+    ``frames / fps``) the clip loops, the pose at ``loop_s`` equal to the pose at 0: a clip
+    of at least ``LOOP_MIN_CYCLES`` sway periods rounds every frequency to a distinct
+    non-zero multiple of ``1 / loop_s``; a shorter one keeps them and blends its motion
+    linearly back to the start (:func:`wind_vectors`).
     """
 
     strength_deg: float = 4.0
@@ -53,10 +55,15 @@ class Wind:
     radius_power: float = 0.25
     loop_s: float = 0.0
 
+    @property
+    def snaps(self) -> bool:
+        """Whether the clip is long enough for its frequencies to snap to the loop."""
+        return self.loop_s * self.frequency_hz >= LOOP_MIN_CYCLES
+
     def frequencies(self) -> tuple[float, float, float, float]:
         """``(sway, gust envelope, gust wobble, flutter)`` in Hz, snapped to the loop."""
         want = (self.frequency_hz, self.gust_hz, 2.3 * self.gust_hz, self.flutter_hz)
-        if not self.loop_s * self.frequency_hz >= LOOP_MIN_CYCLES:
+        if not self.snaps:
             # too short a clip to loop: its sway would have to run many times too fast
             return want
         out: list[float] = []
@@ -138,7 +145,22 @@ def wind_vectors(
 ) -> F64:
     """Per instance of ``idx``: the wind's rotation vector ``(3, m)`` (radians about its
     direction) in the instance's root frame at ``time``; ``phase`` ``(n,)`` is each
-    instance's wind phase (its pose's)."""
+    instance's wind phase (its pose's). A clip too short for its frequencies to snap
+    (``wind.loop_s`` > 0, not :attr:`Wind.snaps`) repeats every ``loop_s`` and gives back,
+    linearly over the clip, the difference between its end and its start: its last frame
+    leads back to its first in a step like any other."""
+    if wind.loop_s <= 0 or wind.snaps:
+        return _wind_vectors(field, wind, idx, phase, time)
+    t = time % wind.loop_s
+    start = _wind_vectors(field, wind, idx, phase, 0.0)
+    end = _wind_vectors(field, wind, idx, phase, wind.loop_s)
+    return _wind_vectors(field, wind, idx, phase, t) - (t / wind.loop_s) * (end - start)
+
+
+def _wind_vectors(
+    field: WindField, wind: Wind, idx: NDArray[np.intp], phase: F64, time: float
+) -> F64:
+    """:func:`wind_vectors` of the sines alone (no loop closed)."""
     f_sway, _, f_wob, f_flut = wind.frequencies()
     tau = 2 * np.pi * time
     tree_phase = phase[idx]
