@@ -1,7 +1,7 @@
 """Import a .glb with Blender's glTF importer (run by .venv-blender's python, see
 tests/test_gltf_blender.py) and report what Blender made: armatures, skinned meshes, actions
-and their frame ranges, images and the materials that read them, leaf-card objects, and the
-world-space deformed vertices of every skinned mesh at the frames asked for (glTF's y-up
+and their frame ranges, images and the materials that read them, the mesh objects, the import's
+seconds, and the world-space deformed vertices of every skinned mesh at the frames asked for (glTF's y-up
 axes, so they compare with the library's skinning directly).
 
     python gltf_blender_check.py FOREST.glb --frames 0,3 --points-out PTS.npz --json-out R.json
@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import time
 from pathlib import Path
 from typing import Any
 
@@ -42,7 +43,9 @@ def main() -> int:
     ap.add_argument("--json-out", type=Path, required=True)
     args = ap.parse_args()
     bpy.ops.wm.read_factory_settings(use_empty=True)
+    start = time.perf_counter()
     result = bpy.ops.import_scene.gltf(filepath=str(args.glb))
+    seconds = time.perf_counter() - start
     scene = bpy.context.scene
     arms = [o for o in scene.objects if o.type == "ARMATURE"]
     skinned = sorted(
@@ -75,8 +78,9 @@ def main() -> int:
         im.name: {"size": list(im.size), "packed": im.packed_file is not None}
         for im in bpy.data.images
     }
-    cards = [o.name for o in scene.objects if o.type == "MESH" and o.name.startswith("Leaves_")]
-    card_parents = sorted({o.parent_type for o in scene.objects if o.name in set(cards)})
+    # the importer draws bones with an icosphere of its own (a bone's custom shape)
+    shapes = {pb.custom_shape for a in arms for pb in a.pose.bones if pb.custom_shape}
+    meshes = sorted(o.name for o in scene.objects if o.type == "MESH" and o not in shapes)
     points: dict[str, np.ndarray] = {}
     frames = [int(f) for f in args.frames.split(",")]
     for f in frames:
@@ -97,8 +101,8 @@ def main() -> int:
         "all_actions": sorted(a.name for a in bpy.data.actions),
         "materials": textured,
         "images": images,
-        "leaf_cards": len(cards),
-        "leaf_card_parent_types": card_parents,
+        "mesh_objects": meshes,
+        "import_seconds": seconds,
         "fps": scene.render.fps,
         "frames": frames,
     }

@@ -1,5 +1,7 @@
-"""glTF export (forest.gltf) on its own: determinism, the document's structure (a skin per
-tree, the wind animation, bark atlas and leaf cards), the atlas UVs, caps and bad input."""
+"""glTF export (forest.gltf) on its own: determinism, the document's structure (one scene, a
+skinned mesh of bark and leaves per tree, the wind animation without constant channels, bark
+atlas and leaf cards), the file's own skinning against the library's, the atlas UVs, caps and
+bad input."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pygltflib as gl
 import pytest
-from helpers_gltf import FPS, FRAMES, TREES, small_forest
+from helpers_gltf import FPS, FRAMES, TREES, expected_tree, glb_skinned, read, small_forest
 
 from forest.bark.images import read_pixels
 from forest.bark.tilesets import set_dir
@@ -20,9 +22,10 @@ from forest.errors import ForestError, LimitError
 from forest.gltf import document
 from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
+from forest.gltf.skin import CONSTANT_TOL, sample_pose
 from forest.growth.generate import Forest
 from forest.usd.materials import tile_udim_st
-from forest.usd.skinned import tree_slices
+from forest.usd.skinned import joint_frames, tree_mesh, tree_slices
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -45,36 +48,57 @@ def test_same_forest_same_bytes(forest: Forest, tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.glb", "b.glb"]  # nothing else
 
 
-def test_one_skin_per_tree_with_every_bone(forest: Forest, doc: gl.GLTF2) -> None:
-    assert len(doc.skins) == TREES
+def test_one_scene_one_skinned_mesh_per_tree(forest: Forest, doc: gl.GLTF2) -> None:
+    assert doc.scene == 0 and len(doc.scenes) == 1
+    assert not doc.extensionsUsed and not doc.extensionsRequired
+    assert len(doc.skins) == TREES and len(doc.meshes) == TREES
     slices = tree_slices(forest)
+    parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
     for skin, (_inst, bones) in zip(doc.skins, slices, strict=True):
         assert len(skin.joints) == bones.stop - bones.start
         assert skin.skeleton == skin.joints[0]
         # joints are parent-first: each joint's parent joint comes earlier
-        parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
         index = {n: j for j, n in enumerate(skin.joints)}
         for j, n in enumerate(skin.joints[1:], 1):
             assert index[parent_of[n]] < j
-    bark = [n for n in doc.nodes if n.skin is not None]
-    assert len(bark) == TREES
+    skinned = [n for n in doc.nodes if n.skin is not None]
+    assert [n.name for n in skinned] == [f"Tree_{k:05d}_Mesh" for k in range(TREES)]
     roots = set(doc.scenes[0].nodes)
-    assert all(doc.nodes.index(n) in roots for n in bark)  # skinned nodes stay at the root
-    prim = doc.meshes[bark[0].mesh].primitives[0]
-    for attr in ("POSITION", "NORMAL", "TEXCOORD_0", "JOINTS_0", "WEIGHTS_0"):
-        assert getattr(prim.attributes, attr) is not None, attr
+    assert all(doc.nodes.index(n) in roots for n in skinned)  # skinned nodes stay at the root
+    # every node is a tree, a joint or a tree's mesh: no node per leaf spray
+    assert len(doc.nodes) == 2 * TREES + sum(len(s.joints) for s in doc.skins)
+    for n in skinned:
+        bark, leaves = doc.meshes[n.mesh].primitives
+        for prim in (bark, leaves):
+            for attr in ("POSITION", "NORMAL", "TEXCOORD_0", "JOINTS_0", "WEIGHTS_0"):
+                assert getattr(prim.attributes, attr) is not None, attr
 
 
-def test_wind_animation_in_seconds(forest: Forest, doc: gl.GLTF2) -> None:
+def test_wind_animation_drops_constant_channels(forest: Forest, doc: gl.GLTF2) -> None:
+    """A channel per joint and path whose keys change; a path left out is constant over the
+    clip, and its node holds that value."""
     (anim,) = doc.animations
     assert anim.name == "Wind"
-    paths = {c.target.path for c in anim.channels}
-    assert paths == {"translation", "rotation", "scale"}
-    joints = sum(len(s.joints) for s in doc.skins)
-    assert len(anim.channels) == 3 * joints
     times = doc.accessors[anim.samplers[0].input]
     assert times.count == FRAMES
     assert times.min == [0.0] and times.max[0] == pytest.approx((FRAMES - 1) / FPS)
+    pose = sample_pose(forest, joint_frames(forest))
+    targeted = {(c.target.node, c.target.path) for c in anim.channels}
+    assert {p for _, p in targeted} == {"rotation"}  # wind turns joints; roots stay still
+    default = {"translation": [0.0] * 3, "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0] * 3}
+    kept = 0
+    for skin, (_inst, bones) in zip(doc.skins, tree_slices(forest), strict=True):
+        for j, node in enumerate(skin.joints):
+            b = bones.start + j
+            for path, keys in (("translation", pose.t), ("rotation", pose.q), ("scale", pose.s)):
+                k = keys[:, b]
+                if (node, path) in targeted:
+                    kept += 1
+                    assert np.abs(k - k[0]).max() > CONSTANT_TOL
+                    continue
+                value = getattr(doc.nodes[node], path) or default[path]
+                np.testing.assert_allclose(k, np.broadcast_to(value, k.shape), atol=CONSTANT_TOL)
+    assert kept == len(anim.channels) > 0
 
 
 def test_still_forest_has_no_animation(tmp_path: Path) -> None:
@@ -90,15 +114,47 @@ def test_bark_and_leaf_materials(forest: Forest, doc: gl.GLTF2) -> None:
     leaves = [m for m in doc.materials if m.name.startswith("Leaves_")]
     assert len(leaves) == TREES
     for m in leaves:
-        assert m.alphaMode == gl.MASK and m.doubleSided
+        assert m.alphaMode == gl.MASK and m.alphaCutoff == 0.5 and m.doubleSided
         assert m.pbrMetallicRoughness.baseColorTexture is not None
     assert all(im.mimeType == "image/png" for im in doc.images)
-    # every leaf cloud hangs under a joint of its tree
-    clouds = [i for i, n in enumerate(doc.nodes) if n.name and n.name.startswith("Leaves_")]
-    assert len(clouds) == len(forest.foliage_anchors())
-    joints = {j for s in doc.skins for j in s.joints}
-    parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
-    assert all(parent_of[c] in joints for c in clouds)
+    for mesh in doc.meshes:
+        assert doc.materials[mesh.primitives[0].material].name == "Bark"
+        assert doc.materials[mesh.primitives[1].material].alphaMode == gl.MASK
+
+
+def test_bark_is_welded_as_in_usd(forest: Forest, doc: gl.GLTF2) -> None:
+    """The bark's points and normals are the USD skinned form's welded ones: a vertex splits
+    only where its corners' UVs differ, and corners at one welded point share its normal."""
+    inst, bones = tree_slices(forest)[0]
+    still = joint_frames(forest).still
+    to_tree = np.linalg.inv(forest.tree_transforms[0])
+    pts, nrm, quads, *_ = tree_mesh(forest, inst, bones, to_tree, still, weld=True)
+    prim = doc.meshes[0].primitives[0]
+    p, n = read(doc, prim.attributes.POSITION), read(doc, prim.attributes.NORMAL)
+    uv = read(doc, prim.attributes.TEXCOORD_0)
+    corner = read(doc, prim.indices).reshape(-1, 6)[:, [0, 1, 2, 5]]
+    np.testing.assert_allclose(p[corner], pts[quads], atol=1e-5)
+    np.testing.assert_allclose(n[corner], nrm[quads], atol=1e-6)
+    # no two vertices share a welded point and a UV
+    key = np.concatenate([quads.reshape(-1, 1), uv[corner.ravel()]], axis=1)
+    assert len(np.unique(key, axis=0)) == len(p)
+
+
+def test_file_skinning_is_the_librarys(forest: Forest, doc: gl.GLTF2) -> None:
+    """Bark and leaves as glTF skins them from the file (joints, inverse binds, weights, the
+    animation's keys or the nodes' own TRS) land where the generator's palette puts the
+    pieces' corners and the leaf cards, at the first and the last frame, within 1e-4 of the
+    tree's height (the two skin from different bind poses: see test_usd)."""
+    nodes = [i for i, n in enumerate(doc.nodes) if n.skin is not None]
+    for frame in (0, FRAMES - 1):
+        want = expected_tree(forest, doc, frame / FPS)
+        for k, node in enumerate(nodes):
+            got = glb_skinned(doc, node, frame)
+            height = np.ptp(want[k][0][:, 1])
+            assert len(got) == len(want[k]) == 2
+            for g, w in zip(got, want[k], strict=True):
+                assert g.shape == w.shape
+                assert np.abs(g - w).max() <= 1e-4 * height, (frame, k)
 
 
 def test_atlas_uvs_land_in_each_quads_tile(forest: Forest) -> None:
@@ -192,61 +248,3 @@ def test_cli_bad_input_is_one_line(tmp_path: Path, args: list[str], field: str) 
     lines = r.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: ") and field in lines[0], r.stderr
     assert not any(p.suffix == ".glb" for p in tmp_path.rglob("*"))
-
-
-def test_pieces_instanced_in_a_second_scene(forest: Forest, doc: gl.GLTF2) -> None:
-    """Scene 1 instances every piece at its rest transform; scene 0 stays the default."""
-    from forest.geometry.transforms import decompose_similarity
-
-    assert doc.scene == 0 and len(doc.scenes) == 2
-    assert doc.extensionsUsed == ["EXT_mesh_gpu_instancing"]
-    assert not doc.extensionsRequired
-    total = 0
-    t_all = decompose_similarity(forest.transforms)[0]
-    blob = doc.binary_blob()
-    for n in doc.scenes[1].nodes:
-        node = doc.nodes[n]
-        attrs = node.extensions["EXT_mesh_gpu_instancing"]["attributes"]
-        acc = doc.accessors[attrs["TRANSLATION"]]
-        view = doc.bufferViews[acc.bufferView]
-        t = np.frombuffer(blob, np.float32, acc.count * 3, view.byteOffset).reshape(-1, 3)
-        name = node.name.removeprefix("Pieces_")
-        pid = [p.name for p in forest.pieces].index(name)
-        assert np.allclose(t, t_all[forest.graph.piece == pid], atol=1e-5)
-        total += acc.count
-    assert total == forest.n_instances
-
-
-def _node_world(doc: gl.GLTF2) -> dict[int, np.ndarray]:
-    """World matrix of every node from the nodes' own TRS (the file's first sample)."""
-    from forest.geometry.transforms import compose_similarity
-
-    parent = {c: i for i, n in enumerate(doc.nodes) for c in (n.children or [])}
-
-    def local(n: gl.Node) -> np.ndarray:
-        s = (n.scale or [1.0, 1.0, 1.0])[0]
-        return compose_similarity(n.translation or [0.0] * 3, n.rotation or [0, 0, 0, 1], s)
-
-    out: dict[int, np.ndarray] = {}
-    for i in range(len(doc.nodes)):
-        m, j = local(doc.nodes[i]), i
-        while j in parent:
-            j = parent[j]
-            m = local(doc.nodes[j]) @ m
-        out[i] = m
-    return out
-
-
-def test_leaf_clouds_sit_where_the_forest_puts_them(forest: Forest, doc: gl.GLTF2) -> None:
-    """Each cloud node, composed through its joint's first-sample frame, has the cloud's posed
-    centre and diameter (a node under a joint inherits the joint's whole transform)."""
-    world = _node_world(doc)
-    clouds = [i for i, n in enumerate(doc.nodes) if (n.name or "").startswith("Leaves_")]
-    a = forest.foliage_anchors()
-    assert len(clouds) == len(a)
-    pick = np.array([int(doc.nodes[i].name.split("_")[1]) for i in clouds])
-    m = np.array([world[i] for i in clouds])
-    centre = a.positions(forest.palette(0.0 if forest.animated else None))[pick]
-    size = np.ptp(centre, axis=0).max()
-    np.testing.assert_allclose(m[:, :3, 3], centre, atol=1e-5 * size)
-    np.testing.assert_allclose(np.cbrt(np.linalg.det(m[:, :3, :3])), a.size[pick], rtol=1e-5)

@@ -1,6 +1,6 @@
 """The GLB imports into real Blender (bpy from PyPI in .venv-blender, as tests/test_blender.py)
-through its glTF importer: one armature per tree with the Wind action over the wind's frames,
-the bark and leaf textures packed, leaf cards parented to bones, and the deformed bark
+through its glTF importer: one armature and one mesh object (bark and leaves) per tree, with
+the Wind action over the wind's frames, the bark and leaf textures packed, and the deformed
 vertices at two frames equal the library's skinning within 1e-4 of the tree's height."""
 
 from __future__ import annotations
@@ -12,8 +12,9 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pygltflib as gl
 import pytest
-from helpers_gltf import CHECK_FRAMES, FPS, FRAMES, TREES, expected_bark, small_forest, tree_heights
+from helpers_gltf import CHECK_FRAMES, FPS, FRAMES, TREES, expected_tree, small_forest
 
 from forest.gltf.document import write_glb
 from forest.growth.generate import Forest
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
 CHECK = ROOT / "tests" / "gltf_blender_check.py"
 
-Run = tuple[Forest, dict[str, Any], Any]
+Run = tuple[Forest, dict[str, Any], Any, gl.GLTF2]
 
 
 @pytest.fixture(scope="module")
@@ -52,15 +53,16 @@ def blender_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
         )
     report = json.loads(out.read_text())
     sys.stdout.write(json.dumps(report, indent=1, sort_keys=True)[:4000] + "\n")
-    return forest, report, np.load(points)
+    return forest, report, np.load(points), gl.GLTF2.load(str(glb))
 
 
 def test_one_armature_per_tree_with_the_wind_action(blender_run: Run) -> None:
-    forest, report, _ = blender_run
+    forest, report, _, _ = blender_run
     names = [f"Tree_{k:05d}" for k in range(TREES)]
     assert report["armatures"] == names
-    assert report["skinned_meshes"] == [f"{n}_Bark" for n in names]
-    assert report["mesh_armature"] == {f"{n}_Bark": n for n in names}
+    assert report["skinned_meshes"] == [f"{n}_Mesh" for n in names]
+    assert report["mesh_objects"] == report["skinned_meshes"]  # nothing else: no second scene
+    assert report["mesh_armature"] == {f"{n}_Mesh": n for n in names}
     for n in names:
         action = report["actions"][n]
         assert action is not None and action["name"].startswith("Wind"), action
@@ -78,7 +80,7 @@ def _slices(forest: Forest) -> list[tuple[slice, slice]]:
 
 
 def test_textures_are_packed_and_used(blender_run: Run) -> None:
-    forest, report, _ = blender_run
+    forest, report, _, _ = blender_run
     images = report["images"]
     assert set(images) == {f"bark-{forest.grammar.bark}", f"leaf-{forest.grammar.leaves.family}"}
     assert all(im["packed"] and min(im["size"]) > 0 for im in images.values())
@@ -87,16 +89,16 @@ def test_textures_are_packed_and_used(blender_run: Run) -> None:
     assert len(leaves) == TREES and all(
         m["images"] == [f"leaf-{forest.grammar.leaves.family}"] for m in leaves
     )
-    assert report["leaf_cards"] == len(forest.foliage_anchors())  # one per spray
-    assert report["leaf_card_parent_types"] == ["BONE"]
 
 
 def test_deformed_vertices_match_our_skinning(blender_run: Run) -> None:
-    forest, _, points = blender_run
+    """Blender joins a mesh's primitives into one object, bark's vertices first."""
+    forest, _, points, doc = blender_run
     for f in CHECK_FRAMES:
-        expected = expected_bark(forest, f / FPS)
-        for k, (want, height) in enumerate(zip(expected, tree_heights(expected), strict=True)):
-            got = points[f"Tree_{k:05d}_Bark@{f}"]
+        for k, prims in enumerate(expected_tree(forest, doc, f / FPS)):
+            want = np.concatenate(prims)
+            height = float(np.ptp(prims[0][:, 1]))
+            got = points[f"Tree_{k:05d}_Mesh@{f}"]
             assert got.shape == want.shape
             err = float(np.abs(got - want).max())
             assert err <= 1e-4 * height, (f, k, err, height)

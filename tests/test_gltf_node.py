@@ -1,7 +1,7 @@
 """Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
-GLTFLoader under Node: one skinned mesh per tree with its texture, the Wind clip, the leaf
-cards, the pieces' scene as InstancedMesh (EXT_mesh_gpu_instancing); its skinned vertices at
-two frames equal the library's skinning within 1e-4 of the tree's height.
+GLTFLoader under Node: one scene, per tree a bark and a leaves SkinnedMesh (the tree mesh's two
+primitives) with their textures, the Wind clip; their skinned vertices at two frames equal the
+library's skinning within 1e-4 of the tree's height.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
 script runs it) installs them. A missing install fails these tests, it does not skip them.
@@ -13,16 +13,16 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import pygltflib as gl
 import pytest
 from helpers_gltf import (
     CHECK_FRAMES,
     FPS,
     TREES,
-    expected_bark,
+    expected_tree,
     node_tools,
     run_node,
     small_forest,
-    tree_heights,
 )
 
 from forest.gltf.document import write_glb
@@ -82,23 +82,27 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
         "three_load.mjs", str(glb), "--times", ",".join(map(repr, times)), "--out", str(out)
     )
     meshes = report["skinned_meshes"]
-    assert len(meshes) == TREES
+    # one glTF mesh per tree, its primitives (bark, leaves) two SkinnedMesh on one skeleton
+    assert [m["name"] for m in meshes] == [
+        f"Tree_{k:05d}_{p}" for k in range(TREES) for p in (1, 2)
+    ]
     assert all(m["has_texture"] for m in meshes)
     (clip,) = report["animations"]
     assert clip["name"] == "Wind" and clip["tracks"] > 0
     assert report["textures"] == 2  # the bark atlas and the leaf texture
-    assert report["leaf_card_meshes"] == len(forest.foliage_anchors())  # one per spray
-    # the pieces' scene: one InstancedMesh per piece type, every piece once
-    assert len(report["scenes"]) == 2
-    assert sum(m["count"] for m in report["instanced"]) == forest.n_instances
+    assert report["leaf_card_meshes"] == TREES  # alpha-tested, double sided
+    assert report["scenes"] == ["Forest"]
+    doc = gl.GLTF2.load(str(glb))
     got = np.fromfile(out, np.float32).astype(np.float64)
     at = 0
     for f in CHECK_FRAMES:
-        expected = expected_bark(forest, f / FPS)
-        for k, (want, height) in enumerate(zip(expected, tree_heights(expected), strict=True)):
-            assert meshes[k]["vertices"] == len(want)
-            points = got[at : at + want.size].reshape(-1, 3)
-            at += want.size
-            err = np.abs(points - want).max()
-            assert err <= 1e-4 * height, (f, k, err, height)
+        expected = expected_tree(forest, doc, f / FPS)
+        for k, prims in enumerate(expected):
+            height = float(np.ptp(prims[0][:, 1]))
+            for p, want in enumerate(prims):
+                assert meshes[2 * k + p]["vertices"] == len(want)
+                points = got[at : at + want.size].reshape(-1, 3)
+                at += want.size
+                err = np.abs(points - want).max()
+                assert err <= 1e-4 * height, (f, k, p, err, height)
     assert at == got.size

@@ -48,11 +48,13 @@ class Blob:
         bounds: bool = False,
         view: int | None = None,
         offset: int = 0,
+        normalized: bool = False,
     ) -> int:
         """An accessor of ``array`` ``(n,)``, ``(n, c)`` or ``(n, 4, 4)`` (matrices given
         column-vector and written column-major, as glTF reads them); its index. ``bounds``
         writes min/max (required on POSITION and animation inputs). With ``view`` the data
-        already lies there at ``offset`` bytes (``array`` still gives type, count, bounds)."""
+        already lies there at ``offset`` bytes (``array`` still gives type, count, bounds).
+        ``normalized``: integers read as fractions of their type's maximum."""
         a = np.ascontiguousarray(array)
         if a.ndim == 3:
             a = np.ascontiguousarray(np.swapaxes(a, 1, 2)).reshape(len(a), 16)
@@ -65,6 +67,7 @@ class Blob:
             componentType=_COMPONENT[a.dtype],
             count=len(a),
             type=_TYPE[width],
+            normalized=True if normalized else None,
         )
         if bounds:
             flat = a.reshape(len(a), width)

@@ -1,11 +1,12 @@
-"""A forest as one glTF 2.0 binary (.glb): per tree a skinned bark mesh on its skeleton, the
-wind as an animation, leaf clouds on the hub joints; written atomically, byte-identical for
-the same forest.
+"""A forest as one glTF 2.0 binary (.glb): per tree one skinned mesh on its skeleton (a bark
+primitive and a leaves primitive), the wind as one animation; written atomically,
+byte-identical for the same forest.
 
-Scene layout (y up, metres, as the USD scenes): for tree k a root node ``Tree_<k>`` (the
-tree transform) holding the joint hierarchy (leaf-cloud nodes under the hub joints), and a
-root node ``Tree_<k>_Bark`` with the skinned mesh (glTF skins ignore a skinned node's own
-transform, so it stays at the root with none).
+Scene layout (y up, metres, as the USD scenes): one scene; for tree k a root node
+``Tree_<k>`` (the tree transform) holding the joint hierarchy, and a root node
+``Tree_<k>_Mesh`` with the skinned mesh (glTF skins ignore a skinned node's own transform, so
+it stays at the root with none). The meshes are those of the USD skinned form
+(:mod:`forest.usd.skinned`): the welded bark and the leaf cards, in the bind pose.
 """
 
 from __future__ import annotations
@@ -19,22 +20,23 @@ import pygltflib as gl
 
 from forest.atomic import replaced_when_written
 from forest.errors import LimitError, OutputError
-from forest.geometry.transforms import F64
+from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material, atlas_uv, make_atlas, read_slices, tile_folder
 from forest.gltf.buffer import Blob
-from forest.gltf.instancing import add_instanced_scene
-from forest.gltf.leaves import LeafLibrary, add_tree_clouds
+from forest.gltf.leaves import LeafMaterials
+from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
+from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest, foliage_or_none
-from forest.usd.skinned import joint_frames, tree_mesh, tree_slices
+from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 
 Progress = Callable[[str, int, int], None]
 MAX_VERTICES = 8_000_000  # baked bark vertices per file (4 per quad): about 450 MB of GLB
-_QUAD_TRIS = np.array([0, 1, 2, 0, 2, 3], np.uint32)
 
 
 def bark_vertices(forest: Forest) -> int:
-    """Vertices the baked bark meshes will have (4 per quad), counted before baking."""
+    """Vertices the baked bark meshes will have (4 per quad: every quad maps a whole tile, so
+    no quad shares a corner's UV with its neighbour), counted before baking."""
     quads = np.array([len(p.quads) for p in forest.pieces])
     return int(4 * quads[forest.graph.piece].sum())
 
@@ -50,43 +52,28 @@ def check_size(forest: Forest) -> None:
         )
 
 
-def _bark_primitive(
-    blob: Blob,
-    forest: Forest,
-    inst: slice,
-    bones: slice,
-    tree: int,
-    material: int,
-    n_slices: int,
-    tile_size: int,
-    still: F64,
-) -> gl.Primitive:
-    """The tree's bark in tree space as it stands (skinned with ``still``, the skins' bind
-    pose), one vertex per quad corner (each quad has its own tile UVs), two triangles per
-    quad."""
-    from forest.geometry.transforms import invert_similarity
+def bark_quads(
+    forest: Forest, inst: slice, bones: slice, to_tree: F64, still: F64, n_slices: int, size: int
+) -> SkinnedQuads:
+    """The tree's welded bark as the USD skinned form writes it (tree space, bind pose
+    ``still``, skinned to the tree's joints ``bones``), each quad's tile as atlas UVs."""
+    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still, weld=True)
+    return SkinnedQuads(pts, nrm, quads, jidx, jw, atlas_uv(st, n_slices, size))
 
-    to_tree = invert_similarity(forest.tree_transforms[tree])
-    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still)
-    corner = quads.ravel()
-    w = jw[corner]
-    w = w / w.sum(axis=1, keepdims=True)
-    j = np.where(w > 0, jidx[corner], 0)  # unused influences name joint 0
-    jtype = np.uint8 if bones.stop - bones.start <= 256 else np.uint16
-    tris = (np.arange(len(quads), dtype=np.uint32)[:, None] * 4 + _QUAD_TRIS).ravel()
-    attrs = gl.Attributes(
-        POSITION=blob.accessor(pts[corner].astype(np.float32), gl.ARRAY_BUFFER, bounds=True),
-        NORMAL=blob.accessor(nrm[corner].astype(np.float32), gl.ARRAY_BUFFER),
-        TEXCOORD_0=blob.accessor(atlas_uv(st, n_slices, tile_size).reshape(-1, 2), gl.ARRAY_BUFFER),
-        JOINTS_0=blob.accessor(j.astype(jtype), gl.ARRAY_BUFFER),
-        WEIGHTS_0=blob.accessor(w.astype(np.float32), gl.ARRAY_BUFFER),
-    )
-    index = tris.astype(np.uint16) if 4 * len(quads) <= 65536 else tris
-    return gl.Primitive(
-        attributes=attrs,
-        indices=blob.accessor(index, gl.ELEMENT_ARRAY_BUFFER),
-        material=material,
-    )
+
+def leaf_quads(
+    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64, still: F64
+) -> tuple[SkinnedQuads, F64] | None:
+    """The tree's leaf cards as the USD skinned form's Leaves mesh (each vertex on its
+    cloud's hub joint, weight 1) and their mean colour; None for a tree without clouds."""
+    leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still)
+    if leaves is None:
+        return None
+    pts, nrm, quads, st, joint, colour = leaves
+    # leaf_texture's row 0 is t = 0, as glTF's v = 0 is the image's top row: st as it is
+    uv = st.astype(np.float32)[quads]
+    mesh = SkinnedQuads(pts, nrm, quads, joint[:, None], np.ones((len(joint), 1)), uv)
+    return mesh, colour.astype(np.float64).mean(axis=0)
 
 
 def forest_gltf(
@@ -121,8 +108,7 @@ def forest_gltf(
     frames = joint_frames(forest)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
-    library = LeafLibrary(gltf, blob, anchors) if anchors is not None else None
-    anchor_tree = forest.graph.tree[anchors.instance] if anchors is not None else None
+    leaf_materials = LeafMaterials(gltf, blob, anchors.family) if anchors is not None else None
     skins: list[tuple[TreeSkin, slice]] = []
     slices_ = tree_slices(forest)
     if progress:
@@ -130,21 +116,23 @@ def forest_gltf(
     for k, (inst, bones) in enumerate(slices_):
         skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones)
         skins.append((skin, bones))
-        prim = _bark_primitive(
-            blob, forest, inst, bones, k, bark, len(slices), slices.shape[1], frames.still
-        )
-        gltf.meshes.append(gl.Mesh(name=f"Bark_{k:05d}", primitives=[prim]))
+        n_joints = bones.stop - bones.start
+        to_tree = invert_similarity(forest.tree_transforms[k])
+        mesh = bark_quads(forest, inst, bones, to_tree, frames.still, len(slices), slices.shape[1])
+        prims = [skinned_primitive(blob, mesh, n_joints, bark)]
+        if anchors is not None and leaf_materials is not None:
+            leaves = leaf_quads(forest, anchors, inst, bones, to_tree, frames.still)
+            if leaves is not None:
+                material = leaf_materials.tree_material(k, leaves[1])
+                prims.append(skinned_primitive(blob, leaves[0], n_joints, material))
+        gltf.meshes.append(gl.Mesh(name=f"Tree_{k:05d}", primitives=prims))
         gltf.nodes.append(
-            gl.Node(name=f"Tree_{k:05d}_Bark", mesh=len(gltf.meshes) - 1, skin=skin.skin)
+            gl.Node(name=f"Tree_{k:05d}_Mesh", mesh=len(gltf.meshes) - 1, skin=skin.skin)
         )
         gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
-        if anchors is not None and library is not None and anchor_tree is not None:
-            pick = np.flatnonzero(anchor_tree == k)
-            add_tree_clouds(gltf, library, forest, anchors, pick, k, skin, bones, pose)
         if progress:
             progress("glTF trees", k + 1, len(slices_))
     add_wind(gltf, blob, pose, skins)
-    add_instanced_scene(gltf, blob, forest, bark, len(slices), slices.shape[1])
     blob.finish()
     return gltf
 

@@ -1,5 +1,6 @@
 """Each tree's skeleton as glTF joint nodes, a skin (inverse bind matrices) and the wind as
-animation channels (translation, rotation and scale of every joint, time in seconds).
+animation channels (translation, rotation and scale of every joint whose keys change, time in
+seconds).
 
 The joints are those of the USD skinned form (:func:`forest.usd.skinned.joint_frames`): no
 scale in their frames, parent-first, the tree's root joint at identity under the tree's node,
@@ -122,27 +123,46 @@ def add_tree_skeleton(
     return TreeSkin(nodes, len(gltf.skins) - 1, inverse)
 
 
+# a joint's path is constant when no key leaves frame 0's by more than this (metres, unit
+# quaternion components, scale factors): below float32's step at a tree's size (about 1e-6
+# at 10 m), so the node's own TRS (frame 0) stands for every key
+CONSTANT_TOL = 1e-6
+
+
+def varying(keys: NDArray[np.float32]) -> NDArray[np.bool_]:
+    """``(b,)`` which joints' keys ``(f, b, c)`` change over the clip (beyond
+    :data:`CONSTANT_TOL`)."""
+    return np.abs(keys - keys[:1]).max(axis=(0, 2)) > CONSTANT_TOL
+
+
 def add_wind(gltf: gl.GLTF2, blob: Blob, pose: Pose, skins: list[tuple[TreeSkin, slice]]) -> None:
-    """One animation "Wind": a LINEAR sampler per joint and path, all reading one time
-    accessor; each path's keys of every joint lie in one buffer view (joint-major)."""
+    """One animation "Wind": a LINEAR sampler per joint and path whose keys change, all
+    reading one time accessor; a constant path gets no channel (its node keeps frame 0's
+    value, which is every frame's). Each path's kept keys lie in one buffer view
+    (joint-major)."""
     if pose.times is None:
         return
     times = blob.accessor(pose.times, bounds=True)
     anim = gl.Animation(name="Wind")
     f = len(pose.times)
+    # (global bone, its node) of every joint of every tree, in file order
+    bone = np.concatenate([np.arange(b.start, b.stop) for _, b in skins]).astype(np.intp)
+    node = [n for s, _ in skins for n in s.nodes]
     for path, keys in (("translation", pose.t), ("rotation", pose.q), ("scale", pose.s)):
-        joint_major = np.ascontiguousarray(np.swapaxes(keys, 0, 1))  # (b, f, c)
+        kept = np.flatnonzero(varying(keys[:, bone]))
+        if not len(kept):
+            continue
+        joint_major = np.ascontiguousarray(np.swapaxes(keys[:, bone[kept]], 0, 1))  # (k, f, c)
         view = blob.view(joint_major.tobytes())
         per_joint = f * keys.shape[2] * 4
-        for tree_skin, bones in skins:
-            for j, node in enumerate(tree_skin.nodes):
-                b = bones.start + j
-                out = blob.accessor(joint_major[b], view=view, offset=b * per_joint)
-                anim.samplers.append(gl.AnimationSampler(input=times, output=out))
-                anim.channels.append(
-                    gl.AnimationChannel(
-                        sampler=len(anim.samplers) - 1,
-                        target=gl.AnimationChannelTarget(node=node, path=path),
-                    )
+        for i, j in enumerate(kept):
+            out = blob.accessor(joint_major[i], view=view, offset=i * per_joint)
+            anim.samplers.append(gl.AnimationSampler(input=times, output=out))
+            anim.channels.append(
+                gl.AnimationChannel(
+                    sampler=len(anim.samplers) - 1,
+                    target=gl.AnimationChannelTarget(node=node[int(j)], path=path),
                 )
-    gltf.animations.append(anim)
+            )
+    if anim.channels:  # glTF asks for at least one channel
+        gltf.animations.append(anim)

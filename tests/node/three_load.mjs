@@ -51,14 +51,8 @@ gltf.scene.traverse((o) => {
     if (m.alphaTest > 0 && m.side === THREE.DoubleSide) cards += 1;
   }
 });
-// the second scene: the pieces as InstancedMesh (EXT_mesh_gpu_instancing)
-const instanced = [];
-for (const sc of gltf.scenes.slice(1)) {
-  sc.traverse((o) => { if (o.isInstancedMesh) instanced.push({ name: o.name, count: o.count }); });
-}
 const report = {
   scenes: gltf.scenes.map((s) => s.name),
-  instanced,
   skinned_meshes: skinned.map((m) => ({
     name: m.name,
     vertices: m.geometry.attributes.position.count,
