@@ -31,21 +31,27 @@ from forest.growth.generate import Forest, foliage_or_none
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 
 Progress = Callable[[str, int, int], None]
-MAX_VERTICES = 8_000_000  # baked bark vertices per file (4 per quad): about 450 MB of GLB
+MAX_VERTICES = 8_000_000  # baked vertices per file (bark and leaves): about 450 MB of GLB
 
 
-def bark_vertices(forest: Forest) -> int:
-    """Vertices the baked bark meshes will have (4 per quad: every quad maps a whole tile, so
-    no quad shares a corner's UV with its neighbour), counted before baking."""
+def baked_vertices(forest: Forest) -> int:
+    """Vertices the baked meshes will have, counted before baking: 4 per bark quad (every
+    quad maps a whole tile, so no quad shares a corner's UV with its neighbour) and every
+    leaf spray's own."""
     quads = np.array([len(p.quads) for p in forest.pieces])
-    return int(4 * quads[forest.graph.piece].sum())
+    n = int(4 * quads[forest.graph.piece].sum())
+    anchors = foliage_or_none(forest)
+    if anchors is not None:
+        per_model = np.array([len(c.positions) for c in anchors.models()])
+        n += int(per_model[anchors.model].sum())
+    return n
 
 
 def check_size(forest: Forest) -> None:
-    n = bark_vertices(forest)
+    n = baked_vertices(forest)
     if n > MAX_VERTICES:
         raise LimitError(
-            f"{forest.options.trees} trees bake to {n} bark vertices, over the glTF cap of "
+            f"{forest.options.trees} trees bake to {n} vertices, over the glTF cap of "
             f"{MAX_VERTICES}; use fewer trees (or USD, which instances the pieces)",
             path="trees",
             limit=MAX_VERTICES,
