@@ -10,9 +10,10 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from helpers_skin import skin_forest
+from helpers_skin import cut_palette, skin_forest
 
 from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.growth.presets import load_preset
 from forest.usd.skinned import tree_slices
 
@@ -30,8 +31,9 @@ def small_forest(frames: int = FRAMES) -> Forest:
 
 def expected_bark(forest: Forest, time: float | None) -> list[np.ndarray]:
     """Per tree ``(4 q, 3)``: every quad corner of the tree's pieces skinned with the forest's
-    palette at ``time`` (world space, y up), in the order the GLB's bark mesh holds them."""
-    pos, _ = skin_forest(forest, forest.palette(time))
+    palette at ``time`` as the skins' joints (GAME_JOINTS per tree) carry it (world space,
+    y up), in the order the GLB's bark mesh holds them."""
+    pos, _ = skin_forest(forest, cut_palette(forest, forest.palette(time), GAME_JOINTS))
     out = []
     for inst, _bones in tree_slices(forest):
         points, quads, base = [], [], 0

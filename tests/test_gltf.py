@@ -21,6 +21,7 @@ from forest.gltf import document
 from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
 from forest.growth.generate import Forest
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.usd.materials import tile_udim_st
 from forest.usd.skinned import tree_slices
 
@@ -45,11 +46,11 @@ def test_same_forest_same_bytes(forest: Forest, tmp_path: Path) -> None:
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.glb", "b.glb"]  # nothing else
 
 
-def test_one_skin_per_tree_with_every_bone(forest: Forest, doc: gl.GLTF2) -> None:
+def test_one_skin_per_tree_with_its_kept_joints(forest: Forest, doc: gl.GLTF2) -> None:
     assert len(doc.skins) == TREES
-    slices = tree_slices(forest)
+    slices = tree_slices(forest, GAME_JOINTS)
     for skin, (_inst, bones) in zip(doc.skins, slices, strict=True):
-        assert len(skin.joints) == bones.stop - bones.start
+        assert len(skin.joints) == bones.stop - bones.start == GAME_JOINTS  # an almond has more
         assert skin.skeleton == skin.joints[0]
         # joints are parent-first: each joint's parent joint comes earlier
         parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
@@ -63,6 +64,7 @@ def test_one_skin_per_tree_with_every_bone(forest: Forest, doc: gl.GLTF2) -> Non
     prim = doc.meshes[bark[0].mesh].primitives[0]
     for attr in ("POSITION", "NORMAL", "TEXCOORD_0", "JOINTS_0", "WEIGHTS_0"):
         assert getattr(prim.attributes, attr) is not None, attr
+    assert doc.accessors[prim.attributes.JOINTS_0].componentType == gl.UNSIGNED_BYTE
 
 
 def test_wind_animation_in_seconds(forest: Forest, doc: gl.GLTF2) -> None:

@@ -26,6 +26,7 @@ from forest.gltf.instancing import add_instanced_scene
 from forest.gltf.leaves import LeafLibrary, add_tree_clouds
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.generate import Forest, foliage_or_none
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.usd.skinned import joint_frames, tree_mesh, tree_slices
 
 Progress = Callable[[str, int, int], None]
@@ -60,6 +61,7 @@ def _bark_primitive(
     n_slices: int,
     tile_size: int,
     still: F64,
+    budget: int | None,
 ) -> gl.Primitive:
     """The tree's bark in tree space as it stands (skinned with ``still``, the skins' bind
     pose), one vertex per quad corner (each quad has its own tile UVs), two triangles per
@@ -67,7 +69,7 @@ def _bark_primitive(
     from forest.geometry.transforms import invert_similarity
 
     to_tree = invert_similarity(forest.tree_transforms[tree])
-    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still)
+    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still, budget=budget)
     corner = quads.ravel()
     w = jw[corner]
     w = w / w.sum(axis=1, keepdims=True)
@@ -90,11 +92,15 @@ def _bark_primitive(
 
 
 def forest_gltf(
-    forest: Forest, tiles: Path | None = None, progress: Progress | None = None
+    forest: Forest,
+    tiles: Path | None = None,
+    progress: Progress | None = None,
+    joint_budget: int | None = GAME_JOINTS,
 ) -> gl.GLTF2:
     """The forest as a glTF document with its binary blob set. ``tiles``: a tile-set folder
     whose ``bark.<UDIM>.png`` make the atlas, instead of the shipped set of the grammar's
-    ``bark``."""
+    ``bark``. ``joint_budget``: joints per tree's skin (:mod:`forest.growth.joint_budget`),
+    None for one per bone."""
     check_size(forest)
     opts = forest.options
     gltf = gl.GLTF2(
@@ -118,20 +124,29 @@ def forest_gltf(
     blob = Blob(gltf)
     slices = read_slices(tile_folder(forest.grammar.bark, tiles), forest.manifest.n_slices)
     bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
-    frames = joint_frames(forest)
+    frames = joint_frames(forest, joint_budget)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
     library = LeafLibrary(gltf, blob, anchors) if anchors is not None else None
     anchor_tree = forest.graph.tree[anchors.instance] if anchors is not None else None
     skins: list[tuple[TreeSkin, slice]] = []
-    slices_ = tree_slices(forest)
+    slices_ = tree_slices(forest, joint_budget)
     if progress:
         progress("glTF trees", 0, len(slices_))
     for k, (inst, bones) in enumerate(slices_):
-        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones)
+        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones, joint_budget)
         skins.append((skin, bones))
         prim = _bark_primitive(
-            blob, forest, inst, bones, k, bark, len(slices), slices.shape[1], frames.still
+            blob,
+            forest,
+            inst,
+            bones,
+            k,
+            bark,
+            len(slices),
+            slices.shape[1],
+            frames.still,
+            joint_budget,
         )
         gltf.meshes.append(gl.Mesh(name=f"Bark_{k:05d}", primitives=[prim]))
         gltf.nodes.append(
@@ -140,7 +155,9 @@ def forest_gltf(
         gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
         if anchors is not None and library is not None and anchor_tree is not None:
             pick = np.flatnonzero(anchor_tree == k)
-            add_tree_clouds(gltf, library, forest, anchors, pick, k, skin, bones, pose)
+            add_tree_clouds(
+                gltf, library, forest, anchors, pick, k, skin, bones, pose, joint_budget
+            )
         if progress:
             progress("glTF trees", k + 1, len(slices_))
     add_wind(gltf, blob, pose, skins)

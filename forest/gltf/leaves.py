@@ -113,14 +113,15 @@ def add_tree_clouds(
     skin: TreeSkin,
     bones: slice,
     pose: Pose,
+    budget: int | None = None,
 ) -> None:
     """The clouds ``pick`` (indices into ``anchors``) of one tree as child nodes of their
-    hub joints."""
+    hubs' joints (of the joint ``budget``, as ``skin``)."""
     if len(pick) == 0:
         return
     colour = anchors.color[pick].astype(np.float64).mean(axis=0)
     meshes = library.tree_meshes(tree, colour, {int(m) for m in anchors.model[pick]})
-    dcc = dcc_joints(forest)
+    dcc = dcc_joints(forest, budget)
     joint = dcc.of_bone[anchors.bone[pick]] - bones.start
     # the joints' world frames at the first sample: the nodes' own TRS composed down the tree
     s = pose.s[0, bones]
