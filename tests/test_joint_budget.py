@@ -116,8 +116,16 @@ def _stage(forest: Forest, path: Path, budget: int | None) -> Usd.Stage:
 def test_usd_skeleton_is_cut_to_the_dcc_budget(big: Forest, tmp_path: Path) -> None:
     stage = Usd.Stage.Open(str(write_scene(big, tmp_path / "f.usdc", skinned=True)))
     for k in range(big.options.trees):
-        skel = UsdSkel.Skeleton(stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}/Skeleton"))
-        assert len(skel.GetJointsAttr().Get()) == DCC_JOINTS
+        tree = stage.GetPrimAtPath(f"/World/Forest/Trees/Tree_{k:05d}")
+        skel = UsdSkel.Skeleton(tree.GetChild("Skeleton"))
+        joints = skel.GetJointsAttr().Get()
+        assert len(joints) == DCC_JOINTS
+        anim = UsdSkel.Animation(tree.GetChild("Skeleton").GetChild("Wind"))
+        assert list(anim.GetJointsAttr().Get()) == list(joints)
+        # the animation, and the extents that follow it, on every frame
+        for prim in (skel, UsdSkel.Root(tree)):
+            assert prim.GetExtentAttr().GetNumTimeSamples() == big.options.frames
+        assert anim.GetRotationsAttr().GetNumTimeSamples() == big.options.frames
 
 
 def test_still_tree_equals_the_full_rig_and_wind_moves_it(tmp_path: Path) -> None:
