@@ -63,7 +63,8 @@ class DccJoints:
 
     bone : (k,) the generator's bone of each joint (ascending: trees stay contiguous)
     parent : (k,) parent joint, -1 at a tree's root
-    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's)
+    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's; with a joint
+        budget, a dropped bone: the nearest kept joint above it)
     via : (k,) the left-out root between a joint and its parent terminal, else -1
     """
 
