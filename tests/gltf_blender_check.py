@@ -1,8 +1,8 @@
 """Import a .glb with Blender's glTF importer (run by .venv-blender's python, see
 tests/test_gltf_blender.py) and report what Blender made: armatures, skinned meshes, actions
 and their frame ranges, images and the materials that read them, the mesh objects, the import's
-seconds, and the world-space deformed vertices of every skinned mesh at the frames asked for (glTF's y-up
-axes, so they compare with the library's skinning directly).
+seconds, and the world-space deformed vertices of every skinned mesh at the frames asked for
+(glTF's y-up axes, so they compare with the library's skinning directly).
 
     python gltf_blender_check.py FOREST.glb --frames 0,3 --points-out PTS.npz --json-out R.json
 """

@@ -12,10 +12,11 @@ from typing import Any
 
 import numpy as np
 import pygltflib as gl
-from helpers_skin import skin_forest
+from helpers_skin import cut_palette, skin_forest
 
 from forest.geometry.transforms import compose_similarity, invert_similarity
 from forest.growth.generate import Forest, ForestOptions, foliage_or_none, generate_forest
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.growth.presets import load_preset
 from forest.usd.skinned import dcc_joints, joint_frames, leaves_mesh, tree_slices
 
@@ -33,8 +34,9 @@ def small_forest(frames: int = FRAMES) -> Forest:
 
 def expected_bark(forest: Forest, time: float | None) -> list[np.ndarray]:
     """Per tree ``(4 q, 3)``: every quad corner of the tree's pieces skinned with the forest's
-    palette at ``time`` (world space, y up), in the order the GLB's bark mesh holds them."""
-    pos, _ = skin_forest(forest, forest.palette(time))
+    palette at ``time`` as the skins' joints (GAME_JOINTS per tree) carry it (world space,
+    y up), in the order the GLB's bark mesh holds them."""
+    pos, _ = skin_forest(forest, cut_palette(forest, forest.palette(time), GAME_JOINTS))
     out = []
     for inst, _bones in tree_slices(forest):
         points, quads, base = [], [], 0
@@ -86,9 +88,9 @@ def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[lis
     pal = forest.palette(time)
     still = joint_frames(forest).still
     anchors = foliage_or_none(forest)
-    dcc = dcc_joints(forest)
+    dcc = dcc_joints(forest, GAME_JOINTS)
     out = []
-    for k, (inst, bones) in enumerate(tree_slices(forest)):
+    for k, (inst, bones) in enumerate(tree_slices(forest, GAME_JOINTS)):
         mesh = doc.meshes[k]
         corners = quad_corners(doc, mesh.primitives[0])
         want = np.empty((int(corners.max()) + 1, 3))
@@ -96,11 +98,11 @@ def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[lis
         prims = [want]
         if anchors is not None and len(mesh.primitives) > 1:
             to_tree = invert_similarity(forest.tree_transforms[k])
-            leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still)
+            leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still, GAME_JOINTS)
             assert leaves is not None
             pts, joint = leaves[0], leaves[4]
             bone = dcc.bone[joint + bones.start]
-            # the hub bone's motion from the standing tree (still) to ``time``
+            # the hub's kept joint's motion from the standing tree (still) to ``time``
             move = pal[bone] @ np.linalg.inv(still[bone]) @ forest.tree_transforms[k]
             prims.append(np.einsum("vij,vj->vi", move[:, :3, :3], pts) + move[:, :3, 3])
         out.append(prims)

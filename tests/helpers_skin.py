@@ -13,6 +13,7 @@ from pxr import Usd, UsdGeom, UsdSkel, Vt
 
 from forest.geometry.pieces import PieceArrays
 from forest.growth.generate import Forest
+from forest.usd.skinned import dcc_joints
 
 F64 = NDArray[np.float64]
 
@@ -64,6 +65,16 @@ def skin_forest(forest: Forest, palette: F64) -> tuple[list[F64], list[F64]]:
             pos[i] = p[k]
             nrm[i] = q[k]
     return pos, nrm
+
+
+def cut_palette(forest: Forest, palette: F64, budget: int | None) -> F64:
+    """``palette`` as the skinned forms with ``budget`` joints per tree apply it: every bone
+    moves from the still pose as its kept joint does (``P_k(t) P_k(still)^-1 P_b(still)``,
+    ``k`` the joint's bone), so a dropped bone's piece follows its kept ancestor rigidly."""
+    dcc = dcc_joints(forest, budget)
+    still = forest.palette()
+    kept = dcc.bone[dcc.of_bone]
+    return palette[kept] @ np.linalg.inv(still[kept]) @ still
 
 
 def bbox_diagonal(points: F64) -> float:

@@ -35,6 +35,7 @@ from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
 from forest.gltf.skin import CONSTANT_TOL, sample_pose
 from forest.growth.generate import Forest
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.usd.materials import tile_udim_st
 from forest.usd.scene import write_scene
 from forest.usd.skinned import joint_frames, tree_mesh, tree_slices
@@ -64,10 +65,10 @@ def test_one_scene_one_skinned_mesh_per_tree(forest: Forest, doc: gl.GLTF2) -> N
     assert doc.scene == 0 and len(doc.scenes) == 1
     assert not doc.extensionsUsed and not doc.extensionsRequired
     assert len(doc.skins) == TREES and len(doc.meshes) == TREES
-    slices = tree_slices(forest)
+    slices = tree_slices(forest, GAME_JOINTS)
     parent_of = {c: i for i, n in enumerate(doc.nodes) for c in n.children}
     for skin, (_inst, bones) in zip(doc.skins, slices, strict=True):
-        assert len(skin.joints) == bones.stop - bones.start
+        assert len(skin.joints) == bones.stop - bones.start == GAME_JOINTS  # an almond has more
         assert skin.skeleton == skin.joints[0]
         # joints are parent-first: each joint's parent joint comes earlier
         index = {n: j for j, n in enumerate(skin.joints)}
@@ -84,6 +85,7 @@ def test_one_scene_one_skinned_mesh_per_tree(forest: Forest, doc: gl.GLTF2) -> N
         for prim in (bark, leaves):
             for attr in ("POSITION", "NORMAL", "TEXCOORD_0", "JOINTS_0", "WEIGHTS_0"):
                 assert getattr(prim.attributes, attr) is not None, attr
+        assert doc.accessors[bark.attributes.JOINTS_0].componentType == gl.UNSIGNED_BYTE
 
 
 def test_wind_animation_drops_constant_channels(forest: Forest, doc: gl.GLTF2) -> None:
@@ -94,12 +96,12 @@ def test_wind_animation_drops_constant_channels(forest: Forest, doc: gl.GLTF2) -
     times = doc.accessors[anim.samplers[0].input]
     assert times.count == FRAMES
     assert times.min == [0.0] and times.max[0] == pytest.approx((FRAMES - 1) / FPS)
-    pose = sample_pose(forest, joint_frames(forest))
+    pose = sample_pose(forest, joint_frames(forest, GAME_JOINTS))
     targeted = {(c.target.node, c.target.path) for c in anim.channels}
     assert {p for _, p in targeted} == {"rotation"}  # wind turns joints; roots stay still
     default = {"translation": [0.0] * 3, "rotation": [0.0, 0.0, 0.0, 1.0], "scale": [1.0] * 3}
     kept = 0
-    for skin, (_inst, bones) in zip(doc.skins, tree_slices(forest), strict=True):
+    for skin, (_inst, bones) in zip(doc.skins, tree_slices(forest, GAME_JOINTS), strict=True):
         for j, node in enumerate(skin.joints):
             b = bones.start + j
             for path, keys in (("translation", pose.t), ("rotation", pose.q), ("scale", pose.s)):
@@ -137,10 +139,12 @@ def test_bark_and_leaf_materials(forest: Forest, doc: gl.GLTF2) -> None:
 def test_bark_is_welded_as_in_usd(forest: Forest, doc: gl.GLTF2) -> None:
     """The bark's points and normals are the USD skinned form's welded ones: a vertex splits
     only where its corners' UVs differ, and corners at one welded point share its normal."""
-    inst, bones = tree_slices(forest)[0]
+    inst, bones = tree_slices(forest, GAME_JOINTS)[0]
     still = joint_frames(forest).still
     to_tree = np.linalg.inv(forest.tree_transforms[0])
-    pts, nrm, quads, *_ = tree_mesh(forest, inst, bones, to_tree, still, weld=True)
+    pts, nrm, quads, *_ = tree_mesh(
+        forest, inst, bones, to_tree, still, weld=True, budget=GAME_JOINTS
+    )
     prim = doc.meshes[0].primitives[0]
     p, n = read(doc, prim.attributes.POSITION), read(doc, prim.attributes.NORMAL)
     uv = read(doc, prim.attributes.TEXCOORD_0)
@@ -172,8 +176,10 @@ def test_file_skinning_is_the_librarys(forest: Forest, doc: gl.GLTF2) -> None:
 def test_surface_equals_the_usd_skinned_form(forest: Forest, doc: gl.GLTF2, tmp_path: Path) -> None:
     """Every corner of bark and leaves, skinned by glTF's rules from the file, is where USD's
     own skinning (UsdSkel) of the skinned form's Bark and Leaves puts that corner, at three
-    frames, within 1e-6 of the tree's height (float32 points in both; measured 4e-7)."""
-    stage = Usd.Stage.Open(str(write_scene(forest, tmp_path / "f.usdc", skinned=True)))
+    frames, within 1e-6 of the tree's height (float32 points in both; measured 4e-7). Both
+    forms on the same joints: the game's budget."""
+    usd = write_scene(forest, tmp_path / "f.usdc", skinned=True, joint_budget=GAME_JOINTS)
+    stage = Usd.Stage.Open(str(usd))
     nodes = [i for i, n in enumerate(doc.nodes) if n.skin is not None]
     for frame in (0, 3, FRAMES - 1):
         for k, node in enumerate(nodes):

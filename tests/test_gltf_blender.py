@@ -74,9 +74,10 @@ def test_one_armature_per_tree_with_the_wind_action(blender_run: Run) -> None:
 
 
 def _slices(forest: Forest) -> list[tuple[slice, slice]]:
+    from forest.growth.joint_budget import GAME_JOINTS
     from forest.usd.skinned import tree_slices
 
-    return tree_slices(forest)
+    return tree_slices(forest, GAME_JOINTS)
 
 
 def test_textures_are_packed_and_used(blender_run: Run) -> None:

@@ -28,6 +28,7 @@ from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest, foliage_or_none
+from forest.growth.joint_budget import GAME_JOINTS
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 
 Progress = Callable[[str, int, int], None]
@@ -59,20 +60,35 @@ def check_size(forest: Forest) -> None:
 
 
 def bark_quads(
-    forest: Forest, inst: slice, bones: slice, to_tree: F64, still: F64, n_slices: int, size: int
+    forest: Forest,
+    inst: slice,
+    bones: slice,
+    to_tree: F64,
+    still: F64,
+    n_slices: int,
+    size: int,
+    budget: int | None = None,
 ) -> SkinnedQuads:
     """The tree's welded bark as the USD skinned form writes it (tree space, bind pose
     ``still``, skinned to the tree's joints ``bones``), each quad's tile as atlas UVs."""
-    pts, nrm, quads, jidx, jw, st = tree_mesh(forest, inst, bones, to_tree, still, weld=True)
+    pts, nrm, quads, jidx, jw, st = tree_mesh(
+        forest, inst, bones, to_tree, still, weld=True, budget=budget
+    )
     return SkinnedQuads(pts, nrm, quads, jidx, jw, atlas_uv(st, n_slices, size))
 
 
 def leaf_quads(
-    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64, still: F64
+    forest: Forest,
+    anchors: FoliageAnchors,
+    inst: slice,
+    bones: slice,
+    to_tree: F64,
+    still: F64,
+    budget: int | None = None,
 ) -> tuple[SkinnedQuads, F64] | None:
     """The tree's leaf cards as the USD skinned form's Leaves mesh (each vertex on its
     cloud's hub joint, weight 1) and their mean colour; None for a tree without clouds."""
-    leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still)
+    leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still, budget)
     if leaves is None:
         return None
     pts, nrm, quads, st, joint, colour = leaves
@@ -83,11 +99,15 @@ def leaf_quads(
 
 
 def forest_gltf(
-    forest: Forest, tiles: Path | None = None, progress: Progress | None = None
+    forest: Forest,
+    tiles: Path | None = None,
+    progress: Progress | None = None,
+    joint_budget: int | None = GAME_JOINTS,
 ) -> gl.GLTF2:
     """The forest as a glTF document with its binary blob set. ``tiles``: a tile-set folder
     whose ``bark.<UDIM>.png`` make the atlas, instead of the shipped set of the grammar's
-    ``bark``."""
+    ``bark``. ``joint_budget``: joints per tree's skin (:mod:`forest.growth.joint_budget`),
+    None for one per bone."""
     check_size(forest)
     opts = forest.options
     gltf = gl.GLTF2(
@@ -111,23 +131,25 @@ def forest_gltf(
     blob = Blob(gltf)
     slices = read_slices(tile_folder(forest.grammar.bark, tiles), forest.manifest.n_slices)
     bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
-    frames = joint_frames(forest)
+    frames = joint_frames(forest, joint_budget)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
     leaf_materials = LeafMaterials(gltf, blob, anchors.family) if anchors is not None else None
     skins: list[tuple[TreeSkin, slice]] = []
-    slices_ = tree_slices(forest)
+    slices_ = tree_slices(forest, joint_budget)
     if progress:
         progress("glTF trees", 0, len(slices_))
     for k, (inst, bones) in enumerate(slices_):
-        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones)
+        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones, joint_budget)
         skins.append((skin, bones))
         n_joints = bones.stop - bones.start
         to_tree = invert_similarity(forest.tree_transforms[k])
-        mesh = bark_quads(forest, inst, bones, to_tree, frames.still, len(slices), slices.shape[1])
+        mesh = bark_quads(
+            forest, inst, bones, to_tree, frames.still, len(slices), slices.shape[1], joint_budget
+        )
         prims = [skinned_primitive(blob, mesh, n_joints, bark)]
         if anchors is not None and leaf_materials is not None:
-            leaves = leaf_quads(forest, anchors, inst, bones, to_tree, frames.still)
+            leaves = leaf_quads(forest, anchors, inst, bones, to_tree, frames.still, joint_budget)
             if leaves is not None:
                 material = leaf_materials.tree_material(k, leaves[1])
                 prims.append(skinned_primitive(blob, leaves[0], n_joints, material))

@@ -97,10 +97,12 @@ def add_tree_skeleton(
     tree: int,
     inst: slice,
     bones: slice,
+    budget: int | None = None,
 ) -> TreeSkin:
     """The tree's node (tree transform) with its joint hierarchy under it, posed at the first
-    sample, and its skin. Appends the tree node to the default scene."""
-    names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones)]
+    sample, and its skin (``frames`` and ``bones`` of the joint ``budget``). Appends the tree
+    node to the default scene."""
+    names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones, budget)]
     parent = frames.joints.parent[bones] - bones.start
     first = len(gltf.nodes)
     tree_node = gl.Node(name=f"Tree_{tree:05d}", **trs(forest.tree_transforms[tree]))

@@ -14,6 +14,7 @@ from pxr import Sdf, Usd
 
 from forest.geometry.transforms import F64
 from forest.growth.generate import Forest, foliage_or_none
+from forest.growth.joint_budget import DCC_JOINTS
 from forest.usd.contract import (
     ENGINE,
     FOLIAGE,
@@ -99,6 +100,7 @@ def write_scene(
     skinned: bool | None = None,
     tiles: str | None = None,
     progress: Progress | None = None,
+    joint_budget: int | None = DCC_JOINTS,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
 
@@ -106,7 +108,8 @@ def write_scene(
     posed and engine representations, None (default) decides by size: skinned for up to
     :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces. A .usdz always
     carries the skinned trees and composes them by default (ARKit allows no PointInstancer),
-    so ``skinned`` is implied there."""
+    so ``skinned`` is implied there. ``joint_budget``: the skinned trees' joints per tree
+    (:mod:`forest.growth.joint_budget`), None for one per bone."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
     stage, tmp = new_stage_layer(out)
@@ -135,7 +138,9 @@ def write_scene(
 
             vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
             with Usd.EditContext(stage, targets[SKINNED]):
-                write_skinned_trees(stage, forest, material, anchors, progress, leaf_file)
+                write_skinned_trees(
+                    stage, forest, material, anchors, progress, leaf_file, joint_budget
+                )
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
                     if stage.GetPrimAtPath(where):

@@ -31,6 +31,7 @@ from forest.geometry.transforms import (
 from forest.geometry.weld import close_pairs, weld_labels
 from forest.growth.foliage import FoliageAnchors, anchor_positions
 from forest.growth.generate import Forest
+from forest.growth.joint_budget import DCC_JOINTS, keep_joints, merge_influences, nearest_kept
 from forest.usd.contract import (
     ASSET_SEED,
     ASSET_TREE,
@@ -62,7 +63,8 @@ class DccJoints:
 
     bone : (k,) the generator's bone of each joint (ascending: trees stay contiguous)
     parent : (k,) parent joint, -1 at a tree's root
-    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's)
+    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's; with a joint
+        budget, a dropped bone: the nearest kept joint above it)
     via : (k,) the left-out root between a joint and its parent terminal, else -1
     """
 
@@ -83,39 +85,65 @@ class DccJoints:
         return out
 
 
-_JOINTS: WeakKeyDictionary[Forest, DccJoints] = WeakKeyDictionary()
+_JOINTS: WeakKeyDictionary[Forest, dict[int | None, DccJoints]] = WeakKeyDictionary()
 
 
-def dcc_joints(forest: Forest) -> DccJoints:
-    """The forest's :class:`DccJoints` (made once per forest)."""
-    if forest not in _JOINTS:
-        b, g = forest.bones, forest.graph
-        left_out = np.zeros(len(b), bool)
-        left_out[b.offset[g.parent >= 0]] = True
-        bone = np.flatnonzero(~left_out)
-        index = np.full(len(b), -1, np.intp)
-        index[bone] = np.arange(len(bone))
-        up = b.parent[bone].astype(np.intp)
-        via = np.where((up >= 0) & left_out[np.maximum(up, 0)], up, -1)
-        up = np.where(via >= 0, b.parent[np.maximum(via, 0)], up)
-        of_bone = index.copy()
-        of_bone[left_out] = index[b.parent[left_out]]
-        _JOINTS[forest] = DccJoints(
-            bone=bone,
-            parent=np.where(up >= 0, index[np.maximum(up, 0)], -1),
-            of_bone=of_bone,
-            via=via,
-        )
-    return _JOINTS[forest]
+def dcc_joints(forest: Forest, budget: int | None = None) -> DccJoints:
+    """The forest's :class:`DccJoints` (made once per forest and budget): every bone but the
+    hung roots, or with ``budget`` at most that many per tree, those of the longest reach
+    (:mod:`forest.growth.joint_budget`); a dropped bone's ``of_bone`` is then its nearest kept
+    joint above it."""
+    made = _JOINTS.setdefault(forest, {})
+    if budget not in made:
+        made[budget] = _all_joints(forest) if budget is None else _cut(forest, budget)
+    return made[budget]
 
 
-def tree_slices(forest: Forest) -> list[tuple[slice, slice]]:
-    """Per tree: its instance range and its range of :func:`dcc_joints` (both contiguous,
-    tree-major)."""
+def _all_joints(forest: Forest) -> DccJoints:
+    b, g = forest.bones, forest.graph
+    left_out = np.zeros(len(b), bool)
+    left_out[b.offset[g.parent >= 0]] = True
+    bone = np.flatnonzero(~left_out)
+    index = np.full(len(b), -1, np.intp)
+    index[bone] = np.arange(len(bone))
+    up = b.parent[bone].astype(np.intp)
+    via = np.where((up >= 0) & left_out[np.maximum(up, 0)], up, -1)
+    up = np.where(via >= 0, b.parent[np.maximum(via, 0)], up)
+    of_bone = index.copy()
+    of_bone[left_out] = index[b.parent[left_out]]
+    return DccJoints(
+        bone=bone,
+        parent=np.where(up >= 0, index[np.maximum(up, 0)], -1),
+        of_bone=of_bone,
+        via=via,
+    )
+
+
+def _cut(forest: Forest, budget: int) -> DccJoints:
+    """The joints of :func:`_all_joints` cut to ``budget`` per tree. The kept set is closed
+    under parents, so a kept joint's parent and the left-out root between them (``via``) are
+    those it had: its local transforms are unchanged."""
+    full = dcc_joints(forest)
+    position = _bind_transforms(forest, forest.palette())[full.bone, :3, 3]
+    tree = forest.graph.tree[forest.bones.instance[full.bone]]
+    keep = keep_joints(full.parent, tree, position, budget)
+    index = np.cumsum(keep) - 1
+    return DccJoints(
+        bone=full.bone[keep],
+        parent=np.where(full.parent[keep] >= 0, index[full.parent[keep]], -1),
+        of_bone=index[nearest_kept(full.parent, keep)[full.of_bone]],
+        via=full.via[keep],
+    )
+
+
+def tree_slices(forest: Forest, budget: int | None = None) -> list[tuple[slice, slice]]:
+    """Per tree: its instance range and its range of :func:`dcc_joints` ``(forest, budget)``
+    (both contiguous, tree-major)."""
     tree = forest.graph.tree
     starts = np.searchsorted(tree, np.arange(forest.options.trees + 1))
-    first = dcc_joints(forest).of_bone[forest.bones.offset]  # each instance's root's joint
-    n_joints = len(dcc_joints(forest))
+    dcc = dcc_joints(forest, budget)
+    first = dcc.of_bone[forest.bones.offset]  # each instance's root's joint
+    n_joints = len(dcc)
     n = len(first)
     out = []
     for i in range(forest.options.trees):
@@ -124,9 +152,9 @@ def tree_slices(forest: Forest) -> list[tuple[slice, slice]]:
     return out
 
 
-def joint_paths(forest: Forest, inst: slice, joints: slice) -> list[str]:
+def joint_paths(forest: Forest, inst: slice, joints: slice, budget: int | None = None) -> list[str]:
     """UsdSkel joint paths (parent-first) of one tree's joints (:func:`dcc_joints`)."""
-    dcc = dcc_joints(forest)
+    dcc = dcc_joints(forest, budget)
     parent = dcc.parent[joints] - joints.start
     bone = dcc.bone[joints]
     joint = forest.bones.joint[bone]
@@ -148,12 +176,19 @@ WELD_TOL = 1e-6  # metres: rims coincide at rest to rounding, far below any vert
 
 
 def tree_mesh(
-    forest: Forest, inst: slice, bones: slice, to_tree: F64, still: F64, weld: bool = False
+    forest: Forest,
+    inst: slice,
+    bones: slice,
+    to_tree: F64,
+    still: F64,
+    weld: bool = False,
+    budget: int | None = None,
 ) -> tuple[F64, F64, NDArray[np.int32], NDArray[np.int32], F64, F64]:
     """One tree's pieces in tree space as the tree stands (skinned with ``still``, the posed,
     windless palette: the skinned forms' bind pose, :attr:`JointFrames.still`): points,
     normals, quads, joint indices (into the tree's joints ``bones``, a range of
-    :func:`dcc_joints`), joint weights and ``(q, 4, 2)``
+    :func:`dcc_joints` ``(forest, budget)``; a vertex names each joint once), joint weights
+    and ``(q, 4, 2)``
     faceVarying UDIM st. With ``weld``, rims of joined pieces (which coincide posed and are
     skinned alike) share vertices (the first piece's skin) with averaged normals: no crease
     at a seam."""
@@ -175,7 +210,10 @@ def tree_mesh(
     pts = [np.einsum("vij,vj->vi", lin, np.concatenate(model)) + blend[:, :3, 3]]
     n = np.einsum("vji,vj->vi", np.linalg.inv(lin), np.concatenate(model_n))
     nrm = [n / np.linalg.norm(n, axis=1, keepdims=True)]
-    jidx, jw = [dcc_joints(forest).of_bone[bone_all] - bones.start], [weights]
+    jidx_all, weights = merge_influences(
+        dcc_joints(forest, budget).of_bone[bone_all] - bones.start, weights
+    )
+    jidx, jw = [jidx_all], [weights]
     if not weld:
         return (
             np.concatenate(pts),
@@ -208,17 +246,24 @@ def tree_mesh(
 
 
 def leaves_mesh(
-    forest: Forest, anchors: FoliageAnchors, inst: slice, bones: slice, to_tree: F64, still: F64
+    forest: Forest,
+    anchors: FoliageAnchors,
+    inst: slice,
+    bones: slice,
+    to_tree: F64,
+    still: F64,
+    budget: int | None = None,
 ) -> tuple[F64, F64, NDArray[np.int32], F64, NDArray[np.int32], NDArray[np.float32]] | None:
     """One tree's leaf clouds as one mesh in tree space as the tree stands (each cloud model
     turned by its yaw, scaled by its size, at its centre on ``still``, the posed, windless
     palette): points, normals, quads,
-    vertex st, the tree-local joint of each vertex (its cloud's hub bone; rigid, weight 1)
+    vertex st, the tree-local joint of each vertex (its cloud's hub bone's joint of
+    :func:`dcc_joints` ``(forest, budget)``; rigid, weight 1)
     and per-face colour. None when the tree bears no clouds."""
     sel = np.flatnonzero((anchors.instance >= inst.start) & (anchors.instance < inst.stop))
     if not len(sel):
         return None
-    of_bone = dcc_joints(forest).of_bone
+    of_bone = dcc_joints(forest, budget).of_bone
     models = anchors.models()
     centre = anchor_positions(still, anchors.bone[sel], anchors.rest[sel])
     pts, nrm, quads, st, joint, colour = [], [], [], [], [], []
@@ -349,25 +394,28 @@ def write_skinned_trees(
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
     leaf_file: str | None = None,
+    joint_budget: int | None = DCC_JOINTS,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
-    (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
+    (Leaves, each cloud bound rigidly to its hub's joint; cut to leaves by ``leaf_file``,
     see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
-    prim whose points or joints move."""
+    prim whose points or joints move. ``joint_budget``: joints per tree
+    (:mod:`forest.growth.joint_budget`; twigs move rigidly with their limb's joint), None
+    for one joint per bone."""
     if progress:  # the joint frames first, then a tree of a big species takes seconds
         progress("skinned trees", 0, forest.options.trees)
     trees = UsdGeom.Xform.Define(stage, TREES)
     Usd.ModelAPI(trees).SetKind(Kind.Tokens.group)
     times = forest.frame_times()
-    frames_of = joint_frames(forest)
+    frames_of = joint_frames(forest, joint_budget)
     binds = frames_of.binds
     # a still forest's pose is one sample at time 0: DCC importers read only samples
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
     codes = [Usd.TimeCode(0.0) if t is None else time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
     leaf_materials = None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
-    slices = tree_slices(forest)
+    slices = tree_slices(forest, joint_budget)
     for k, (inst, bones) in enumerate(slices):
         path = f"{TREES}/{tree_name(k)}"
         root = UsdSkel.Root.Define(stage, path)
@@ -381,7 +429,7 @@ def write_skinned_trees(
         root.AddTransformOp().Set(Gf.Matrix4d(m_tree.T.tolist()))
         to_tree = invert_similarity(m_tree)
         skel = UsdSkel.Skeleton.Define(stage, f"{path}/{SKELETON}")
-        joints = joint_paths(forest, inst, bones)
+        joints = joint_paths(forest, inst, bones, joint_budget)
         skel.CreateJointsAttr(joints)
         skel.CreateBindTransformsAttr(row_major(binds[bones]))
         skel.CreateRestTransformsAttr(
@@ -401,7 +449,7 @@ def write_skinned_trees(
             [anim.GetPath()]
         )
         pts, nrm, quads, jidx, jw, st = tree_mesh(
-            forest, inst, bones, to_tree, frames_of.still, weld=True
+            forest, inst, bones, to_tree, frames_of.still, weld=True, budget=joint_budget
         )
         mesh = _mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
         _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
@@ -412,7 +460,7 @@ def write_skinned_trees(
         leaves = (
             None
             if anchors is None
-            else leaves_mesh(forest, anchors, inst, bones, to_tree, frames_of.still)
+            else leaves_mesh(forest, anchors, inst, bones, to_tree, frames_of.still, joint_budget)
         )
         if leaves is not None and leaf_materials is not None:
             lp, ln, lq, lst, lj, lc = leaves
@@ -476,7 +524,7 @@ class JointFrames:
         return t.astype(np.float32), q.astype(np.float32), s
 
 
-def joint_frames(forest: Forest) -> JointFrames:
+def joint_frames(forest: Forest, budget: int | None = None) -> JointFrames:
     """The forest's joints without scale in their frames, bound as the tree stands.
 
     The bind pose is the posed tree without wind, so the meshes are written at their true
@@ -490,7 +538,7 @@ def joint_frames(forest: Forest) -> JointFrames:
     the translation times s_parent and the scale divided by the bound local scale (1 for
     every frame: wind turns joints, it does not scale them)."""
     b, g = forest.bones, forest.graph
-    dcc = dcc_joints(forest)
+    dcc = dcc_joints(forest, budget)
     still = forest.palette()
     tree_root = dcc.of_bone[b.offset[g.parent < 0]]
     rest = dcc.locals(forest.local_bones(None))
