@@ -1,7 +1,10 @@
 """Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
 GLTFLoader under Node: one skinned mesh per tree with its texture, the Wind clip, the leaf
 cards, the pieces' scene as InstancedMesh (EXT_mesh_gpu_instancing); its skinned vertices at
-two frames equal the library's skinning within 1e-4 of the tree's height.
+two frames equal the library's skinning within 1e-4 of the tree's height (float packing) or
+3e-4 (the default quantized packing: int16 rotation keys and positions; measured 1.3e-4).
+The meshopt-compressed file (three.js with its MeshoptDecoder) skins to exactly the quantized
+file's vertices; every packing passes the validator.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
 script runs it) installs them. A missing install fails these tests, it does not skip them.
@@ -25,6 +28,7 @@ from helpers_gltf import (
     tree_heights,
 )
 
+from forest.gltf.compress import DEFAULT_PACKING, Packing
 from forest.gltf.document import write_glb
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -43,6 +47,9 @@ def glb(forest: Forest, tmp_path_factory: pytest.TempPathFactory) -> Path:
     if why:
         pytest.fail(why, pytrace=False)
     return write_glb(forest, tmp_path_factory.mktemp("glb") / "forest.glb")
+
+
+TOLERANCE: dict[Packing, float] = {"float": 1e-4, "quantized": 3e-4, "meshopt": 3e-4}
 
 
 def validate(path: Path) -> dict[str, Any]:
@@ -75,12 +82,18 @@ def test_validator_on_other_species_and_still_forests(
     assert report["info"]["animationCount"] == (1 if frames else 0)
 
 
-def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path: Path) -> None:
+def _skinned(glb: Path, tmp_path: Path) -> tuple[dict[str, Any], np.ndarray]:
+    """three.js's report of ``glb`` and its skinned vertices at the check frames."""
     times = [f / FPS for f in CHECK_FRAMES]
-    out = tmp_path / "positions.bin"
+    out = tmp_path / f"{glb.stem}-positions.bin"
     report = run_node(
         "three_load.mjs", str(glb), "--times", ",".join(map(repr, times)), "--out", str(out)
     )
+    return report, np.fromfile(out, np.float32).astype(np.float64)
+
+
+def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path: Path) -> None:
+    report, got = _skinned(glb, tmp_path)
     meshes = report["skinned_meshes"]
     assert len(meshes) == TREES
     assert all(m["has_texture"] for m in meshes)
@@ -91,7 +104,6 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
     # the pieces' scene: one InstancedMesh per piece type, every piece once
     assert len(report["scenes"]) == 2
     assert sum(m["count"] for m in report["instanced"]) == forest.n_instances
-    got = np.fromfile(out, np.float32).astype(np.float64)
     at = 0
     for f in CHECK_FRAMES:
         expected = expected_bark(forest, f / FPS)
@@ -100,5 +112,32 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
             points = got[at : at + want.size].reshape(-1, 3)
             at += want.size
             err = np.abs(points - want).max()
-            assert err <= 1e-4 * height, (f, k, err, height)
+            assert err <= TOLERANCE[DEFAULT_PACKING] * height, (f, k, err, height)
     assert at == got.size
+
+
+@pytest.mark.parametrize("packing", ["float", "meshopt"])
+def test_other_packings_validate_and_skin_alike(
+    packing: Packing, glb: Path, forest: Forest, tmp_path: Path
+) -> None:
+    """The float file skins as the library does within 1e-4 of the height; the meshopt file
+    decodes to the quantized file's data, so three.js skins it to the very same vertices (and
+    bounds, within the quantization's error of the float file's)."""
+    other = write_glb(forest, tmp_path / f"{packing}.glb", packing=packing)
+    report = validate(other)
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:10]
+    used = report["info"].get("extensionsUsed", [])
+    assert ("EXT_meshopt_compression" in used) == (packing == "meshopt")
+    _, got = _skinned(other, tmp_path)
+    _, quantized = _skinned(glb, tmp_path)
+    expected = [expected_bark(forest, f / FPS) for f in CHECK_FRAMES]
+    height = max(tree_heights(expected[0]))
+    want = np.concatenate([p.ravel() for frame in expected for p in frame])
+    assert np.abs(got - want).max() <= TOLERANCE[packing] * height
+    if packing == "meshopt":
+        assert np.array_equal(got, quantized)
+    else:
+        lo, hi = got.reshape(-1, 3).min(axis=0), got.reshape(-1, 3).max(axis=0)
+        qpts = quantized.reshape(-1, 3)
+        assert np.abs(qpts.min(axis=0) - lo).max() <= TOLERANCE["quantized"] * height
+        assert np.abs(qpts.max(axis=0) - hi).max() <= TOLERANCE["quantized"] * height
