@@ -187,8 +187,9 @@ def test_meshopt_views_decode_to_the_quantized_views(
     modes = set()
     for v, (bq, bm) in enumerate(zip(quantized.bufferViews, meshopt.bufferViews, strict=True)):
         raw = qblob[bq.byteOffset : bq.byteOffset + bq.byteLength]
-        if v in images:
-            assert bm.buffer == 0 and not bm.extensions
+        if v in images or not bm.extensions:  # images, and views the codec cannot shrink
+            assert bm.buffer == 0 and bm.byteLength == len(raw)
+            assert meshopt.binary_blob()[bm.byteOffset : bm.byteOffset + len(raw)] == raw
             continue
         ext = bm.extensions[MESHOPT]
         modes.add(ext["mode"])
@@ -204,6 +205,12 @@ def test_meshopt_views_decode_to_the_quantized_views(
         else:
             assert _decode(meshopt, v) == raw, v
     assert modes == {"ATTRIBUTES", "TRIANGLES"}
+    # every mesh attribute and index view is compressed
+    for mesh in meshopt.meshes:
+        for prim in mesh.primitives:
+            for a in [*vars(prim.attributes).values(), prim.indices]:
+                if a is not None:
+                    assert meshopt.bufferViews[meshopt.accessors[a].bufferView].extensions
     # the accessors are the quantized ones: only where their bytes lie changed
     assert [a.componentType for a in meshopt.accessors] == [
         a.componentType for a in quantized.accessors

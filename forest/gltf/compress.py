@@ -384,7 +384,8 @@ def _encode(view: _View) -> bytes:
 
 def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
     """Lay the views out: plain ones (and the compressed bytes) in the GLB's buffer 0; with
-    meshopt, the compressed views' uncompressed layout in buffer 1, the data-less fallback."""
+    meshopt, the compressed views' uncompressed layout in buffer 1, the data-less fallback.
+    A view the codec does not shrink (a few animation times) stays plain."""
     parts: list[bytes] = []
     size = 0
     fallback = 0
@@ -404,8 +405,8 @@ def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
         bv.target = view.target
         bv.byteLength = len(view.data)
         bv.extensions = {k: e for k, e in (bv.extensions or {}).items() if k != MESHOPT}
-        if meshopt and view.mode is not None:
-            packed = _encode(view)
+        packed = _encode(view) if meshopt and view.mode is not None else None
+        if packed is not None and len(packed) < len(view.data):  # else plainly stored
             fallback += -fallback % 4
             bv.buffer, bv.byteOffset = 1, fallback
             fallback += len(view.data)
