@@ -121,6 +121,16 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "seamless across tiles and allows more trees than one scene.",
 )
 @click.option(
+    "--glb-pack",
+    type=click.Choice(["quantized", "meshopt", "float"]),
+    default="quantized",
+    show_default=True,
+    help="How a .glb stores its data: quantized (KHR_mesh_quantization, read by every glTF "
+    "importer, Blender 4.2 included), meshopt (quantized and compressed with "
+    "EXT_meshopt_compression, about half the bytes, needs a meshopt decoder: three.js, "
+    "Babylon.js, glTFast; Blender 4.2 refuses it) or float (uncompressed float32).",
+)
+@click.option(
     "-o",
     "--output",
     type=click.Path(path_type=Path),
@@ -145,6 +155,7 @@ def generate(
     season: str,
     tiles_dir: str | None,
     tile_size: float | None,
+    glb_pack: str,
     output: Path,
     quiet: bool = False,
 ) -> None:
@@ -189,7 +200,14 @@ def generate(
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
         forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
-        write_forest(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+        write_forest(
+            forest,
+            output,
+            skinned=skinned,
+            tiles=tiles_dir,
+            progress=bar,
+            packing=glb_pack,  # type: ignore[arg-type]
+        )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

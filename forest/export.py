@@ -4,10 +4,14 @@ glTF 2.0 binary (.glb)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from forest.gltf import GLB_SUFFIX
 from forest.growth.generate import Forest, Progress
 from forest.usd.files import FORMATS
+
+if TYPE_CHECKING:
+    from forest.gltf.compress import Packing
 
 SCENE_SUFFIXES = (*FORMATS, GLB_SUFFIX)
 
@@ -23,18 +27,22 @@ def write_forest(
     skinned: bool | None = None,
     tiles: str | None = None,
     progress: Progress | None = None,
+    packing: Packing | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
     ``tiles``: the bark tile-set folder, relative to the file's folder (a USD scene names
     it, a .glb packs its pictures). ``skinned``: USD's choice
-    (:func:`forest.usd.scene.write_scene`); a .glb is always skinned."""
+    (:func:`forest.usd.scene.write_scene`); a .glb is always skinned. ``packing``: how a .glb
+    stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
 
         folder = Path(path).parent / tiles if tiles else None
-        return write_glb(forest, path, tiles=folder, progress=progress)
+        if packing is None:
+            return write_glb(forest, path, tiles=folder, progress=progress)
+        return write_glb(forest, path, tiles=folder, progress=progress, packing=packing)
     from forest.usd.scene import write_scene
 
     return write_scene(forest, path, skinned=skinned, tiles=tiles, progress=progress)

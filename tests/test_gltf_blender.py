@@ -1,7 +1,12 @@
 """The GLB imports into real Blender (bpy from PyPI in .venv-blender, as tests/test_blender.py)
 through its glTF importer: one armature and one mesh object (bark and leaves) per tree, with
 the Wind action over the wind's frames, the bark and leaf textures packed, and the deformed
-vertices at two frames equal the library's skinning within 1e-4 of the tree's height."""
+vertices at two frames equal the library's skinning within 1e-3 of the tree's height.
+
+The file is the default (quantized) packing. Blender reads its int16 positions less exactly
+than three.js (6.5e-4 of the height against 1.3e-4; 1.1e-4 with float positions): its
+importer guesses the bind pose by inverting the inverse binds, which carry the positions'
+dequantisation scale (about 1e-4 m), in float32."""
 
 from __future__ import annotations
 
@@ -102,4 +107,4 @@ def test_deformed_vertices_match_our_skinning(blender_run: Run) -> None:
             got = points[f"Tree_{k:05d}_Mesh@{f}"]
             assert got.shape == want.shape
             err = float(np.abs(got - want).max())
-            assert err <= 1e-4 * height, (f, k, err, height)
+            assert err <= 1e-3 * height, (f, k, err, height)

@@ -1,7 +1,10 @@
 """Every GLB passes the Khronos glTF-Validator with 0 errors, and loads in three.js's
 GLTFLoader under Node: one scene, per tree a bark and a leaves SkinnedMesh (the tree mesh's two
 primitives) with their textures, the Wind clip; their skinned vertices at two frames equal the
-library's skinning within 1e-4 of the tree's height.
+library's skinning within 3e-4 of the tree's height in the default (quantized) packing: int16
+rotation keys and positions; measured 1.3e-4), 1e-4 in the float one. The meshopt-compressed
+file (three.js with its MeshoptDecoder) skins to exactly the quantized file's vertices; every
+packing passes the validator.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
 script runs it) installs them. A missing install fails these tests, it does not skip them.
@@ -25,6 +28,7 @@ from helpers_gltf import (
     small_forest,
 )
 
+from forest.gltf.compress import DEFAULT_PACKING, Packing
 from forest.gltf.document import write_glb
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -43,6 +47,9 @@ def glb(forest: Forest, tmp_path_factory: pytest.TempPathFactory) -> Path:
     if why:
         pytest.fail(why, pytrace=False)
     return write_glb(forest, tmp_path_factory.mktemp("glb") / "forest.glb")
+
+
+TOLERANCE: dict[Packing, float] = {"float": 1e-4, "quantized": 3e-4, "meshopt": 3e-4}
 
 
 def validate(path: Path) -> dict[str, Any]:
@@ -75,12 +82,18 @@ def test_validator_on_other_species_and_still_forests(
     assert report["info"]["animationCount"] == (1 if frames else 0)
 
 
-def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path: Path) -> None:
+def _skinned(glb: Path, tmp_path: Path) -> tuple[dict[str, Any], np.ndarray]:
+    """three.js's report of ``glb`` and its skinned vertices at the check frames."""
     times = [f / FPS for f in CHECK_FRAMES]
-    out = tmp_path / "positions.bin"
+    out = tmp_path / f"{glb.stem}-positions.bin"
     report = run_node(
         "three_load.mjs", str(glb), "--times", ",".join(map(repr, times)), "--out", str(out)
     )
+    return report, np.fromfile(out, np.float32).astype(np.float64)
+
+
+def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path: Path) -> None:
+    report, got = _skinned(glb, tmp_path)
     meshes = report["skinned_meshes"]
     # one glTF mesh per tree, its primitives (bark, leaves) two SkinnedMesh on one skeleton
     assert [m["name"] for m in meshes] == [
@@ -93,7 +106,6 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
     assert report["leaf_card_meshes"] == TREES  # alpha-tested, double sided
     assert report["scenes"] == ["Forest"]
     doc = gl.GLTF2.load(str(glb))
-    got = np.fromfile(out, np.float32).astype(np.float64)
     at = 0
     for f in CHECK_FRAMES:
         expected = expected_tree(forest, doc, f / FPS)
@@ -104,5 +116,33 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
                 points = got[at : at + want.size].reshape(-1, 3)
                 at += want.size
                 err = np.abs(points - want).max()
-                assert err <= 1e-4 * height, (f, k, p, err, height)
+                assert err <= TOLERANCE[DEFAULT_PACKING] * height, (f, k, p, err, height)
     assert at == got.size
+
+
+@pytest.mark.parametrize("packing", ["float", "meshopt"])
+def test_other_packings_validate_and_skin_alike(
+    packing: Packing, glb: Path, forest: Forest, tmp_path: Path
+) -> None:
+    """The float file skins as the library does within 1e-4 of the height; the meshopt file
+    decodes to the quantized file's data, so three.js skins it to the very same vertices (and
+    bounds, within the quantization's error of the float file's)."""
+    other = write_glb(forest, tmp_path / f"{packing}.glb", packing=packing)
+    report = validate(other)
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:10]
+    used = report["info"].get("extensionsUsed", [])
+    assert ("EXT_meshopt_compression" in used) == (packing == "meshopt")
+    _, got = _skinned(other, tmp_path)
+    _, quantized = _skinned(glb, tmp_path)
+    doc = gl.GLTF2.load(str(glb))  # the vertex order is the same in every packing
+    expected = [expected_tree(forest, doc, f / FPS) for f in CHECK_FRAMES]
+    height = max(float(np.ptp(tree[0][:, 1])) for tree in expected[0])
+    want = np.concatenate([p.ravel() for frame in expected for tree in frame for p in tree])
+    assert np.abs(got - want).max() <= TOLERANCE[packing] * height
+    if packing == "meshopt":
+        assert np.array_equal(got, quantized)
+    else:
+        lo, hi = got.reshape(-1, 3).min(axis=0), got.reshape(-1, 3).max(axis=0)
+        qpts = quantized.reshape(-1, 3)
+        assert np.abs(qpts.min(axis=0) - lo).max() <= TOLERANCE["quantized"] * height
+        assert np.abs(qpts.max(axis=0) - hi).max() <= TOLERANCE["quantized"] * height

@@ -23,6 +23,7 @@ from forest.errors import LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material, atlas_uv, make_atlas, read_slices, tile_folder
 from forest.gltf.buffer import Blob
+from forest.gltf.compress import DEFAULT_PACKING, Packing, glb, pack
 from forest.gltf.leaves import LeafMaterials
 from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
@@ -166,7 +167,7 @@ def forest_gltf(
 
 
 def glb_bytes(gltf: gl.GLTF2) -> bytes:
-    return b"".join(gltf.save_to_bytes())
+    return glb(gltf)
 
 
 def write_glb(
@@ -175,10 +176,12 @@ def write_glb(
     *,
     tiles: Path | None = None,
     progress: Progress | None = None,
+    packing: Packing = DEFAULT_PACKING,
 ) -> Path:
-    """Write ``forest`` to ``path`` (.glb) atomically; returns the path."""
+    """Write ``forest`` to ``path`` (.glb) atomically; returns the path. ``packing``: how
+    the binary data is stored (:mod:`forest.gltf.compress`)."""
     out = Path(path)
-    gltf = forest_gltf(forest, tiles, progress)
+    gltf = pack(forest_gltf(forest, tiles, progress), packing)
     # one step: pygltflib encodes the whole document in one call
     if progress:
         progress("save", 0, 1)

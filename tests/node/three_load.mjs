@@ -1,4 +1,5 @@
-// Load a .glb with three.js's GLTFLoader under Node and report what it made; with --times,
+// Load a .glb with three.js's GLTFLoader (with its MeshoptDecoder, for EXT_meshopt_compression)
+// under Node and report what it made; with --times,
 // also the world-space skinned vertex positions of every SkinnedMesh at those seconds of the
 // first animation (float32, mesh after mesh, time after time) written to --out.
 //   node three_load.mjs FILE.glb [--times 0,0.125 --out POS.bin]
@@ -28,6 +29,7 @@ globalThis.fetch = async (url, opts) => {
 
 const THREE = await import('three');
 const { GLTFLoader } = await import('three/examples/jsm/loaders/GLTFLoader.js');
+const { MeshoptDecoder } = await import('three/examples/jsm/libs/meshopt_decoder.module.js');
 
 const args = process.argv.slice(2);
 const file = args[0];
@@ -36,7 +38,7 @@ const data = readFileSync(file);
 const buffer = data.buffer.slice(data.byteOffset, data.byteOffset + data.byteLength);
 
 const gltf = await new Promise((resolve, reject) =>
-  new GLTFLoader().parse(buffer, '', resolve, (e) => reject(e)));
+  new GLTFLoader().setMeshoptDecoder(MeshoptDecoder).parse(buffer, '', resolve, (e) => reject(e)));
 // let texture promises settle (images decode asynchronously)
 await new Promise((r) => setTimeout(r, 50));
 
