@@ -109,7 +109,15 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "tiles_dir",
     metavar="DIR",
     help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
-    "and tile indices follow its manifest.json.",
+    "(instead of the species' shipped set) and tile indices follow its manifest.json.",
+)
+@click.option(
+    "--textures/--no-textures",
+    default=True,
+    show_default=True,
+    help="USD: bark tiles and the leaf picture (cards cut to leaves) written beside a "
+    ".usda/.usdc in OUT.textures/ (relative paths) or inside a .usdz (one bark atlas); "
+    "--no-textures keeps flat colours and writes no picture. A .glb always packs its own.",
 )
 @click.option(
     "--tile-size",
@@ -125,8 +133,9 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "--output",
     type=click.Path(path_type=Path),
     required=True,
-    help="OUT.usda, OUT.usdc, OUT.usdz, or OUT.glb (glTF 2.0 binary: skinned trees, wind "
-    "animation, textures inside, for game engines and web viewers)",
+    help="OUT.usda, OUT.usdc (with its pictures in OUT.textures/), OUT.usdz (skinned trees "
+    "and pictures inside, for Quick Look / AR), or OUT.glb (glTF 2.0 binary: skinned trees, "
+    "wind animation, textures inside, for game engines and web viewers)",
 )
 @quiet_option
 @input_errors
@@ -144,6 +153,7 @@ def generate(
     skinned: bool | None,
     season: str,
     tiles_dir: str | None,
+    textures: bool,
     tile_size: float | None,
     output: Path,
     quiet: bool = False,
@@ -189,7 +199,9 @@ def generate(
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
         forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
-        write_forest(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+        write_forest(
+            forest, output, skinned=skinned, tiles=tiles_dir, textures=textures, progress=bar
+        )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

@@ -14,11 +14,11 @@ import pygltflib as gl
 import pytest
 from helpers_gltf import FPS, FRAMES, TREES, small_forest
 
+from forest.bark.atlas import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.bark.images import read_pixels
 from forest.bark.tilesets import set_dir
 from forest.errors import ForestError, LimitError
 from forest.gltf import document
-from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
 from forest.growth.generate import Forest
 from forest.usd.materials import tile_udim_st

@@ -15,8 +15,8 @@ from __future__ import annotations
 import numpy as np
 import pygltflib as gl
 
+from forest.bark.atlas import atlas_uv
 from forest.geometry.transforms import decompose_similarity
-from forest.gltf.bark import atlas_uv
 from forest.gltf.buffer import Blob
 from forest.growth.generate import Forest
 from forest.usd.materials import tile_udim_st

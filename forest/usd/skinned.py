@@ -349,11 +349,13 @@ def write_skinned_trees(
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
     leaf_file: str | None = None,
+    bark_st: Callable[[F64], F64] | None = None,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
     (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
-    see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
+    see :func:`forest.usd.materials.leaf_material`). ``bark_st`` maps the bark's UDIM st to
+    what the material reads (a .usdz's atlas). Extents are authored per frame on every
     prim whose points or joints move."""
     if progress:  # the joint frames first, then a tree of a big species takes seconds
         progress("skinned trees", 0, forest.options.trees)
@@ -404,7 +406,9 @@ def write_skinned_trees(
             forest, inst, bones, to_tree, frames_of.still, weld=True
         )
         mesh = _mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
-        _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
+        _indexed_st(
+            mesh.GetPrim(), st if bark_st is None else bark_st(st), UsdGeom.Tokens.faceVarying
+        )
         _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/{PROXY_MESH}", pts, quads, skel, jidx, jw)
