@@ -102,6 +102,11 @@ def test_textures_resolve_beside_the_scene_from_another_working_directory(
     for p in shipped:
         assert (folder / p.name).read_bytes() == p.read_bytes()
     cut_by_alpha(stage)
+    # every bark quad strictly inside its tile: Blender drew a face reaching u = 10 magenta
+    pv = UsdGeom.PrimvarsAPI(stage.GetPrimAtPath(f"{TREES}/Tree_00000/Bark")).GetPrimvar("st")
+    st = np.asarray(pv.ComputeFlattened(), np.float64).reshape(-1, 4, 2)
+    local = st - np.floor(st.mean(axis=1, keepdims=True))
+    assert (local > 0).all() and (local < 1).all() and st[..., 0].max() < 10
 
 
 def test_tiles_option_names_its_folder_and_keeps_the_leaf_picture(

@@ -31,6 +31,10 @@ from forest.usd.materials import leaf_texture_name, tile_asset_path, write_leaf_
 FOLDER_SUFFIX = ".textures"
 PACKAGE_FOLDER = "textures"  # inside a .usdz, beside its layer
 ATLAS_FILE = "bark.png"
+# UDIM st keep this far (in tile widths: an eighth of a 128-pixel tile's texel) inside their
+# tile: Blender 4.2's Cycles draws a whole face magenta (a missing tile) whose u reaches 10.0,
+# the right edge of tile column 9 (1010, 1020, 1030: every tile set has them)
+TILE_INSET = 1.0 / 1024.0
 # the names this writer puts in a texture folder: only these are ever replaced or removed
 _OURS = re.compile(r"bark\.1\d{3}\.png|bark\.png|leaf-[a-z]+\.png")
 
@@ -59,10 +63,12 @@ class SceneTextures:
     family: Family | None = None
 
     def bark_st(self, st: F64) -> F64:
-        """UDIM st ``(q, 4, 2)`` -> the st the bark mesh carries: as given, or into the atlas
-        (t up from the image's bottom row, as USD reads a picture)."""
+        """UDIM st ``(q, 4, 2)`` -> the st the bark mesh carries: inside each quad's tile by
+        :data:`TILE_INSET`, or into the atlas (t up from the image's bottom row, as USD reads
+        a picture)."""
         if self.atlas is None:
-            return st
+            tile = np.floor(st.mean(axis=1, keepdims=True))  # a quad's centre is in its tile
+            return tile + TILE_INSET + (st - tile) * (1.0 - 2.0 * TILE_INSET)
         uv = atlas_uv(st, *self.atlas).astype(np.float64)
         return np.stack([uv[..., 0], 1.0 - uv[..., 1]], axis=-1)
 
