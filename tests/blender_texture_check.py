@@ -25,7 +25,7 @@ except ImportError:  # pragma: no cover - depends on the interpreter
     sys.exit("blender_texture_check.py needs Blender's bpy module: run it with .venv-blender")
 
 sys.path.insert(0, str(Path(__file__).parent))
-from blender_render import stage_and_render  # noqa: E402
+from blender_render import stage_and_render
 
 
 def image_report(im: bpy.types.Image) -> dict[str, Any]:
@@ -91,7 +91,9 @@ def main(argv: list[str]) -> int:
         if mat.name not in used or not mat.node_tree:
             continue
         nodes = mat.node_tree.nodes
-        images = [image_report(n.image) for n in nodes if n.bl_idname == "ShaderNodeTexImage" and n.image]
+        images = [
+            image_report(n.image) for n in nodes if n.bl_idname == "ShaderNodeTexImage" and n.image
+        ]
         empty = [n.name for n in nodes if n.bl_idname == "ShaderNodeTexImage" and not n.image]
         bsdf = next((n for n in nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"), None)
         entry = {
