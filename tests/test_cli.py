@@ -74,7 +74,8 @@ def test_generate_writes_a_forest(tmp_path: Path) -> None:
 def test_generate_shows_progress_lines_unless_quiet(tmp_path: Path) -> None:
     """stderr is a pipe here, as in a CI log: plain lines with counts, not redrawn bars;
     ``--quiet`` leaves only the result line. The files are the same either way."""
-    args = ["generate", "--preset", "alternating", "--trees", "30", "--skinned"]
+    # no pictures: a.usdc and b.usdc would name their own folders, a.textures and b.textures
+    args = ["generate", "--preset", "alternating", "--trees", "30", "--skinned", "--no-textures"]
     out = forest(*args, "-o", "a.usdc", cwd=tmp_path)
     assert out.returncode == 0, out.stderr
     lines = out.stderr.splitlines()
