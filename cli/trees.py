@@ -109,7 +109,8 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "tiles_dir",
     metavar="DIR",
     help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
-    "(instead of the species' shipped set) and tile indices follow its manifest.json.",
+    "instead of the species' shipped set (a .usdz or .glb bakes them into its atlas), and "
+    "tile indices follow its manifest.json.",
 )
 @click.option(
     "--textures/--no-textures",
@@ -125,8 +126,8 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     default=None,
     metavar="M",
     help="Cut the area into M x M metre tiles: writes OUT (.usda/.usdc root layer, each tile "
-    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile; placement is "
-    "seamless across tiles and allows more trees than one scene.",
+    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile (flat colours); "
+    "placement is seamless across tiles and allows more trees than one scene.",
 )
 @click.option(
     "-o",
