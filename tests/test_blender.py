@@ -259,7 +259,9 @@ def test_blender_renders_green_leaves(tmp_path: Path) -> None:
         # leaf green, blue-green included (a Scots pine's needles): greener than red by a
         # margin and than blue at all (the sky is bluer than green, the ground grey)
         green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > rgb[..., 2])
-        assert green.mean() > 0.005, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
+        # cards cut to their needles and leaves (the textured default): a pine's thin crown
+        # is 0.34 % of the picture (0.73 % as uncut squares with --no-textures)
+        assert green.mean() > 0.002, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
 
 
 def test_blender_loads_every_udim_tile(blender_run: Run | str) -> None:
@@ -314,6 +316,9 @@ def test_blender_imports_textured_birch_and_renders_bark_and_cut_leaves(
 def test_explicit_skinned_is_the_small_default(small_forest: Forest, tmp_path: Path) -> None:
     """``--skinned`` on a small forest writes the very file the default writes (so the runs
     above cover it byte for byte)."""
-    a = write_scene(small_forest, tmp_path / "a.usdc").read_bytes()
-    b = write_scene(small_forest, tmp_path / "b.usdc", skinned=True).read_bytes()
-    assert a.replace(b"a.usdc", b"b.usdc") == b or a == b
+    # one name in two folders: a scene names its own texture folder, <stem>.textures
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = write_scene(small_forest, tmp_path / "a" / "f.usdc").read_bytes()
+    b = write_scene(small_forest, tmp_path / "b" / "f.usdc", skinned=True).read_bytes()
+    assert a == b
