@@ -109,7 +109,16 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "tiles_dir",
     metavar="DIR",
     help="Tile-set folder, relative to the scene: the material reads its bark.<UDIM>.png "
-    "and tile indices follow its manifest.json.",
+    "instead of the species' shipped set (a .usdz or .glb bakes them into its atlas), and "
+    "tile indices follow its manifest.json.",
+)
+@click.option(
+    "--textures/--no-textures",
+    default=True,
+    show_default=True,
+    help="USD: bark tiles and the leaf picture (cards cut to leaves) written beside a "
+    ".usda/.usdc in OUT.textures/ (relative paths) or inside a .usdz (one bark atlas); "
+    "--no-textures keeps flat colours and writes no picture. A .glb always packs its own.",
 )
 @click.option(
     "--tile-size",
@@ -117,8 +126,8 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     default=None,
     metavar="M",
     help="Cut the area into M x M metre tiles: writes OUT (.usda/.usdc root layer, each tile "
-    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile; placement is "
-    "seamless across tiles and allows more trees than one scene.",
+    "a payload with its extent) and OUT_tiles/<i>_<j>.usdc, one per tile (flat colours); "
+    "placement is seamless across tiles and allows more trees than one scene.",
 )
 @click.option(
     "--glb-pack",
@@ -135,8 +144,9 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "--output",
     type=click.Path(path_type=Path),
     required=True,
-    help="OUT.usda, OUT.usdc, OUT.usdz, or OUT.glb (glTF 2.0 binary: skinned trees, wind "
-    "animation, textures inside, for game engines and web viewers)",
+    help="OUT.usda, OUT.usdc (with its pictures in OUT.textures/), OUT.usdz (skinned trees "
+    "and pictures inside, for Quick Look / AR), or OUT.glb (glTF 2.0 binary: skinned trees, "
+    "wind animation, textures inside, for game engines and web viewers)",
 )
 @quiet_option
 @input_errors
@@ -154,6 +164,7 @@ def generate(
     skinned: bool | None,
     season: str,
     tiles_dir: str | None,
+    textures: bool,
     tile_size: float | None,
     glb_pack: str,
     output: Path,
@@ -205,6 +216,7 @@ def generate(
             output,
             skinned=skinned,
             tiles=tiles_dir,
+            textures=textures,
             progress=bar,
             packing=glb_pack,  # type: ignore[arg-type]
         )

@@ -20,20 +20,29 @@ def is_glb(path: str | Path) -> bool:
     return Path(path).suffix.lower() == GLB_SUFFIX
 
 
+def single_file(path: str | Path) -> bool:
+    """Whether ``path``'s format carries its pictures inside (.usdz, .glb): what a writer that
+    hands back one file (the HTTP API, a job's artifact) asks for ``textures``, since a
+    .usda/.usdc would name a ``<stem>.textures/`` folder that does not travel with it."""
+    return Path(path).suffix.lower() in (".usdz", GLB_SUFFIX)
+
+
 def write_forest(
     forest: Forest,
     path: str | Path,
     *,
     skinned: bool | None = None,
     tiles: str | None = None,
+    textures: bool = True,
     progress: Progress | None = None,
     packing: Packing | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
     ``tiles``: the bark tile-set folder, relative to the file's folder (a USD scene names
-    it, a .glb packs its pictures). ``skinned``: USD's choice
-    (:func:`forest.usd.scene.write_scene`); a .glb is always skinned. ``packing``: how a .glb
+    it, a .glb packs its pictures). ``textures``: a USD scene's bark and leaf pictures
+    (:func:`forest.usd.scene.write_scene`; False: flat colours); a .glb always packs its
+    own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
     stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
@@ -45,4 +54,6 @@ def write_forest(
         return write_glb(forest, path, tiles=folder, progress=progress, packing=packing)
     from forest.usd.scene import write_scene
 
-    return write_scene(forest, path, skinned=skinned, tiles=tiles, progress=progress)
+    return write_scene(
+        forest, path, skinned=skinned, tiles=tiles, textures=textures, progress=progress
+    )

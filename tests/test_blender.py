@@ -19,8 +19,9 @@ import numpy as np
 import pytest
 from pxr import Usd, UsdGeom, UsdSkel
 
+from forest.bark.atlas import slice_files
 from forest.bark.images import read_pixels
-from forest.bark.tilesets import default_dir, mean_colour
+from forest.bark.tilesets import default_dir, set_dir
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.contract import FOLIAGE, PIECES
@@ -33,6 +34,7 @@ ROOT = Path(__file__).resolve().parents[1]
 BLENDER_PY = ROOT / ".venv-blender" / "bin" / "python"
 CHECK = ROOT / "tests" / "blender_import_check.py"
 RENDER = ROOT / "tests" / "blender_render.py"
+TEXTURE_CHECK = ROOT / "tests" / "blender_texture_check.py"
 SETUP = "bash tests/setup_blender_venv.sh"
 TREES, FRAMES = 2, 6
 
@@ -140,9 +142,11 @@ def blender_run(
     if form == "tiles":
         shutil.copytree(default_dir(), tmp / "scene" / "tiles")
         scene = write_scene(forest, tmp / "scene" / "forest.usdc", tiles="tiles")
-        extra = ["--tile-images", str(len(list(default_dir().glob("bark.*.png"))))]
+        extra = ["--tile-images", str(len(slice_files(default_dir())))]
     else:
         scene = write_scene(forest, tmp / "scene" / f"forest.{form}")
+        if form != "usdz":  # the species' tiles in forest.textures/ (a .usdz: one atlas)
+            extra = ["--tile-images", str(len(slice_files(set_dir(forest.grammar.bark))))]
     n_usd = usd_expectations(scene, tmp / "expect.npz", forest)
     out = tmp / "report.json"
     proc = subprocess.run(
@@ -233,11 +237,7 @@ def test_blender_renders_leaves_and_bark_in_their_colours(blender_run: Run | str
     np.testing.assert_allclose(leaf["base_color"], want, atol=1e-5)
     assert not leaf["linked"]
     assert leaf["base_color"][1] > max(leaf["base_color"][0], leaf["base_color"][2])  # green
-    bark = mats["Bark"]
-    if "udim_tiles" in report:
-        assert bark["linked"]  # the tile images
-    else:
-        np.testing.assert_allclose(bark["base_color"], mean_colour(forest.grammar.bark), atol=1e-5)
+    assert mats["Bark"]["linked"]  # the tile images (or a .usdz's atlas): textured by default
 
 
 def test_blender_renders_green_leaves(tmp_path: Path) -> None:
@@ -259,23 +259,66 @@ def test_blender_renders_green_leaves(tmp_path: Path) -> None:
         # leaf green, blue-green included (a Scots pine's needles): greener than red by a
         # margin and than blue at all (the sky is bluer than green, the ground grey)
         green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > rgb[..., 2])
-        assert green.mean() > 0.005, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
+        # cards cut to their needles and leaves (the textured default): a pine's thin crown
+        # is 0.34 % of the picture (0.73 % as uncut squares with --no-textures)
+        assert green.mean() > 0.002, f"{preset}: {green.mean():.4f} of the pixels are leaf green"
 
 
 def test_blender_loads_every_udim_tile(blender_run: Run | str) -> None:
-    """A --tiles scene: Blender finds and reads every bark.<UDIM>.png from another working
-    directory (the path is anchored to the layer)."""
-    _, _, report, _ = ran(blender_run)
-    if "udim_tiles" not in report:  # the other forms carry a flat bark colour, no image
+    """A .usda/.usdc (its species' tiles in forest.textures/, or a --tiles folder): Blender
+    finds and reads every bark.<UDIM>.png from another working directory (the path is
+    anchored to the layer). A .usdz carries one atlas instead (no UDIM in a package)."""
+    forest, _, report, _ = ran(blender_run)
+    if "udim_tiles" not in report:
         assert report.get("tiled_images") is None
         return
-    assert report["udim_tiles"] == len(list(default_dir().glob("bark.*.png")))
+    folder = default_dir() if "tiles/" in report["udim_path"] else set_dir(forest.grammar.bark)
+    assert report["udim_tiles"] == len(slice_files(folder))
     assert report["udim_loaded"] and report["udim_missing"] == []
+
+
+@pytest.mark.parametrize("suffix", [".usdc", ".usdz"])
+def test_blender_imports_textured_birch_and_renders_bark_and_cut_leaves(
+    tmp_path: Path, suffix: str
+) -> None:
+    """A birch written with the defaults, imported from another folder
+    (tests/blender_texture_check.py): every image node of the bark and leaf materials holds
+    a picture Blender read (39 UDIM tiles from forest.textures/, or the .usdz's atlas), the
+    bark's colour and the leaves' alpha come from them; a small Cycles render shows leaf
+    green and no magenta (a missing tile: faces of tile column 9 reaching u = 10 were)."""
+    if not BLENDER_PY.exists():
+        pytest.fail(f"{BLENDER_PY.relative_to(ROOT)} does not exist: run `{SETUP}`", pytrace=False)
+    forest = generate_forest(load_preset("birch"), 3, ForestOptions(trees=1, frames=2))
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    scene = write_scene(forest, tmp_path / "scene" / f"birch{suffix}")
+    out = tmp_path / "render.png"
+    proc = subprocess.run(
+        [str(BLENDER_PY), str(TEXTURE_CHECK), str(scene), "--render", str(out), "--size", "320"],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path / "elsewhere",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads(proc.stdout.splitlines()[-1])
+    (bark,) = report["materials"]["Bark"]["images"]
+    if suffix == ".usdz":
+        assert bark["source"] == "FILE" and bark["packed"]
+    else:
+        assert bark["source"] == "TILED" and bark["tiles"] == forest.manifest.n_slices
+        assert Path(bark["filepath"]).parent == tmp_path / "scene" / "birch.textures"
+    assert all(im["loaded"] for m in report["materials"].values() for im in m["images"])
+    rgb = read_pixels(out)[..., :3].astype(np.float64)
+    green = (rgb[..., 1] > 1.15 * rgb[..., 0]) & (rgb[..., 1] > rgb[..., 2])
+    # Blender's missing-texture magenta, shaded: red and blue well above green
+    magenta = (rgb[..., 0] > 1.25 * rgb[..., 1] + 10) & (rgb[..., 2] > 1.25 * rgb[..., 1] + 10)
+    assert green.mean() > 0.002 and magenta.sum() == 0, (green.mean(), magenta.sum())
 
 
 def test_explicit_skinned_is_the_small_default(small_forest: Forest, tmp_path: Path) -> None:
     """``--skinned`` on a small forest writes the very file the default writes (so the runs
     above cover it byte for byte)."""
-    a = write_scene(small_forest, tmp_path / "a.usdc").read_bytes()
-    b = write_scene(small_forest, tmp_path / "b.usdc", skinned=True).read_bytes()
-    assert a.replace(b"a.usdc", b"b.usdc") == b or a == b
+    # one name in two folders: a scene names its own texture folder, <stem>.textures
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    a = write_scene(small_forest, tmp_path / "a" / "f.usdc").read_bytes()
+    b = write_scene(small_forest, tmp_path / "b" / "f.usdc", skinned=True).read_bytes()
+    assert a == b

@@ -27,11 +27,11 @@ from helpers_gltf import (
 from helpers_skin import usd_skinned_points
 from pxr import Usd, UsdGeom
 
+from forest.bark.atlas import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.bark.images import read_pixels
 from forest.bark.tilesets import set_dir
 from forest.errors import ForestError, LimitError
 from forest.gltf import document
-from forest.gltf.bark import atlas_layout, atlas_uv, make_atlas, read_slices
 from forest.gltf.document import forest_gltf, glb_bytes, write_glb
 from forest.gltf.skin import CONSTANT_TOL, sample_pose
 from forest.growth.generate import Forest

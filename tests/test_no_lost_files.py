@@ -22,7 +22,7 @@ from farm.artifacts import ArtifactStore
 from forest.atomic import all_replaced_when_written, replaced_when_written, write_text
 from forest.bark import tileset as tileset_mod
 from forest.bark.tileset import TileGeometry, build_tileset, default_classes, write_tileset
-from forest.errors import OutputError
+from forest.errors import OutputError, SceneError
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.contract import BARK_TILES
@@ -73,12 +73,18 @@ def test_writing_a_format_leaves_every_other_file_alone(
     target = f"{STEM}{suffix}"
     write_scene(small_forest, tmp_path / target, skinned=True)
     after = snapshot(tmp_path)
-    assert set(after) == set(before)  # nothing new but the target (which existed), no temps
+    # nothing new but the target (which existed) and, beside a .usda/.usdc, its pictures
+    pictures = {n for n in set(after) - set(before) if n.startswith(f"{STEM}.textures/")}
+    assert bool(pictures) == (suffix != ".usdz")
+    assert set(after) == set(before) | pictures
     for name, data in before.items():
         if name != target:
             assert after[name] == data, f"{name} was touched writing {target}"
     assert after[target] != before[target]
-    read_scene(tmp_path / target)
+    if suffix == ".usdz":  # the skinned trees only: nothing the reader rebuilds pieces from
+        Usd.Stage.Open(str(tmp_path / target))
+    else:
+        read_scene(tmp_path / target)
 
 
 @pytest.mark.parametrize("suffix", FORMATS)
@@ -92,8 +98,37 @@ def test_writing_over_the_same_name_replaces_it_atomically(
         write_scene(small_forest, target)
         assert reader.read() == b"old scene"
     assert target.stat().st_ino != old_inode  # a rename, not a rewrite in place
-    assert entries(tmp_path) == {target.name}
-    assert read_scene(target).seed == 5
+    others = entries(tmp_path) - {target.name}
+    if suffix == ".usdz":
+        assert others == set()
+        assert Usd.Stage.Open(str(target)) is not None
+    else:
+        assert others and all(e.startswith(f"{STEM}.textures") for e in others), others
+        assert read_scene(target).seed == 5
+
+
+def test_rewriting_a_scene_replaces_its_pictures_and_nothing_else(
+    small_forest: Forest, tmp_path: Path
+) -> None:
+    """A second write of ``forest.usdc`` renames fresh pictures over the old ones, removes
+    the pictures of ours the new scene does not name (another family's leaf, a slice past
+    the set) and leaves a file of the user's in the folder alone; equal input, equal bytes."""
+    target = tmp_path / f"{STEM}.usdc"
+    write_scene(small_forest, target)
+    folder = tmp_path / f"{STEM}.textures"
+    first = snapshot(tmp_path)
+    (folder / "leaf-needle.png").write_bytes(b"stale leaf")
+    (folder / "bark.1999.png").write_bytes(b"stale tile")
+    (folder / "bark.1001.png").write_bytes(b"overwritten")
+    (folder / "notes.txt").write_bytes(b"mine")
+    write_scene(small_forest, target)
+    second = snapshot(tmp_path)
+    assert second.pop(f"{STEM}.textures/notes.txt") == b"mine"
+    assert second == first
+    assert entries(tmp_path) == {e for e in first} | {
+        f"{STEM}.textures",
+        f"{STEM}.textures/notes.txt",
+    }
 
 
 def _raise(*_args: object, **_kwargs: object) -> None:
@@ -104,7 +139,7 @@ def _raise(*_args: object, **_kwargs: object) -> None:
 @pytest.mark.parametrize(
     "where",
     [
-        (forest.usd.scene, "write_instancer"),  # mid-export, the layer half built
+        (forest.usd.scene, "bark_material"),  # mid-export, the layer half built
         (forest.usd.files, "_zero_zip_times"),  # usdz: after packing, before the rename
         (forest.usd.files, "move_into_place"),  # the very last step
     ],
@@ -149,8 +184,12 @@ def test_cli_generate_usdz_keeps_the_usdc_beside_it(tmp_path: Path) -> None:
     after = snapshot(tmp_path)
     assert set(after) == set(before)
     assert all(after[n] == d for n, d in before.items() if n != out.name)
-    # the layer, and the leaf picture it carries (nothing of the folder's own files)
-    assert zipfile.ZipFile(out).namelist() == [f"{STEM}.usdc", "0/leaf-broadleaf.png"]
+    # the layer, and the pictures it carries (nothing of the folder's own files)
+    assert sorted(zipfile.ZipFile(out).namelist()) == [
+        f"{STEM}.usdc",
+        "textures/bark.png",
+        "textures/leaf-broadleaf.png",
+    ]
 
 
 def usdz_problems(path: Path) -> list[str]:
@@ -177,32 +216,42 @@ def test_usdz_is_compliant(small_forest: Forest, tmp_path: Path, skinned: bool) 
     assert usdz_problems(out) == []
 
 
-def test_usdz_still_packs_the_bark_tiles_beside_the_scene(
+def test_usdz_packs_the_atlas_of_the_tiles_beside_the_scene(
     small_forest: Forest, tmp_path: Path
 ) -> None:
-    """The layer is written in a private folder, yet its relative tile paths mean the
-    scene's folder: the package holds the tiles, the packed path resolves inside it."""
+    """The layer is written in a private folder, yet ``tiles`` means the scene's folder: the
+    package holds the atlas of those tiles (no UDIM inside a package), named ``./...``."""
+    from forest.bark.atlas import make_atlas, read_slices
+    from forest.bark.images import read_pixels, write_png
+    from forest.bark.tilesets import default_dir
+
     tiles = tmp_path / "tiles"
     tiles.mkdir()
-    (tiles / "bark.1001.png").write_bytes(
-        (Path(tileset_mod.__file__).parent / "tilesets" / "default" / "bark.1001.png").read_bytes()
-    )
+    # a set of its own (the default set's slices upside down), not the shipped one
+    mine = read_slices(default_dir(), small_forest.manifest.n_slices)[:, ::-1].copy()
+    for k in range(len(mine)):
+        write_png(tiles / f"bark.{1001 + k}.png", mine[k])
     out = write_scene(small_forest, tmp_path / f"{STEM}.usdz", tiles="tiles")
-    names = zipfile.ZipFile(out).namelist()
-    assert names[0] == f"{STEM}.usdc" and any(n.endswith("bark.1001.png") for n in names[1:])
     stage = Usd.Stage.Open(str(out))
     asset = stage.GetPrimAtPath(BARK_TILES).GetAttribute("inputs:file").Get()
-    assert not os.path.isabs(asset.path) and str(tmp_path) not in asset.path
+    assert asset.path == "./textures/bark.png"
+    picture = tmp_path / "atlas.png"
+    with zipfile.ZipFile(out) as z:
+        picture.write_bytes(z.read("textures/bark.png"))
+    np.testing.assert_array_equal(read_pixels(picture)[..., :3], make_atlas(mine))
     assert usdz_problems(out) == []
-    assert entries(tmp_path) == {"tiles", "tiles/bark.1001.png", out.name}
+    assert {e for e in entries(tmp_path) if not e.startswith("tiles")} == {
+        out.name,
+        "atlas.png",
+    }
 
 
 def test_usdz_cuts_its_leaf_cards_with_the_picture_it_carries(
     small_forest: Forest, tmp_path: Path
 ) -> None:
     """In a .usdz both leaf materials take opacity from the leaf picture (threshold 0.5), a
-    PNG inside the package whose bottom row is the cards' t = 0 (the stem end); a .usdc,
-    which carries no files, binds no texture and points at none."""
+    PNG inside the package whose bottom row is the cards' t = 0 (the stem end); a .usdc
+    written without textures binds no texture, points at none and writes no folder."""
     import OpenImageIO as oiio
 
     from forest.growth.foliage import leaf_texture
@@ -219,15 +268,16 @@ def test_usdz_cuts_its_leaf_cards_with_the_picture_it_carries(
         asset = source.GetPrim().GetAttribute("inputs:file").Get()
         assert not os.path.isabs(asset.path) and "[" in asset.resolvedPath  # inside the package
     picture = tmp_path / "leaf.png"
+    assert asset.path.startswith("./")  # Blender finds nothing in a package otherwise
     with zipfile.ZipFile(out) as z:
-        picture.write_bytes(z.read(asset.path))
+        picture.write_bytes(z.read(asset.path.removeprefix("./")))
     pixels = oiio.ImageBuf(str(picture)).get_pixels(oiio.UINT8)
     alpha = leaf_texture(small_forest.grammar.leaves.family)[..., 3]
     assert 0 < (alpha > 0).mean() < 1  # a leaf's outline, not a square
     np.testing.assert_array_equal(pixels[::-1, :, 3], alpha)
     assert usdz_problems(out) == []
 
-    plain = write_scene(small_forest, tmp_path / f"{STEM}.usdc")
+    plain = write_scene(small_forest, tmp_path / f"{STEM}.usdc", textures=False)
     stage = Usd.Stage.Open(str(plain))
     surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Leaf/Surface"))
     assert not surface.GetInput("opacity") and entries(tmp_path) == {
@@ -390,8 +440,13 @@ def test_artifact_publish_touches_only_its_name(tmp_path: Path) -> None:
 
 
 def test_generated_scene_reads_back_with_its_values(small_forest: Forest, tmp_path: Path) -> None:
-    """Moving the layer out of its private folder keeps it whole (same arrays as direct)."""
+    """Moving the layer out of its private folder keeps it whole (same arrays as direct);
+    a .usdz, which holds the skinned trees only, is refused by the reader by name."""
     for suffix in FORMATS:
-        scene = read_scene(write_scene(small_forest, tmp_path / f"{STEM}{suffix}"))
-        np.testing.assert_array_equal(scene.tree, small_forest.graph.tree)
+        path = write_scene(small_forest, tmp_path / f"{STEM}{suffix}", textures=False)
+        if suffix == ".usdz":
+            with pytest.raises(SceneError, match="only the 'skinned' trees"):
+                read_scene(path)
+            continue
+        np.testing.assert_array_equal(read_scene(path).tree, small_forest.graph.tree)
     assert entries(tmp_path) == {f"{STEM}{s}" for s in FORMATS}

@@ -284,7 +284,9 @@ def _render(
 
 def _scene(grammar: Grammar, seed: int, options: ForestOptions, path: Path) -> SceneArrays:
     # read back only: the instanced forms suffice (no skinned trees to bake)
-    return read_scene(write_scene(generate_forest(grammar, seed, options), path, skinned=False))
+    forest = generate_forest(grammar, seed, options)
+    # read back for its arrays only: the renderer takes the shipped tiles itself
+    return read_scene(write_scene(forest, path, skinned=False, textures=False))
 
 
 def _stand_scene(

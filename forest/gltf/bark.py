@@ -1,14 +1,8 @@
-"""Bark: the tile set's slices baked into one atlas texture, each quad's tile as UVs into it,
-and a PBR metallic-roughness material reading it.
-
-The atlas holds slice k in cell (k % columns, k // columns); each cell is the tile with a
-:data:`PAD`-pixel border of its own edge pixels around it, so mipmaps and linear filtering
-near a tile's edge do not bleed in the neighbouring cell.
-"""
+"""Bark in glTF: the PBR metallic-roughness material reading the tile set's atlas
+(:mod:`forest.bark.atlas`, shared with the .usdz's pictures), and PNG bytes of a picture."""
 
 from __future__ import annotations
 
-import re
 import tempfile
 from pathlib import Path
 
@@ -16,15 +10,10 @@ import numpy as np
 import pygltflib as gl
 from numpy.typing import NDArray
 
-from forest.bark.images import read_pixels, write_png
-from forest.bark.tilesets import installed_set_dir
-from forest.errors import ForestError
-from forest.geometry.transforms import F64
+from forest.bark.images import write_png
 from forest.gltf.buffer import Blob
 
-PAD_FRACTION = 16  # border of a cell: 1/16 of the tile size
 ROUGHNESS = 0.9
-_SLICE = re.compile(r"bark\.(1\d{3})\.png")
 
 
 def png_bytes(pixels: NDArray[np.uint8]) -> bytes:
@@ -34,72 +23,6 @@ def png_bytes(pixels: NDArray[np.uint8]) -> bytes:
         path = Path(tmp) / "image.png"
         write_png(path, pixels)
         return path.read_bytes()
-
-
-def tile_folder(bark: str, tiles: Path | None) -> Path:
-    """The folder whose ``bark.<UDIM>.png`` the atlas is made of: ``tiles``, else the
-    shipped set the grammar's ``bark`` names (an error naming the set, not its folder, when
-    the installation lacks it)."""
-    if tiles is not None:
-        return tiles
-    return installed_set_dir(bark)
-
-
-def read_slices(folder: Path, needed: int) -> NDArray[np.uint8]:
-    """``(n, h, w, 3)`` the folder's slices ``bark.1001.png`` on, in slice order; at least
-    ``needed`` of them, all the same size."""
-    found = sorted(
-        (int(m.group(1)) - 1001, p)
-        for p in (folder.iterdir() if folder.is_dir() else [])
-        if (m := _SLICE.fullmatch(p.name))
-    )
-    if [k for k, _ in found] != list(range(len(found))) or len(found) < needed:
-        raise ForestError(
-            f"needs bark.1001.png .. bark.{1000 + needed}.png without gaps, found {len(found)}",
-            path=str(folder),
-        )
-    tiles = [read_pixels(p) for _, p in found]
-    shape = tiles[0].shape[:2]
-    if any(t.shape[:2] != shape for t in tiles):
-        raise ForestError("bark tiles differ in size", path=str(folder))
-    rgb = [t[..., :3] if t.shape[2] >= 3 else np.repeat(t[..., :1], 3, axis=2) for t in tiles]
-    return np.stack(rgb)
-
-
-def atlas_layout(n: int, size: int) -> tuple[int, int, int, int]:
-    """Columns, rows, cell size and pad (pixels) of an atlas of ``n`` square tiles."""
-    columns = int(np.ceil(np.sqrt(n)))
-    rows = -(-n // columns)
-    pad = max(size // PAD_FRACTION, 1)
-    return columns, rows, size + 2 * pad, pad
-
-
-def make_atlas(slices: NDArray[np.uint8]) -> NDArray[np.uint8]:
-    """``(rows * cell, columns * cell, 3)`` uint8: every slice padded by its own edge pixels,
-    row-major in cells (top-left first)."""
-    n, size = len(slices), slices.shape[1]
-    columns, rows, cell, pad = atlas_layout(n, size)
-    padded = np.pad(slices, ((0, columns * rows - n), (pad, pad), (pad, pad), (0, 0)), "edge")
-    grid = padded.reshape(rows, columns, cell, cell, 3)
-    return np.ascontiguousarray(
-        grid.transpose(0, 2, 1, 3, 4).reshape(rows * cell, columns * cell, 3)
-    )
-
-
-def atlas_uv(st: F64, n: int, size: int) -> NDArray[np.float32]:
-    """UDIM st ``(q, 4, 2)`` (tile ``1001 + k`` spans u in [k % 10, k % 10 + 1], v in
-    [k // 10, k // 10 + 1], v up, as :func:`forest.usd.materials.tile_udim_st` makes them) ->
-    atlas UVs ``(q, 4, 2)`` float32 (glTF: v down from the image's top row)."""
-    cell_xy = np.floor(st.mean(axis=1))  # a quad's centre lies inside its tile
-    k = (cell_xy[:, 0] + 10 * cell_xy[:, 1]).astype(np.int64)
-    if len(k) and (k.max() >= n):
-        raise ForestError(f"a quad uses slice {int(k.max())} of a set of {n}", path="tiles")
-    local = st - cell_xy[:, None]
-    columns, rows, cell, pad = atlas_layout(n, size)
-    col, row = k % columns, k // columns
-    x = col[:, None] * cell + pad + local[..., 0] * size
-    y = row[:, None] * cell + pad + (1.0 - local[..., 1]) * size
-    return np.stack([x / (columns * cell), y / (rows * cell)], axis=-1).astype(np.float32)
 
 
 def add_bark_material(gltf: gl.GLTF2, blob: Blob, atlas: NDArray[np.uint8], name: str) -> int:

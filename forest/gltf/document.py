@@ -19,9 +19,10 @@ import numpy as np
 import pygltflib as gl
 
 from forest.atomic import replaced_when_written
+from forest.bark.atlas import atlas_uv, make_atlas, read_slices, tile_folder
 from forest.errors import LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
-from forest.gltf.bark import add_bark_material, atlas_uv, make_atlas, read_slices, tile_folder
+from forest.gltf.bark import add_bark_material
 from forest.gltf.buffer import Blob
 from forest.gltf.compress import DEFAULT_PACKING, Packing, glb, pack
 from forest.gltf.leaves import LeafMaterials

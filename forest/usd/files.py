@@ -77,21 +77,12 @@ def finish(stage: Usd.Stage, tmp: Path, path: Path) -> None:
 
 
 def _package_usdz(layer: Sdf.Layer, usdc: Path, path: Path) -> None:
-    """Pack ``usdc`` (named ``<stem>.usdc``, in its private folder) into ``path``. Relative
-    asset paths (bark tiles) mean relative to the scene's folder, not to the private one: they
-    are anchored there first, so the packager finds and embeds the same files it would have
-    found beside ``path`` (and renames them inside the package, so no absolute path leaks)."""
+    """Pack ``usdc`` (named ``<stem>.usdc``, in its private folder) into ``path``. The
+    pictures it names lie beside it under ``./`` paths (:mod:`forest.usd.textures`), which the
+    packager keeps as they are: any other relative path it renames (``1/bark.png``), and
+    Blender resolves such a name inside a package to nothing."""
     from pxr import UsdUtils  # usdz packaging only: a twentieth of a second to import
 
-    scene_folder = path.parent.resolve()
-
-    def anchored(asset: str) -> str:
-        if not asset or os.path.isabs(asset) or ":" in asset.split("/", 1)[0]:
-            return asset  # absolute, empty, or a URI / package path: not ours to move
-        return os.path.normpath(os.path.join(scene_folder, asset))
-
-    UsdUtils.ModifyAssetPaths(layer, anchored)
-    layer.Save()
     tmpz = usdc.with_suffix(".usdz")
     if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(usdc)), str(tmpz)):
         raise OutputError("usdz packaging failed", path=str(path))

@@ -1,6 +1,7 @@
-"""The scene's materials: UsdPreviewSurface bark (a flat colour or UDIM tiles) and leaves (flat
-and tinted, cut to leaf shapes by the leaf picture in a .usdz), with the st helpers they
-read: UDIM texture coordinates of the bark's quads and texture asset paths."""
+"""The scene's materials: UsdPreviewSurface bark (a flat colour, UDIM tiles or a .usdz's atlas)
+and leaves (flat and tinted, cut to leaf shapes by the leaf picture), with the st helpers they
+read: UDIM texture coordinates of the bark's quads and texture asset paths. Which pictures a
+scene carries and where: :mod:`forest.usd.textures`."""
 
 from __future__ import annotations
 
@@ -80,13 +81,14 @@ def st_texture(
 
 
 def bark_material(
-    stage: Usd.Stage, tiles: str | None = None, bark: str = DEFAULT_SET
+    stage: Usd.Stage, texture: str | None = None, bark: str = DEFAULT_SET
 ) -> UsdShade.Material:
     """UsdPreviewSurface bark. ``forest:barkTileSet`` names the shipped tile set ``bark``
-    (``forest.bark.tilesets``), which the renderer uses when no tile folder is given. With
-    ``tiles`` (a folder of ``bark.<UDIM>.png``, relative to the scene) the colour comes from
-    the UDIM tiles through ``st``; without, a flat colour, the mean of the set's tiles, so no
-    scene references textures that do not exist and a DCC shows the species' colour."""
+    (``forest.bark.tilesets``), which the renderer uses when the scene names no tile folder.
+    With ``texture`` (an asset path: the UDIM tiles ``.../bark.<UDIM>.png`` of
+    :func:`tile_asset_path`, or a .usdz's atlas) the colour comes from it through ``st``;
+    without, a flat colour, the mean of the set's tiles (also the texture's fallback), so a
+    DCC shows the species' colour."""
     UsdGeom.Scope.Define(stage, LOOKS)
     mat = UsdShade.Material.Define(stage, BARK_MATERIAL)
     set_attr(mat.GetPrim(), BARK_TILE_SET, Sdf.ValueTypeNames.String, bark)
@@ -94,10 +96,10 @@ def bark_material(
     pbr = UsdShade.Shader.Define(stage, f"{BARK_MATERIAL}/{SURFACE}")
     pbr.CreateIdAttr("UsdPreviewSurface")
     pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.9)
-    if tiles is None:
+    if texture is None:
         pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).Set(Gf.Vec3f(*colour))
     else:
-        tex = st_texture(stage, BARK_TILES, tile_asset_path(tiles), "sRGB", (*colour, 1.0))
+        tex = st_texture(stage, BARK_TILES, texture, "sRGB", (*colour, 1.0))
         tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
         pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(
             tex.ConnectableAPI(), "rgb"
@@ -122,13 +124,18 @@ class LeafMaterials:
         api.Bind(self.tinted, materialPurpose=UsdShade.Tokens.preview)
 
 
+def leaf_texture_name(family: Family) -> str:
+    """The file name of the leaf family's picture: ``leaf-<family>.png``."""
+    return f"leaf-{family}.png"
+
+
 def write_leaf_texture(folder: Path, family: Family) -> Path:
     """The leaf family's picture (:func:`forest.growth.foliage.leaf_texture`) as
     ``folder/leaf-<family>.png``, its rows turned so that USD's ``st`` (t up from the image's
     bottom row) reads it as the leaf cards do: the stem end at t = 0."""
     from forest.bark.images import write_png
 
-    path = folder / f"leaf-{family}.png"
+    path = folder / leaf_texture_name(family)
     write_png(path, np.ascontiguousarray(leaf_texture(family)[::-1]))
     return path
 
@@ -140,9 +147,9 @@ def leaf_material(
     (leaf green where there are none), the tinted one reading the ``displayColor`` primvar
     (the instancer's per-instance colour, the skinned leaves' per-face one) with that mean as
     its fallback. With ``texture`` (an asset path to :func:`write_leaf_texture`'s picture,
-    as a .usdz carries it) both cut each card to its leaf: ``opacity`` from the picture's
-    alpha through ``st``, ``opacityThreshold`` 0.5, so a DCC shows leaves, not square cards;
-    without, no scene points at a texture file it does not carry."""
+    beside the scene or in its package) both cut each card to its leaf: ``opacity`` from the
+    picture's alpha through ``st``, ``opacityThreshold`` 0.5, so a DCC shows leaves, not
+    square cards; without (``--no-textures``), uncut cards of one colour."""
     mean = (
         tuple(float(c) for c in np.asarray(colors, np.float64).mean(axis=0))
         if colors is not None and len(colors)

@@ -55,6 +55,7 @@ from forest.usd.contract import (
     ROOT_RIM,
     ROOT_ROTATIONS,
     SEED,
+    SKINNED,
     SYMBOL,
     TILE_CLASS,
     TILE_INDICES,
@@ -264,6 +265,12 @@ def select_engine(stage: Usd.Stage) -> None:
         return
     vset = prim.GetVariantSets().GetVariantSet(REPRESENTATION)
     if ENGINE not in vset.GetVariantNames():
+        if vset.GetVariantNames() == [SKINNED]:  # a .usdz: ARKit allows no PointInstancer
+            raise SceneError(
+                f"holds only the {SKINNED!r} trees (a .usdz); read or render the scene "
+                "written as .usdc or .usda",
+                path=f"{FOREST}.{REPRESENTATION}",
+            )
         raise SceneError(f"no {ENGINE!r} variant", path=f"{FOREST}.{REPRESENTATION}")
     with Usd.EditContext(stage, stage.GetSessionLayer()):
         vset.SetVariantSelection(ENGINE)

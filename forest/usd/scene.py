@@ -8,11 +8,13 @@ material, the pieces' instancer (:mod:`forest.usd.instancer`), the leaf clouds
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
-from pxr import Sdf, Usd
+from pxr import Sdf, Usd, UsdShade
 
 from forest.geometry.transforms import F64
+from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import DCC_JOINTS
 from forest.usd.contract import (
@@ -34,8 +36,9 @@ from forest.usd.contract import (
 from forest.usd.files import check_output_path, discard, finish, new_stage_layer
 from forest.usd.instancer import Progress, write_instancer
 from forest.usd.leaves import write_foliage
-from forest.usd.materials import bark_material, write_leaf_texture
+from forest.usd.materials import bark_material
 from forest.usd.prims import define_world, row_major, set_attr, set_frames
+from forest.usd.textures import scene_textures
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -45,18 +48,22 @@ SKINNED_MAX_TREES = 64
 SKINNED_MAX_PIECES = 20_000
 
 
-def setup_stage(stage: Usd.Stage, forest: Forest) -> None:
-    """``/World/Forest`` with what makes the scene again, the documentation and frames."""
+def setup_stage(stage: Usd.Stage, forest: Forest, instanced: bool = True) -> None:
+    """``/World/Forest`` with what makes the scene again, the documentation and frames
+    (``instanced``: the layer holds the engine and posed forms, as all but a .usdz)."""
     _, group = define_world(stage, FOREST)
     prim = group.GetPrim()
+    forms = (
+        f"{ENGINE} (pieces at rest + the bone rig, {JOINT_ROTATIONS}), {POSED} (pieces at "
+        f"posed transforms), {SKINNED} (UsdSkel trees, when written)."
+        if instanced
+        else f"{SKINNED} (UsdSkel trees) only: a .usdz holds no instanced form."
+    )
     stage.GetRootLayer().documentation = (
         f"interlocking-forest {forest.version}: {forest.options.trees} trees from grammar "
         f"{forest.grammar.name or '(unnamed)'} (axiom {forest.grammar.axiom}), seed "
         f"{int(forest.seed)}; {FOREST}.{GRAMMAR} holds the grammar, "
-        f"{OPTIONS} the options. Variant set '{REPRESENTATION}' on {FOREST}: "
-        f"{ENGINE} (pieces at rest + the bone rig, {JOINT_ROTATIONS}), {POSED} (pieces at "
-        "posed transforms), "
-        f"{SKINNED} (UsdSkel trees, when written)."
+        f"{OPTIONS} the options. Variant set '{REPRESENTATION}' on {FOREST}: {forms}"
     )
     # everything needed to make the scene again
     grammar_json = json.dumps(forest.grammar.model_dump(mode="json"), sort_keys=True)
@@ -99,6 +106,7 @@ def write_scene(
     *,
     skinned: bool | None = None,
     tiles: str | None = None,
+    textures: bool = True,
     progress: Progress | None = None,
     joint_budget: int | None = DCC_JOINTS,
 ) -> Path:
@@ -106,61 +114,101 @@ def write_scene(
 
     ``skinned``: True writes the skinned trees (then the composed default), False only the
     posed and engine representations, None (default) decides by size: skinned for up to
-    :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces. A .usdz always
-    carries the skinned trees and composes them by default (ARKit allows no PointInstancer),
-    so ``skinned`` is implied there. ``joint_budget``: the skinned trees' joints per tree
-    (:mod:`forest.growth.joint_budget`), None for one per bone."""
+    :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces. A .usdz holds
+    the skinned trees only (ARKit allows no PointInstancer: no engine or posed form), so
+    ``skinned`` is implied there. ``joint_budget``: the skinned trees' joints per tree
+    (:mod:`forest.growth.joint_budget`), None for one per bone.
+
+    ``textures`` (default): the materials read the grammar's shipped bark tiles (or those of
+    the folder ``tiles``, relative to the scene) and the leaf picture, which cuts the leaf
+    cards; a .usda/.usdc finds them in ``<stem>.textures/`` beside it
+    (:mod:`forest.usd.textures`), a .usdz carries them. Without, flat colours and no
+    picture (but a given ``tiles`` is still read)."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
+    package = out.suffix.lower() == ".usdz"
+    anchors = foliage_or_none(forest)
     stage, tmp = new_stage_layer(out)
+    made_folder = False
     try:
-        setup_stage(stage, forest)
-        vset, targets = representation_variants(stage, skinned)
-        anchors = foliage_or_none(forest)
-        leaf_file = None
-        if out.suffix.lower() == ".usdz" and anchors is not None:
-            # the leaf picture goes inside: written beside the layer (an absolute path: the
-            # packager embeds it under a name of its own). Bark tiles only from a given
-            # folder: Blender 4.2 finds no UDIM tile inside a package (magenta bark)
-            leaf_file = write_leaf_texture(tmp.parent, anchors.family).resolve().as_posix()
-        material = bark_material(stage, tiles, forest.grammar.bark)
-        samples: list[tuple[float | None, F64]] = []
-
-        def foliage_sample(time: float | None, palette: F64) -> None:
-            if anchors is not None:
-                samples.append((time, anchors.positions(palette, row_vectors=True)))
-
-        write_instancer(stage, forest, material, targets, progress, foliage_sample)
-        if anchors is not None:
-            write_foliage(stage, forest, anchors, samples, leaf_file)
+        pictures = scene_textures(
+            out,
+            tmp.parent,
+            forest.grammar.bark,
+            forest.manifest.n_slices,
+            None if anchors is None else anchors.family,
+            tiles=tiles,
+            textures=textures,
+        )
+        setup_stage(stage, forest, instanced=not package)
+        vset, targets = representation_variants(stage, skinned, instanced=not package)
+        material = bark_material(stage, pictures.bark, forest.grammar.bark)
+        if not package:
+            _write_instanced(stage, forest, material, targets, anchors, pictures.leaf, progress)
         if skinned:
             from forest.usd.skinned import write_skinned_trees
 
             vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
             with Usd.EditContext(stage, targets[SKINNED]):
                 write_skinned_trees(
-                    stage, forest, material, anchors, progress, leaf_file, joint_budget
+                    stage,
+                    forest,
+                    material,
+                    anchors,
+                    progress,
+                    pictures.leaf,
+                    pictures.bark_st,
+                    joint_budget,
                 )
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
                     if stage.GetPrimAtPath(where):
                         stage.GetPrimAtPath(where).SetActive(False)
         vset.SetVariantSelection(SKINNED if skinned else POSED)
+        # the pictures before the scene that names them: a reader never finds a scene
+        # whose pictures are not there yet
+        made_folder = pictures.write(staged=not package)
         # one step: the layer is encoded and written in one call that holds the GIL
         if progress:
             progress("save", 0, 1)
         finish(stage, tmp, out)
+        pictures.prune()
         if progress:
             progress("save", 1, 1)
+    except BaseException:
+        if made_folder and pictures.folder is not None:  # a first write leaves no trace
+            shutil.rmtree(pictures.folder, ignore_errors=True)
+        raise
     finally:
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
 
 
+def _write_instanced(
+    stage: Usd.Stage,
+    forest: Forest,
+    material: UsdShade.Material,
+    targets: dict[str, Usd.EditTarget],
+    anchors: FoliageAnchors | None,
+    leaf_file: str | None,
+    progress: Progress | None,
+) -> None:
+    """The engine and posed forms: the pieces' instancer and the leaf clouds' one."""
+    samples: list[tuple[float | None, F64]] = []
+
+    def foliage_sample(time: float | None, palette: F64) -> None:
+        if anchors is not None:
+            samples.append((time, anchors.positions(palette, row_vectors=True)))
+
+    write_instancer(stage, forest, material, targets, progress, foliage_sample)
+    if anchors is not None:
+        write_foliage(stage, forest, anchors, samples, leaf_file)
+
+
 def wants_skinned(forest: Forest, path: Path, skinned: bool | None = None) -> bool:
     """Whether :func:`write_scene` writes (and composes) the skinned trees: always in a
-    .usdz, else ``skinned`` when given, else for forests of at most
+    .usdz (its only form), else ``skinned`` when given, else for forests of at most
     :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces."""
     if path.suffix.lower() == ".usdz":
         return True
@@ -173,12 +221,14 @@ def wants_skinned(forest: Forest, path: Path, skinned: bool | None = None) -> bo
 
 
 def representation_variants(
-    stage: Usd.Stage, skinned: bool
+    stage: Usd.Stage, skinned: bool, instanced: bool = True
 ) -> tuple[Usd.VariantSet, dict[str, Usd.EditTarget]]:
-    """The ``representation`` variant set on /World/Forest and an edit target per variant."""
+    """The ``representation`` variant set on /World/Forest and an edit target per variant:
+    the ``instanced`` forms (engine, posed) and, when ``skinned``, the skinned trees."""
     vset = stage.GetPrimAtPath(FOREST).GetVariantSets().AddVariantSet(REPRESENTATION)
     targets = {}
-    for name in (ENGINE, POSED, SKINNED) if skinned else (ENGINE, POSED):
+    names = ((ENGINE, POSED) if instanced else ()) + ((SKINNED,) if skinned else ())
+    for name in names:
         vset.AddVariant(name)
         vset.SetVariantSelection(name)
         targets[name] = vset.GetVariantEditTarget()

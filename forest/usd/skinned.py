@@ -394,12 +394,14 @@ def write_skinned_trees(
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
     leaf_file: str | None = None,
+    bark_st: Callable[[F64], F64] | None = None,
     joint_budget: int | None = DCC_JOINTS,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
     (Leaves, each cloud bound rigidly to its hub's joint; cut to leaves by ``leaf_file``,
-    see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
+    see :func:`forest.usd.materials.leaf_material`). ``bark_st`` maps the bark's UDIM st to
+    what the material reads (a .usdz's atlas). Extents are authored per frame on every
     prim whose points or joints move. ``joint_budget``: joints per tree
     (:mod:`forest.growth.joint_budget`; twigs move rigidly with their limb's joint), None
     for one joint per bone."""
@@ -452,7 +454,9 @@ def write_skinned_trees(
             forest, inst, bones, to_tree, frames_of.still, weld=True, budget=joint_budget
         )
         mesh = _mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
-        _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
+        _indexed_st(
+            mesh.GetPrim(), st if bark_st is None else bark_st(st), UsdGeom.Tokens.faceVarying
+        )
         _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/{PROXY_MESH}", pts, quads, skel, jidx, jw)

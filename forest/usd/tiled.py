@@ -118,7 +118,8 @@ def write_tile_file(
     if forest is None:
         write_empty_tile(path)
     else:
-        write_scene(forest, path, skinned=skinned)
+        # flat colours: a texture folder per tile would copy the tile set into every tile
+        write_scene(forest, path, skinned=skinned, textures=False)
     trees = 0 if forest is None else forest.options.trees
     return TileEntry(i, j, asset, tile_extent(path), trees)
 

@@ -11,7 +11,7 @@ from fastapi.responses import Response
 
 from farm.requests import options_from_request
 from forest.errors import ForestError
-from forest.export import write_forest
+from forest.export import single_file, write_forest
 from forest.growth.generate import generate_forest
 from schemas.jobs import SceneFormat, TreeRequest
 from service.deps import ServicesDep
@@ -50,7 +50,11 @@ def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Resp
                 settings=library_settings(s, s.max_tree_pieces),
                 compiled=cg,
             )
-            path = write_forest(forest, Path(tmp) / f"tree.{req.format}", skinned=req.skinned)
+            out = Path(tmp) / f"tree.{req.format}"
+            # one file answers: pictures only where the file carries them (.usdz, .glb); a
+            # .usda/.usdc keeps flat colours rather than name a folder the client never gets
+            textures = single_file(out)
+            path = write_forest(forest, out, skinned=req.skinned, textures=textures)
         except ForestError as exc:
             raise forest_error(exc) from None
         data = path.read_bytes()

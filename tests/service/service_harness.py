@@ -351,6 +351,7 @@ def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> byt
     """The library's own output for a forest or tree request body (a .usdz names its inner
     layer by stem)."""
     from farm.requests import options_from_request
+    from forest.export import single_file
     from forest.growth.generate import generate_forest
     from forest.growth.presets import load_preset
     from forest.usd.scene import write_scene
@@ -362,7 +363,9 @@ def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> byt
     forest = generate_forest(load_preset(req.preset), req.seed, options_from_request(req))
     (tmp / "ref").mkdir(exist_ok=True)
     path = tmp / "ref" / f"{stem}.{body['format']}"
-    return write_scene(forest, path, skinned=req.skinned).read_bytes()
+    # one file answers: pictures only where it carries them (forest.export.single_file)
+    textures = single_file(path)
+    return write_scene(forest, path, skinned=req.skinned, textures=textures).read_bytes()
 
 
 class Proxy:

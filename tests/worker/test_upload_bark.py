@@ -1,7 +1,8 @@
-"""Bark of an uploaded scene, through the render job as the worker runs it: a ``.usdz`` renders
-with the tiles in its own package; a ``.usdc`` (no package: no textures) whose material names
-a folder renders the shipped set its material names and says so without a path; a shipped set
-missing from the installation is an error naming the set, not placeholder bark."""
+"""Bark of an uploaded scene, through the render job as the worker runs it: a ``.usdz`` (the
+skinned trees only, no pieces) is refused by name; a ``.usdc`` (no package: no textures) whose
+material names a folder renders the shipped set its material names and says so without a
+path; a shipped set missing from the installation is an error naming the set, not
+placeholder bark."""
 
 from __future__ import annotations
 
@@ -47,10 +48,11 @@ def render_upload(scene: Path, tmp_path: Path) -> tuple[Outcome, RenderMetrics]:
     return out, RenderMetrics.model_validate_json(text)
 
 
-def test_a_usdz_renders_its_own_tiles(scenes: dict[str, Path], tmp_path: Path) -> None:
-    _, metrics = render_upload(scenes["usdz"], tmp_path)
-    assert metrics.textures == "the upload's own bark tiles"
-    assert metrics.warnings == []
+def test_a_usdz_is_refused_by_name(scenes: dict[str, Path], tmp_path: Path) -> None:
+    """A .usdz holds the skinned trees only (ARKit allows no PointInstancer): nothing the
+    renderer's pieces come from."""
+    with pytest.raises(ForestError, match="only the 'skinned' trees"):
+        render_upload(scenes["usdz"], tmp_path)
 
 
 def test_a_usdc_renders_the_shipped_set(scenes: dict[str, Path], tmp_path: Path) -> None:

@@ -9,7 +9,7 @@ def run_forest(ctx: JobContext) -> Outcome:
     """A forest job: generate, write the scene (``scene.<format>``: USD, or ``scene.glb``)."""
     # the library is imported in the job's process (preloaded there), not by ``--list``
     from farm.requests import options_from_request
-    from forest.export import write_forest
+    from forest.export import single_file, write_forest
     from forest.growth.generate import generate_forest
     from forest.growth.presets import grammar_of
     from schemas.jobs import ForestRequest
@@ -24,7 +24,8 @@ def run_forest(ctx: JobContext) -> Outcome:
     forest = generate_forest(grammar, req.seed, options, progress=note)
     ctx.report("write", 0.7)
     name = f"scene.{req.format}"
-    out = write_forest(forest, ctx.scratch / name, skinned=req.skinned)
+    # the scene is one artifact: pictures only where it carries them (.usdz, .glb)
+    out = write_forest(forest, ctx.scratch / name, skinned=req.skinned, textures=single_file(name))
     result = {
         "trees": req.trees,
         "pieces": forest.n_instances,
