@@ -13,7 +13,7 @@ from forest.usd.scene import write_scene
 
 @pytest.fixture(scope="session")
 def windy_forest() -> Forest:
-    return generate_forest(load_preset("almond"), 11, ForestOptions(trees=3, frames=4))
+    return generate_forest(load_preset("almond"), 11, ForestOptions(trees=3, frames=4, fps=6))
 
 
 @pytest.fixture(scope="session")
