@@ -68,7 +68,10 @@ variant), one ``Tree_NNNNN`` (:func:`tree_name`) SkelRoot per tree (kind compone
 name, version, :data:`ASSET_SEED` and :data:`ASSET_TREE`, the tree's index) holding
 :data:`SKELETON` (with its SkelAnimation :data:`WIND_ANIMATION`), :data:`BARK_MESH` (skinned
 quads, indexed UDIM ``st``), :data:`PROXY_MESH` (decimated, purpose proxy) and
-:data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``).
+:data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``); with levels of detail
+a variant set :data:`LOD` (:func:`lod_variant`, default ``lod0``, the meshes above) whose
+higher levels deactivate those three and hold :func:`lod_mesh` meshes bound to the same
+Skeleton.
 
 ``/World/Looks`` (:data:`LOOKS`): :data:`BARK_MATERIAL` (UsdPreviewSurface; its
 :data:`BARK_TILE_SET` string names the shipped tile set; with a tile folder its
@@ -112,6 +115,20 @@ WIND_ANIMATION = "Wind"  # under SKELETON
 BARK_MESH = "Bark"
 PROXY_MESH = "Proxy"
 LEAVES_MESH = "Leaves"
+# a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
+# as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
+LOD = "lod"
+LOD_LEVELS = 3  # lod0 .. lod2
+
+
+def lod_variant(level: int) -> str:
+    """The :data:`LOD` variant of level ``level`` (``lod0`` is the full tree, the default)."""
+    return f"lod{level}"
+
+
+def lod_mesh(mesh: str, level: int) -> str:
+    """The prim name of a mesh (:data:`BARK_MESH`, :data:`LEAVES_MESH`) at ``level`` >= 1."""
+    return f"{mesh}_lod{level}"
 
 
 def tree_name(k: int) -> str:

@@ -99,6 +99,7 @@ def write_scene(
     skinned: bool | None = None,
     tiles: str | None = None,
     progress: Progress | None = None,
+    lod: bool = False,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
 
@@ -106,7 +107,8 @@ def write_scene(
     posed and engine representations, None (default) decides by size: skinned for up to
     :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces. A .usdz always
     carries the skinned trees and composes them by default (ARKit allows no PointInstancer),
-    so ``skinned`` is implied there."""
+    so ``skinned`` is implied there. ``lod`` adds each skinned tree's levels of detail
+    (:mod:`forest.lod`: a variant set ``lod`` on its SkelRoot, ``lod0`` the default)."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
     stage, tmp = new_stage_layer(out)
@@ -135,7 +137,7 @@ def write_scene(
 
             vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
             with Usd.EditContext(stage, targets[SKINNED]):
-                write_skinned_trees(stage, forest, material, anchors, progress, leaf_file)
+                write_skinned_trees(stage, forest, material, anchors, progress, leaf_file, lod=lod)
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
                     if stage.GetPrimAtPath(where):

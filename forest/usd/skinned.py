@@ -349,12 +349,15 @@ def write_skinned_trees(
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
     leaf_file: str | None = None,
+    lod: bool = False,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
     (Leaves, each cloud bound rigidly to its hub bone; cut to leaves by ``leaf_file``,
     see :func:`forest.usd.materials.leaf_material`). Extents are authored per frame on every
-    prim whose points or joints move."""
+    prim whose points or joints move. With ``lod``, each tree's levels of detail as the
+    variant set ``lod`` (:mod:`forest.lod.usd`; ``lod0``, the default, is the tree as
+    without)."""
     if progress:  # the joint frames first, then a tree of a big species takes seconds
         progress("skinned trees", 0, forest.options.trees)
     trees = UsdGeom.Xform.Define(stage, TREES)
@@ -422,6 +425,15 @@ def write_skinned_trees(
             lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
             _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
             leaf_materials.bind(lm.GetPrim())
+        if lod:
+            from forest.lod.select import BarkMesh, LeavesMesh
+            from forest.lod.usd import write_tree_lods
+
+            write_tree_lods(
+                stage, root.GetPrim(), skel, forest, anchors,
+                (inst, bones, to_tree, frames_of.still), BarkMesh(pts, nrm, quads, jidx, jw, st),
+                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials,
+            )  # fmt: skip
         # the skeleton's joints, then the whole tree: one extent per frame, as they move
         for boundable in (skel, root):
             attr = boundable.CreateExtentAttr()

@@ -1,0 +1,144 @@
+"""Levels of detail from the pieces (forest.lod): triangle targets per level, kept bark equal
+to LOD0's (same vertices, same skin, so the same surface at every wind frame), and the USD
+variant set ``lod`` on each skinned tree."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from pxr import Usd, UsdGeom, UsdSkel, UsdValidation
+
+from forest.geometry.transforms import invert_similarity
+from forest.growth.generate import Forest, ForestOptions, foliage_or_none, generate_forest
+from forest.growth.presets import load_preset
+from forest.lod.levels import Level, tree_levels
+from forest.lod.select import TARGETS, BarkMesh, LeavesMesh
+from forest.usd.contract import (
+    BARK_MESH,
+    LEAVES_MESH,
+    LOD,
+    PROXY_MESH,
+    TREES,
+    lod_mesh,
+    lod_variant,
+    tree_name,
+)
+from forest.usd.scene import write_scene
+from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
+from tests.helpers_skin import usd_skinned_points
+
+
+def _levels(preset: str, seed: int) -> list[Level]:
+    forest = generate_forest(load_preset(preset), seed, ForestOptions(trees=1))
+    anchors = foliage_or_none(forest)
+    inst, bones = tree_slices(forest)[0]
+    still = joint_frames(forest).still
+    to_tree = invert_similarity(forest.tree_transforms[0])
+    bark = BarkMesh(*tree_mesh(forest, inst, bones, to_tree, still, weld=True))
+    made = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree, still)
+    leaves = None if made is None else LeavesMesh(*made)
+    return tree_levels(forest, anchors, inst, bones, to_tree, still, bark, leaves)
+
+
+@pytest.mark.parametrize(("preset", "seed"), [("oak", 3), ("birch", 1)])
+def test_levels_meet_their_triangle_targets(preset: str, seed: int) -> None:
+    """Each level within its share of LOD0's triangles and its game budget (oak: LOD1 <= 40 k,
+    LOD2 <= 8 k), yet not far below it (a level that kept nothing would pass a bare cap)."""
+    levels = _levels(preset, seed)
+    lod0 = sum(levels[0].triangles)
+    for level in levels[1:]:
+        bark, leaves = level.triangles
+        target = TARGETS[level.level].triangles(lod0)
+        assert bark + leaves <= target, (level.level, bark, leaves, target)
+        assert bark + leaves >= 0.9 * target, (level.level, bark, leaves, target)
+        assert bark > 0 and leaves > 0
+    assert levels[1].min_radius < levels[2].min_radius
+
+
+def test_kept_bark_is_lod0_bark() -> None:
+    """Every kept bark vertex is one of LOD0's with LOD0's joints and weights, and every kept
+    quad one of LOD0's quads: a level drops pieces, it never moves a vertex."""
+    levels = _levels("oak", 3)
+    full = levels[0].bark
+    where = {row.tobytes(): i for i, row in enumerate(full.points)}
+    full_quads = {tuple(q) for q in np.sort(full.quads, axis=1).tolist()}
+    for level in levels[1:]:
+        b = level.bark
+        index = np.array([where[row.tobytes()] for row in b.points])
+        assert np.array_equal(full.joints[index], b.joints)
+        assert np.array_equal(full.weights[index], b.weights)
+        kept = {tuple(q) for q in np.sort(index[b.quads], axis=1).tolist()}
+        assert kept <= full_quads
+
+
+@pytest.fixture(scope="module")
+def lod_scene(tmp_path_factory: pytest.TempPathFactory) -> tuple[Forest, Path, Path]:
+    forest = generate_forest(load_preset("almond"), 11, ForestOptions(trees=2, frames=3))
+    out = tmp_path_factory.mktemp("lod")
+    plain = write_scene(forest, out / "plain.usdc", skinned=True)
+    lod = write_scene(forest, out / "lod.usdc", skinned=True, lod=True)
+    return forest, plain, lod
+
+
+def _meshes(root: Usd.Prim) -> dict[str, int]:
+    return {
+        c.GetName(): len(UsdGeom.Mesh(c).GetPointsAttr().Get())
+        for c in root.GetChildren()
+        if c.IsA(UsdGeom.Mesh)
+    }
+
+
+def test_lod0_composes_the_tree_as_without_levels(lod_scene: tuple[Forest, Path, Path]) -> None:
+    forest, plain, lod = lod_scene
+    a, b = Usd.Stage.Open(str(plain)), Usd.Stage.Open(str(lod))
+    for k in range(forest.options.trees):
+        path = f"{TREES}/{tree_name(k)}"
+        ra, rb = a.GetPrimAtPath(path), b.GetPrimAtPath(path)
+        vset = rb.GetVariantSets().GetVariantSet(LOD)
+        assert vset.GetVariantNames() == [lod_variant(i) for i in range(3)]
+        assert vset.GetVariantSelection() == lod_variant(0)
+        assert _meshes(ra) == _meshes(rb)
+        tc = Usd.TimeCode(2.0)
+        ext = UsdGeom.Boundable(ra).GetExtentAttr()
+        assert ext.Get(tc) == UsdGeom.Boundable(rb).GetExtentAttr().Get(tc)
+
+
+def test_switching_levels(lod_scene: tuple[Forest, Path, Path]) -> None:
+    """Each level shows its own Bark and Leaves only; its bark skinned by USD at the last wind
+    frame lies on LOD0's skinned bark (same points, same joints); its meshes lie within the
+    tree's authored extent; UsdValidation reports nothing in any level."""
+    forest, _, lod = lod_scene
+    stage = Usd.Stage.Open(str(lod))
+    last = float(forest.options.frames - 1)
+    registry = UsdValidation.ValidationRegistry()
+    validators = UsdValidation.ValidationContext(registry.GetOrLoadAllValidators())
+    for k in range(forest.options.trees):
+        root = stage.GetPrimAtPath(f"{TREES}/{tree_name(k)}")
+        vset = root.GetVariantSets().GetVariantSet(LOD)
+        rest0 = np.asarray(UsdGeom.Mesh(root.GetChild(BARK_MESH)).GetPointsAttr().Get())
+        posed0 = usd_skinned_points(root, BARK_MESH, last)
+        lo, hi = np.asarray(UsdGeom.Boundable(root).GetExtentAttr().Get())
+        height = float(hi[1] - lo[1])
+        where = {row.tobytes(): i for i, row in enumerate(rest0)}
+        for level in (1, 2):
+            assert vset.SetVariantSelection(lod_variant(level))
+            names = set(_meshes(root))
+            assert names == {lod_mesh(BARK_MESH, level), lod_mesh(LEAVES_MESH, level)}
+            assert not {BARK_MESH, PROXY_MESH, LEAVES_MESH} & names
+            bark = root.GetChild(lod_mesh(BARK_MESH, level))
+            rest = np.asarray(UsdGeom.Mesh(bark).GetPointsAttr().Get())
+            index = np.array([where[row.tobytes()] for row in rest])
+            posed = usd_skinned_points(root, lod_mesh(BARK_MESH, level), last)
+            assert np.abs(posed - posed0[index]).max() <= 1e-6 * height
+            for name in names:
+                pts = np.asarray(UsdGeom.Mesh(root.GetChild(name)).GetPointsAttr().Get())
+                # LOD1's grown leaf cards reach a little past LOD0's
+                slack = 0.02 * height
+                assert (pts.min(axis=0) >= lo - slack).all(), name
+                assert (pts.max(axis=0) <= hi + slack).all(), name
+                assert UsdSkel.BindingAPI(root.GetChild(name)).GetSkeleton()
+            errors = [f"{e.GetIdentifier()}: {e.GetMessage()}" for e in validators.Validate(stage)]
+            assert errors == [], errors
+        vset.SetVariantSelection(lod_variant(0))
