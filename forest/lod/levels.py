@@ -27,6 +27,11 @@ from forest.lod.select import (
     tree_anchors,
 )
 
+# LOD1's cards grow by this over 1 / sqrt(kept fraction): sprays whose cards overlapped less
+# once fewer cover more. Measured on oak seed 3 (alpha coverage at 1024 px, side and top):
+# 1.0 covered 20 % more than LOD0, 0.9 matches it within a few per cent
+CARD_GROWTH = 0.85
+
 
 @dataclass(frozen=True, eq=False)
 class Level:
@@ -111,7 +116,8 @@ def _fewer_cards(
     fraction = len(pick) / len(cards)
     quads = leaves.quads[pick]
     mid = leaves.points[quads].mean(axis=1)
-    points = mid[:, None] + (leaves.points[quads] - mid[:, None]) / np.sqrt(fraction)
+    grow = CARD_GROWTH / np.sqrt(fraction)
+    points = mid[:, None] + (leaves.points[quads] - mid[:, None]) * grow
     joint = hang_joints(forest, inst, bones, kept, tree)[spray[pick]]
     return LeavesMesh(
         points.reshape(-1, 3),
