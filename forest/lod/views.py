@@ -10,6 +10,7 @@ The core install has no GL: :func:`draw_views` raises
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -121,7 +122,8 @@ def draw_views(
         radius = float(np.linalg.norm(pts - centre, axis=1).max()) * 1.01
     ctx = create_context(GL_VERSION)
     try:
-        prog = ctx.program(**sources("lod_view", {"ALPHA_CUT": ALPHA_CUT}))
+        make: Any = ctx.program  # its stubs type the keyword arguments one by one
+        prog = make(**sources("lod_view", {"ALPHA_CUT": ALPHA_CUT}))
         vbo = ctx.buffer(soup.tobytes())
         vao = ctx.vertex_array(
             prog, [(vbo, "3f 3f 3f 2f 1f", "position", "normal", "tint", "st", "textured")]
