@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 
 from forest.geometry.transforms import F64
 from forest.lod.select import BarkMesh, LeavesMesh
-from forest.lod.views import Views, draw_views
+from forest.lod.views import GL_VERSION, Views, draw_views
 
 G = TypeVar("G", bound=np.generic)
 FRAMES = 4  # atlas frames per side: 16 views of the upper hemisphere
@@ -126,6 +126,20 @@ def card_pair(imp: Impostor) -> tuple[F64, F64, NDArray[np.int32], F64]:
         np.arange(8, dtype=np.int32).reshape(2, 4),
         np.array(st),
     )
+
+
+def gl_missing() -> str | None:
+    """Why no impostor can be baked here (no moderngl, no EGL: the render extra is not
+    installed), or None where it can."""
+    from forest.errors import ForestError
+
+    try:
+        from worker.render.gl_context import create_context
+
+        create_context(GL_VERSION).release()
+    except (ImportError, ForestError) as exc:
+        return str(exc)
+    return None
 
 
 def write_impostor(imp: Impostor, folder: Path, stem: str) -> dict[str, Path]:

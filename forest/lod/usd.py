@@ -5,6 +5,9 @@ set) are LOD0, so a stage that selects it composes exactly the tree without leve
 higher level deactivates those three (``active`` is authored nowhere else, so the variant's
 opinion holds) and defines its own :func:`lod_mesh` Bark and Leaves, skinned to the same
 Skeleton: a consumer switches with ``GetVariantSet('lod').SetVariantSelection('lod2')``.
+With :class:`LodOptions` ``impostors``, ``lod3`` is the impostor (:mod:`forest.lod.impostor`,
+baked with the render extra's GL): its crossed card pair bound to the root joint, a material
+reading the cards' picture (cut by alpha) and, on the mesh, the octahedral atlases' paths.
 
 The skinned trees are themselves written inside the forest's ``representation`` variant, so
 the level's edit target nests: the current target's spec path of the tree plus the level's
@@ -13,8 +16,13 @@ variant selection.
 
 from __future__ import annotations
 
+import posixpath
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
+
 import numpy as np
-from pxr import Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
 from forest.geometry.pieces import MAX_INFLUENCES
 from forest.geometry.transforms import F64
@@ -22,9 +30,53 @@ from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest
 from forest.lod.levels import Level, tree_levels
 from forest.lod.select import BarkMesh, LeavesMesh
-from forest.usd.contract import BARK_MESH, LEAVES_MESH, LOD, PROXY_MESH, lod_mesh, lod_variant
-from forest.usd.materials import LeafMaterials
+from forest.usd.contract import (
+    BARK_MESH,
+    IMPOSTOR_ATLAS,
+    IMPOSTOR_FRAMES,
+    IMPOSTOR_MATERIAL,
+    IMPOSTOR_MESH,
+    IMPOSTOR_SPHERE,
+    LEAVES_MESH,
+    LOD,
+    PROXY_MESH,
+    SURFACE,
+    lod_mesh,
+    lod_variant,
+)
+from forest.usd.materials import LeafMaterials, st_texture
+from forest.usd.prims import set_attr
 from forest.usd.skinned import _bind, _indexed_st, _mesh
+
+if TYPE_CHECKING:
+    from forest.lod.impostor import Impostor
+
+
+IMPOSTOR_LEVEL = 3
+
+
+@dataclass(frozen=True)
+class ImpostorFiles:
+    """Where a scene's impostor pictures go: ``folder`` on disk; their asset paths relative
+    to ``layer_folder`` (``./...``, what the textures beside a .usda/.usdc need), or absolute
+    where it is None (a .usdz's packager embeds them under names of its own)."""
+
+    folder: Path
+    layer_folder: Path | None
+
+    def asset(self, path: Path) -> str:
+        if self.layer_folder is None:
+            return path.resolve().as_posix()
+        rel = posixpath.relpath(path.resolve().as_posix(), self.layer_folder.resolve().as_posix())
+        return rel if rel.startswith("../") else f"./{rel}"
+
+
+@dataclass(frozen=True)
+class LodOptions:
+    """What :func:`forest.usd.skinned.write_skinned_trees` writes of each tree's levels:
+    LOD0-LOD2 always, LOD3 (the impostor) where ``impostors`` says where its pictures go."""
+
+    impostors: ImpostorFiles | None = None
 
 
 def write_tree_lods(
@@ -38,13 +90,24 @@ def write_tree_lods(
     leaves: LeavesMesh | None,
     bark_material: UsdShade.Material,
     leaf_materials: LeafMaterials | None,
+    options: LodOptions,
 ) -> list[Level]:
     """The levels of the tree ``root`` (``tree``: its instances, joints, world-to-tree
     transform and still palette, as :func:`forest.usd.skinned.tree_mesh` takes them; ``bark``
-    and ``leaves`` its LOD0 meshes) as its :data:`LOD` variant set; returns the levels."""
+    and ``leaves`` its LOD0 meshes) as its :data:`LOD` variant set, the impostor too where
+    ``options`` asks; returns the levels made of pieces."""
     inst, bones, to_tree, still = tree
     levels = tree_levels(forest, anchors, inst, bones, to_tree, still, bark, leaves)
-    write_lod_variants(stage, root, skel, levels, bark_material, leaf_materials)
+    impostor = None
+    if options.impostors is not None:
+        from forest.bark.tilesets import mean_colour
+        from forest.growth.foliage import leaf_texture
+        from forest.lod.impostor import bake_impostor
+
+        family = "broadleaf" if anchors is None else anchors.family
+        imp = bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
+        impostor = (imp, options.impostors)
+    write_lod_variants(stage, root, skel, levels, bark_material, leaf_materials, impostor)
     return levels
 
 
@@ -55,16 +118,19 @@ def write_lod_variants(
     levels: list[Level],
     bark_material: UsdShade.Material,
     leaf_materials: LeafMaterials | None,
+    impostor: tuple[Impostor, ImpostorFiles] | None = None,
 ) -> None:
     """The variant set :data:`LOD` on the tree ``root`` (a SkelRoot whose LOD0 meshes are
-    written): one variant per level of ``levels``, ``lod0`` selected."""
+    written): one variant per level of ``levels`` and ``lod3`` for the ``impostor`` (with
+    where its pictures go), ``lod0`` selected."""
     outer = stage.GetEditTarget()
     vset = root.GetVariantSets().AddVariantSet(LOD)
-    for level in levels:
-        vset.AddVariant(lod_variant(level.level))
+    steps: list[Level | None] = [*levels[1:], *([None] if impostor is not None else [])]
+    for k in range(len(levels) + (impostor is not None)):
+        vset.AddVariant(lod_variant(k))
     path = root.GetPath()
-    for level in levels[1:]:
-        name = lod_variant(level.level)
+    for level in steps:
+        name = lod_variant(IMPOSTOR_LEVEL if level is None else level.level)
         vset.SetVariantSelection(name)  # a level's prims compose (and define) only when selected
         spec = outer.MapToSpecPath(path).AppendVariantSelection(LOD, name)
         target = Usd.EditTarget.ForLocalDirectVariant(outer.GetLayer(), spec)
@@ -72,7 +138,10 @@ def write_lod_variants(
             for full in (BARK_MESH, PROXY_MESH, LEAVES_MESH):
                 if root.GetChild(full):
                     stage.OverridePrim(path.AppendChild(full)).SetActive(False)
-            _write_level(stage, path, skel, level, bark_material, leaf_materials)
+            if level is not None:
+                _write_level(stage, path, skel, level, bark_material, leaf_materials)
+            elif impostor is not None:
+                _write_impostor(stage, path, skel, *impostor)
     vset.SetVariantSelection(lod_variant(0))
 
 
@@ -112,3 +181,45 @@ def _write_level(
     lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(leaves.colour))
     _bind(lm.GetPrim(), skel, leaves.joint, np.ones(len(leaves.joint)), 1)
     leaf_materials.bind(lm.GetPrim())
+
+
+def _write_impostor(
+    stage: Usd.Stage, path: Sdf.Path, skel: UsdSkel.Skeleton, imp: Impostor, files: ImpostorFiles
+) -> None:
+    """lod3: the card pair, bound to the root joint (the cards stand still in the wind), its
+    material and the atlases' asset paths."""
+    from forest.lod.impostor import card_pair, write_impostor
+
+    written = write_impostor(imp, files.folder, path.name)
+    pts, nrm, quads, st = card_pair(imp)
+    mesh = _mesh(
+        stage,
+        str(path.AppendChild(IMPOSTOR_MESH)),
+        pts,
+        nrm,
+        quads,
+        UsdGeom.Tokens.default_,
+    )
+    mesh.CreateDoubleSidedAttr(True)
+    _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.vertex)
+    _bind(mesh.GetPrim(), skel, np.zeros(len(pts), np.int32), np.ones(len(pts)), 1)
+    prim = mesh.GetPrim()
+    atlases = [Sdf.AssetPath(files.asset(written[k])) for k in ("albedo", "normal", "depth")]
+    set_attr(prim, IMPOSTOR_ATLAS, Sdf.ValueTypeNames.AssetArray, atlases)
+    set_attr(prim, IMPOSTOR_FRAMES, Sdf.ValueTypeNames.Int, imp.frames)
+    set_attr(prim, IMPOSTOR_SPHERE, Sdf.ValueTypeNames.Float4, Gf.Vec4f(*imp.centre, imp.radius))
+    look = str(path.AppendChild(IMPOSTOR_MATERIAL))
+    mat = UsdShade.Material.Define(stage, look)
+    pbr = UsdShade.Shader.Define(stage, f"{look}/{SURFACE}")
+    pbr.CreateIdAttr("UsdPreviewSurface")
+    pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.8)
+    tex = st_texture(
+        stage, f"{look}/Cards", files.asset(written["cards"]), "sRGB", (0.3, 0.4, 0.2, 1.0), "clamp"
+    )
+    rgb = tex.CreateOutput("rgb", Sdf.ValueTypeNames.Float3)
+    alpha = tex.CreateOutput("a", Sdf.ValueTypeNames.Float)
+    pbr.CreateInput("diffuseColor", Sdf.ValueTypeNames.Color3f).ConnectToSource(rgb)
+    pbr.CreateInput("opacity", Sdf.ValueTypeNames.Float).ConnectToSource(alpha)
+    pbr.CreateInput("opacityThreshold", Sdf.ValueTypeNames.Float).Set(0.5)
+    mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
+    UsdShade.MaterialBindingAPI.Apply(prim).Bind(mat)

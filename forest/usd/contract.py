@@ -71,7 +71,9 @@ quads, indexed UDIM ``st``), :data:`PROXY_MESH` (decimated, purpose proxy) and
 :data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``); with levels of detail
 a variant set :data:`LOD` (:func:`lod_variant`, default ``lod0``, the meshes above) whose
 higher levels deactivate those three and hold :func:`lod_mesh` meshes bound to the same
-Skeleton.
+Skeleton; ``lod3`` (when baked) the :data:`IMPOSTOR_MESH` card pair, its
+:data:`IMPOSTOR_MATERIAL` and, on the mesh, the octahedral atlases (:data:`IMPOSTOR_ATLAS`,
+:data:`IMPOSTOR_FRAMES`, :data:`IMPOSTOR_SPHERE`).
 
 ``/World/Looks`` (:data:`LOOKS`): :data:`BARK_MATERIAL` (UsdPreviewSurface; its
 :data:`BARK_TILE_SET` string names the shipped tile set; with a tile folder its
@@ -118,7 +120,12 @@ LEAVES_MESH = "Leaves"
 # a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
 # as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
 LOD = "lod"
-LOD_LEVELS = 3  # lod0 .. lod2
+LOD_LEVELS = 4  # lod0 .. lod2 from the pieces, lod3 the impostor (when baked)
+IMPOSTOR_MESH = "Impostor"  # lod3's crossed card pair
+IMPOSTOR_MATERIAL = "ImpostorLook"  # beside it in lod3: the cards' picture, cut by its alpha
+IMPOSTOR_ATLAS = "forest:impostorAtlas"  # asset[] albedo, normal, depth atlases
+IMPOSTOR_FRAMES = "forest:impostorFrames"  # int: the atlas's views per side
+IMPOSTOR_SPHERE = "forest:impostorSphere"  # float4: centre (tree space) and radius framed
 
 
 def lod_variant(level: int) -> str:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pxr import Sdf, Usd
 
@@ -35,6 +36,9 @@ from forest.usd.instancer import Progress, write_instancer
 from forest.usd.leaves import write_foliage
 from forest.usd.materials import bark_material, write_leaf_texture
 from forest.usd.prims import define_world, row_major, set_attr, set_frames
+
+if TYPE_CHECKING:
+    from forest.lod.usd import LodOptions
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -100,6 +104,7 @@ def write_scene(
     tiles: str | None = None,
     progress: Progress | None = None,
     lod: bool = False,
+    impostor: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
 
@@ -108,7 +113,9 @@ def write_scene(
     :data:`SKINNED_MAX_TREES` trees and :data:`SKINNED_MAX_PIECES` pieces. A .usdz always
     carries the skinned trees and composes them by default (ARKit allows no PointInstancer),
     so ``skinned`` is implied there. ``lod`` adds each skinned tree's levels of detail
-    (:mod:`forest.lod`: a variant set ``lod`` on its SkelRoot, ``lod0`` the default)."""
+    (:mod:`forest.lod`: a variant set ``lod`` on its SkelRoot, ``lod0`` the default) and,
+    with ``impostor`` (None: where GL is available, :func:`forest.lod.impostor.gl_missing`),
+    its baked impostor as ``lod3``, the pictures in ``<stem>.lod/`` beside a .usda/.usdc."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
     stage, tmp = new_stage_layer(out)
@@ -137,7 +144,10 @@ def write_scene(
 
             vset.SetVariantSelection(SKINNED)  # its extents are computed on the composed trees
             with Usd.EditContext(stage, targets[SKINNED]):
-                write_skinned_trees(stage, forest, material, anchors, progress, leaf_file, lod=lod)
+                write_skinned_trees(
+                    stage, forest, material, anchors, progress, leaf_file,
+                    lod=lod_options(out, tmp, impostor) if lod else None,
+                )  # fmt: skip
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
                     if stage.GetPrimAtPath(where):
@@ -153,6 +163,20 @@ def write_scene(
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
+
+
+def lod_options(out: Path, tmp: Path, impostor: bool | None) -> LodOptions:
+    """Where :func:`write_scene` puts the impostors' pictures: ``<stem>.lod/`` beside a
+    .usda/.usdc (relative asset paths), beside the private layer ``tmp`` for a .usdz (the
+    packager embeds them); none with ``impostor`` False, or None and no GL."""
+    from forest.lod.impostor import gl_missing
+    from forest.lod.usd import ImpostorFiles, LodOptions
+
+    if impostor is False or (impostor is None and gl_missing() is not None):
+        return LodOptions()
+    if out.suffix.lower() == ".usdz":
+        return LodOptions(ImpostorFiles(tmp.parent / "impostors", None))
+    return LodOptions(ImpostorFiles(out.parent / f"{out.stem}.lod", out.parent))
 
 
 def wants_skinned(forest: Forest, path: Path, skinned: bool | None = None) -> bool:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 from weakref import WeakKeyDictionary
 
 import fast_simplification
@@ -44,6 +45,9 @@ from forest.usd.contract import (
 )
 from forest.usd.materials import leaf_material, tile_udim_st
 from forest.usd.prims import row_major, time_code
+
+if TYPE_CHECKING:
+    from forest.lod.usd import LodOptions
 
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
 Progress = Callable[[str, int, int], None]
@@ -349,7 +353,7 @@ def write_skinned_trees(
     anchors: FoliageAnchors | None = None,
     progress: Progress | None = None,
     leaf_file: str | None = None,
-    lod: bool = False,
+    lod: LodOptions | None = None,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
@@ -425,14 +429,14 @@ def write_skinned_trees(
             lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
             _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
             leaf_materials.bind(lm.GetPrim())
-        if lod:
+        if lod is not None:
             from forest.lod.select import BarkMesh, LeavesMesh
             from forest.lod.usd import write_tree_lods
 
             write_tree_lods(
                 stage, root.GetPrim(), skel, forest, anchors,
                 (inst, bones, to_tree, frames_of.still), BarkMesh(pts, nrm, quads, jidx, jw, st),
-                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials,
+                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials, lod,
             )  # fmt: skip
         # the skeleton's joints, then the whole tree: one extent per frame, as they move
         for boundable in (skel, root):
