@@ -98,6 +98,16 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "SKINNED_MAX_PIECES), posed above; a .usdz is always skinned.",
 )
 @click.option(
+    "--lod/--no-lod",
+    default=False,
+    show_default=True,
+    help="Write each skinned tree's levels of detail as a variant set 'lod' (USD): lod0 the "
+    "full tree (default), lod1 without the thinnest pieces (about 1/4 of the triangles, at "
+    "most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k), lod3 a baked impostor "
+    "card pair with its view atlas in OUT.lod/ (needs the render extra's GL; skipped with a "
+    "note without it).",
+)
+@click.option(
     "--season",
     type=click.Choice(["summer", "autumn"]),
     default="summer",
@@ -142,6 +152,7 @@ def generate(
     wind_deg: float,
     segments: int,
     skinned: bool | None,
+    lod: bool,
     season: str,
     tiles_dir: str | None,
     tile_size: float | None,
@@ -189,8 +200,15 @@ def generate(
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
         forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
-        write_forest(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar)
+        write_forest(forest, output, skinned=skinned, tiles=tiles_dir, progress=bar, lod=lod)
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
+    if lod and not quiet:
+        from forest.lod.impostor import gl_missing
+
+        if not wrote_skinned:
+            click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
+        elif (why := gl_missing()) is not None:
+            click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
         f"{len(forest.bones)} bones, {frames} frame(s)"

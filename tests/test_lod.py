@@ -188,9 +188,10 @@ def test_impostor_cards_show_the_tree(lod_scene: tuple[Forest, Path, Path]) -> N
     cards = LeavesMesh(pts, nrm, quads, st, np.zeros(8, np.int32), np.ones((2, 3), np.float32))
     for k, d in enumerate(([0.0, 0.0, 1.0], [1.0, 0.0, 0.0])):
         view = np.array([d])
-        args = {"centre": imp.centre, "radius": imp.radius}
-        tree = draw_views(bark, leaves, picture, view, 256, colour, **args).albedo[0, ..., 3] > 0
+        c, r = imp.centre, imp.radius
+        full = draw_views(bark, leaves, picture, view, 256, colour, centre=c, radius=r)
+        tree = full.albedo[0, ..., 3] > 0
         card_picture = np.ascontiguousarray(imp.cards[::-1])  # row 0 at t = 0
-        shown = draw_views(None, cards, card_picture, view, 256, colour, **args)
+        shown = draw_views(None, cards, card_picture, view, 256, colour, centre=c, radius=r)
         card = shown.albedo[0, ..., 3] > 0
         assert (tree ^ card).sum() <= 0.05 * tree.sum(), k
