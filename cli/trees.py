@@ -191,6 +191,8 @@ def generate(
             )
         _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
+    if lod and glb:
+        raise ForestError("levels of detail are written to USD scenes only so far", path="lod")
     if skinned is False and output.suffix.lower() == ".usdz":
         raise ForestError(
             "a .usdz is always skinned (ARKit allows no PointInstancer): drop --no-skinned "
