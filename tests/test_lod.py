@@ -195,3 +195,40 @@ def test_impostor_cards_show_the_tree(lod_scene: tuple[Forest, Path, Path]) -> N
         shown = draw_views(None, cards, card_picture, view, 256, colour, centre=c, radius=r)
         card = shown.albedo[0, ..., 3] > 0
         assert (tree ^ card).sum() <= 0.05 * tree.sum(), k
+
+
+def _card_centres(points: np.ndarray, mesh: UsdGeom.Mesh) -> np.ndarray:
+    quads = np.asarray(mesh.GetFaceVertexIndicesAttr().Get()).reshape(-1, 4)
+    return np.asarray(points, np.float64)[quads].mean(axis=1)
+
+
+def test_lod1_leaves_follow_lod0s(lod_scene: tuple[Forest, Path, Path]) -> None:
+    """Each LOD1 leaf card is a LOD0 card grown about its middle and bound to the nearest kept
+    joint: at the last wind frame its middle stays within 2 % of the tree's height of the
+    LOD0 card's (bound to a dropped twig's own joint)."""
+    from scipy.spatial import cKDTree
+
+    forest, _, lod = lod_scene
+    stage = Usd.Stage.Open(str(lod))
+    last = float(forest.options.frames - 1)
+    for k in range(forest.options.trees):
+        root = stage.GetPrimAtPath(f"{TREES}/{tree_name(k)}")
+        lo, hi = np.asarray(UsdGeom.Boundable(root).GetExtentAttr().Get())
+        height = float(hi[1] - lo[1])
+        full = UsdGeom.Mesh(root.GetChild(LEAVES_MESH))
+        rest0 = _card_centres(full.GetPointsAttr().Get(), full)
+        posed0 = _card_centres(usd_skinned_points(root, LEAVES_MESH, last), full)
+        first = _card_centres(usd_skinned_points(root, LEAVES_MESH, 0.0), full)
+        root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(1))
+        name = lod_mesh(LEAVES_MESH, 1)
+        few = UsdGeom.Mesh(root.GetChild(name))
+        rest1 = _card_centres(few.GetPointsAttr().Get(), few)
+        posed1 = _card_centres(usd_skinned_points(root, name, last), few)
+        gap, index = cKDTree(rest0).query(rest1)
+        assert gap.max() <= 1e-5 * height
+        moved = np.linalg.norm(posed0 - first, axis=1).max()
+        assert moved > 1e-4 * height  # the wind moves the cards: the checks below say something
+        drift = np.linalg.norm(posed1 - posed0[index], axis=1).max()
+        # a card bound to a wrong joint would be off by about the wind's sway or more
+        assert drift <= 0.02 * height and drift < 0.5 * moved, (drift, moved)
+        root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(0))
