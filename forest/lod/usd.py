@@ -142,7 +142,37 @@ def write_lod_variants(
                 _write_level(stage, path, skel, level, bark_material, leaf_materials)
             elif impostor is not None:
                 _write_impostor(stage, path, skel, *impostor)
+    _level_extents(stage, root, outer, vset)
     vset.SetVariantSelection(lod_variant(0))
+
+
+def _level_extents(
+    stage: Usd.Stage, root: Usd.Prim, outer: Usd.EditTarget, vset: Usd.VariantSet
+) -> None:
+    """The tree's extent (authored per frame outside the variant set, where it would
+    outweigh any variant's) moved into ``lod0`` and computed for every other level inside
+    its own variant, so each level's composed extent bounds what it shows."""
+    attr = UsdGeom.Boundable(root).GetExtentAttr()
+    codes = [Usd.TimeCode(t) for t in attr.GetTimeSamples()] or [Usd.TimeCode.Default()]
+    lod0 = [attr.Get(tc) for tc in codes]
+    default = attr.Get(Usd.TimeCode.Default())
+    spec = outer.GetLayer().GetPrimAtPath(outer.MapToSpecPath(root.GetPath()))
+    spec.RemoveProperty(spec.properties[attr.GetName()])
+    for name in vset.GetVariantNames():
+        vset.SetVariantSelection(name)
+        path = outer.MapToSpecPath(root.GetPath()).AppendVariantSelection(LOD, name)
+        target = Usd.EditTarget.ForLocalDirectVariant(outer.GetLayer(), path)
+        boundable = UsdGeom.Boundable(root)
+        if name == lod_variant(0):
+            values, first = lod0, default
+        else:
+            values = [UsdGeom.Boundable.ComputeExtentFromPlugins(boundable, tc) for tc in codes]
+            first = values[0]
+        with Usd.EditContext(stage, target):
+            out = boundable.CreateExtentAttr()
+            for tc, value in zip(codes, values, strict=True):
+                out.Set(value, tc)
+            out.Set(first)
 
 
 def _write_level(

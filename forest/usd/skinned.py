@@ -429,15 +429,6 @@ def write_skinned_trees(
             lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
             _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
             leaf_materials.bind(lm.GetPrim())
-        if lod is not None:
-            from forest.lod.select import BarkMesh, LeavesMesh
-            from forest.lod.usd import write_tree_lods
-
-            write_tree_lods(
-                stage, root.GetPrim(), skel, forest, anchors,
-                (inst, bones, to_tree, frames_of.still), BarkMesh(pts, nrm, quads, jidx, jw, st),
-                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials, lod,
-            )  # fmt: skip
         # the skeleton's joints, then the whole tree: one extent per frame, as they move
         for boundable in (skel, root):
             attr = boundable.CreateExtentAttr()
@@ -446,6 +437,15 @@ def write_skinned_trees(
                 attr.Set(extent, tc)
                 if i == 0:  # and as the default, for tools that read no time
                     attr.Set(extent)
+        if lod is not None:  # after the extents: each level takes the tree's own
+            from forest.lod.select import BarkMesh, LeavesMesh
+            from forest.lod.usd import write_tree_lods
+
+            write_tree_lods(
+                stage, root.GetPrim(), skel, forest, anchors,
+                (inst, bones, to_tree, frames_of.still), BarkMesh(pts, nrm, quads, jidx, jw, st),
+                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials, lod,
+            )  # fmt: skip
         if progress:
             progress("skinned trees", k + 1, len(slices))
 
