@@ -19,6 +19,7 @@ from forest.lod.select import TARGETS, BarkMesh, LeavesMesh
 from forest.usd.contract import (
     BARK_MESH,
     IMPOSTOR_ATLAS,
+    IMPOSTOR_MAPS,
     IMPOSTOR_MATERIAL,
     IMPOSTOR_MESH,
     LEAVES_MESH,
@@ -175,8 +176,8 @@ def test_impostor_cards_show_the_tree(lod_scene: tuple[Forest, Path, Path]) -> N
     assert len(mesh.GetFaceVertexCountsAttr().Get()) * 2 <= 4
     bound, _ = UsdShade.MaterialBindingAPI(mesh.GetPrim()).ComputeBoundMaterial()
     assert bound.GetPath() == root.GetPath().AppendChild(IMPOSTOR_MATERIAL)
-    atlases = mesh.GetPrim().GetAttribute(IMPOSTOR_ATLAS).Get()
-    for asset in atlases:
+    for kind in IMPOSTOR_MAPS:
+        asset = mesh.GetPrim().GetAttribute(f"{IMPOSTOR_ATLAS}:{kind}").Get()
         assert asset.path.startswith("./") and (lod.parent / asset.path).is_file()
     errors = [
         f"{e.GetIdentifier()}: {e.GetMessage()}"

@@ -16,7 +16,8 @@ variant selection.
 
 from __future__ import annotations
 
-import posixpath
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -24,6 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
+from forest.atomic import move_into_place, private_folder
 from forest.geometry.pieces import MAX_INFLUENCES
 from forest.geometry.transforms import F64
 from forest.growth.foliage import FoliageAnchors
@@ -34,6 +36,7 @@ from forest.usd.contract import (
     BARK_MESH,
     IMPOSTOR_ATLAS,
     IMPOSTOR_FRAMES,
+    IMPOSTOR_MAPS,
     IMPOSTOR_MATERIAL,
     IMPOSTOR_MESH,
     IMPOSTOR_SPHERE,
@@ -53,22 +56,23 @@ if TYPE_CHECKING:
 
 
 IMPOSTOR_LEVEL = 3
+PICTURES_SUFFIX = ".lod"  # <stem>.lod/ beside a .usda/.usdc holds its impostors' pictures
 
 
 @dataclass(frozen=True)
 class ImpostorFiles:
-    """Where a scene's impostor pictures go: ``folder`` on disk; their asset paths relative
-    to ``layer_folder`` (``./...``, what the textures beside a .usda/.usdc need), or absolute
-    where it is None (a .usdz's packager embeds them under names of its own)."""
+    """Where a scene's impostor pictures are written (``folder``, a private staging folder)
+    and the folder its layer names them in (``asset_folder``, relative to the layer: what the
+    pictures beside a .usda/.usdc need), or None for their absolute staging paths (a .usdz's
+    packager embeds them under names of its own)."""
 
     folder: Path
-    layer_folder: Path | None
+    asset_folder: str | None
 
     def asset(self, path: Path) -> str:
-        if self.layer_folder is None:
+        if self.asset_folder is None:
             return path.resolve().as_posix()
-        rel = posixpath.relpath(path.resolve().as_posix(), self.layer_folder.resolve().as_posix())
-        return rel if rel.startswith("../") else f"./{rel}"
+        return f"{self.asset_folder}/{path.name}"
 
 
 @dataclass(frozen=True)
@@ -77,6 +81,30 @@ class LodOptions:
     LOD0-LOD2 always, LOD3 (the impostor) where ``impostors`` says where its pictures go."""
 
     impostors: ImpostorFiles | None = None
+
+
+@contextmanager
+def lod_pictures(out: Path, impostor: bool | None) -> Iterator[LodOptions]:
+    """The :class:`LodOptions` of a scene written to ``out`` in the block: impostors (with
+    ``impostor`` True, or None where GL is present, :func:`forest.lod.impostor.gl_missing`)
+    staged in a private folder, moved into ``<stem>.lod/`` beside a .usda/.usdc only when the
+    block ends without an error (a .usdz packs them from there); no folder is left behind."""
+    from forest.lod.impostor import gl_missing
+
+    if impostor is False or (impostor is None and gl_missing() is not None):
+        yield LodOptions()
+        return
+    final = out.parent / f"{out.stem}{PICTURES_SUFFIX}"
+    packed = out.suffix.lower() == ".usdz"
+    with private_folder(final) as staging:
+        yield LodOptions(ImpostorFiles(staging, None if packed else f"./{final.name}"))
+        if packed:
+            return
+        pictures = sorted(p for p in staging.iterdir() if p.is_file())
+        if pictures:
+            final.mkdir(exist_ok=True)
+        for picture in pictures:
+            move_into_place(picture, final / picture.name)
 
 
 def write_tree_lods(
@@ -234,8 +262,11 @@ def _write_impostor(
     _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.vertex)
     _bind(mesh.GetPrim(), skel, np.zeros(len(pts), np.int32), np.ones(len(pts)), 1)
     prim = mesh.GetPrim()
-    atlases = [Sdf.AssetPath(files.asset(written[k])) for k in ("albedo", "normal", "depth")]
-    set_attr(prim, IMPOSTOR_ATLAS, Sdf.ValueTypeNames.AssetArray, atlases)
+    # a .usdz carries the cards' picture only: usdz packaging warns on (but packs) assets
+    # outside shaders, and Quick Look has no octahedral impostor to feed
+    for kind in IMPOSTOR_MAPS if files.asset_folder is not None else ():
+        asset = Sdf.AssetPath(files.asset(written[kind]))
+        set_attr(prim, f"{IMPOSTOR_ATLAS}:{kind}", Sdf.ValueTypeNames.Asset, asset)
     set_attr(prim, IMPOSTOR_FRAMES, Sdf.ValueTypeNames.Int, imp.frames)
     set_attr(prim, IMPOSTOR_SPHERE, Sdf.ValueTypeNames.Float4, Gf.Vec4f(*imp.centre, imp.radius))
     look = str(path.AppendChild(IMPOSTOR_MATERIAL))

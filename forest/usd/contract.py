@@ -123,7 +123,8 @@ LOD = "lod"
 LOD_LEVELS = 4  # lod0 .. lod2 from the pieces, lod3 the impostor (when baked)
 IMPOSTOR_MESH = "Impostor"  # lod3's crossed card pair
 IMPOSTOR_MATERIAL = "ImpostorLook"  # beside it in lod3: the cards' picture, cut by its alpha
-IMPOSTOR_ATLAS = "forest:impostorAtlas"  # asset[] albedo, normal, depth atlases
+IMPOSTOR_ATLAS = "forest:impostorAtlas"  # + ":albedo", ":normal", ":depth": asset each
+IMPOSTOR_MAPS = ("albedo", "normal", "depth")
 IMPOSTOR_FRAMES = "forest:impostorFrames"  # int: the atlas's views per side
 IMPOSTOR_SPHERE = "forest:impostorSphere"  # float4: centre (tree space) and radius framed
 

@@ -118,6 +118,22 @@ def write_scene(
     its baked impostor as ``lod3``, the pictures in ``<stem>.lod/`` beside a .usda/.usdc."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
+    if not (lod and skinned):
+        return _write_scene(forest, out, skinned, tiles, progress, None)
+    from forest.lod.usd import lod_pictures
+
+    with lod_pictures(out, impostor) as lod_options:
+        return _write_scene(forest, out, skinned, tiles, progress, lod_options)
+
+
+def _write_scene(
+    forest: Forest,
+    out: Path,
+    skinned: bool,
+    tiles: str | None,
+    progress: Progress | None,
+    lod: LodOptions | None,
+) -> Path:
     stage, tmp = new_stage_layer(out)
     try:
         setup_stage(stage, forest)
@@ -146,7 +162,7 @@ def write_scene(
             with Usd.EditContext(stage, targets[SKINNED]):
                 write_skinned_trees(
                     stage, forest, material, anchors, progress, leaf_file,
-                    lod=lod_options(out, tmp, impostor) if lod else None,
+                    lod=lod,
                 )  # fmt: skip
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):
@@ -163,20 +179,6 @@ def write_scene(
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
-
-
-def lod_options(out: Path, tmp: Path, impostor: bool | None) -> LodOptions:
-    """Where :func:`write_scene` puts the impostors' pictures: ``<stem>.lod/`` beside a
-    .usda/.usdc (relative asset paths), beside the private layer ``tmp`` for a .usdz (the
-    packager embeds them); none with ``impostor`` False, or None and no GL."""
-    from forest.lod.impostor import gl_missing
-    from forest.lod.usd import ImpostorFiles, LodOptions
-
-    if impostor is False or (impostor is None and gl_missing() is not None):
-        return LodOptions()
-    if out.suffix.lower() == ".usdz":
-        return LodOptions(ImpostorFiles(tmp.parent / "impostors", None))
-    return LodOptions(ImpostorFiles(out.parent / f"{out.stem}.lod", out.parent))
 
 
 def wants_skinned(forest: Forest, path: Path, skinned: bool | None = None) -> bool:
