@@ -240,3 +240,24 @@ def test_lod1_leaves_follow_lod0s(lod_scene: tuple[Forest, Path, Path]) -> None:
         # a card bound to a wrong joint would be off by about the wind's sway or more
         assert drift <= 0.02 * height and drift < 0.5 * moved, (drift, moved)
         root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(0))
+
+
+@pytest.mark.skipif(not BAKES, reason="no GL here: the impostor needs the render extra")
+def test_a_failed_write_leaves_no_pictures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """The impostors' pictures reach ``<stem>.lod/`` only with their scene: a write that fails
+    at its last step (the layer's rename) leaves the folder as it was, here empty."""
+    from forest.usd import files
+
+    small = generate_forest(load_preset("almond"), 11, ForestOptions(trees=1))
+
+    def fail(*_args: object, **_kwargs: object) -> None:
+        raise RuntimeError("exporter failed mid-write")
+
+    monkeypatch.setattr(files, "move_into_place", fail)
+    with pytest.raises(RuntimeError, match="exporter failed"):
+        write_scene(small, tmp_path / "t.usdc", skinned=True, lod=True, impostor=True)
+    assert list(tmp_path.iterdir()) == []
+    monkeypatch.undo()
+    write_scene(small, tmp_path / "t.usdc", skinned=True, lod=True, impostor=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.lod", "t.usdc"]
+    assert len(list((tmp_path / "t.lod").iterdir())) == 4
