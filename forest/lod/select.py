@@ -29,7 +29,6 @@ from forest.growth.generate import Forest
 from forest.usd.skinned import dcc_joints
 
 I32 = NDArray[np.int32]
-LEVELS = 3  # LOD0 .. LOD2 from the pieces; an impostor would be the next
 
 
 class BarkMesh(NamedTuple):

@@ -120,7 +120,6 @@ LEAVES_MESH = "Leaves"
 # a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
 # as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
 LOD = "lod"
-LOD_LEVELS = 4  # lod0 .. lod2 from the pieces, lod3 the impostor (when baked)
 IMPOSTOR_MESH = "Impostor"  # lod3's crossed card pair
 IMPOSTOR_MATERIAL = "ImpostorLook"  # beside it in lod3: the cards' picture, cut by its alpha
 IMPOSTOR_ATLAS = "forest:impostorAtlas"  # + ":albedo", ":normal", ":depth": asset each
