@@ -98,6 +98,16 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "SKINNED_MAX_PIECES), posed above; a .usdz is always skinned.",
 )
 @click.option(
+    "--lod/--no-lod",
+    default=False,
+    show_default=True,
+    help="Write each skinned tree's levels of detail as a variant set 'lod' (USD): lod0 the "
+    "full tree (default), lod1 without the thinnest pieces (about 1/4 of the triangles, at "
+    "most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k), lod3 a baked impostor "
+    "card pair with its view atlas in OUT.lod/ (needs the render extra's GL; skipped with a "
+    "note without it).",
+)
+@click.option(
     "--season",
     type=click.Choice(["summer", "autumn"]),
     default="summer",
@@ -162,6 +172,7 @@ def generate(
     wind_deg: float,
     segments: int,
     skinned: bool | None,
+    lod: bool,
     season: str,
     tiles_dir: str | None,
     textures: bool,
@@ -202,6 +213,8 @@ def generate(
             )
         _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
+    if lod and glb:
+        raise ForestError("levels of detail are written to USD scenes only so far", path="lod")
     if skinned is False and output.suffix.lower() == ".usdz":
         raise ForestError(
             "a .usdz is always skinned (ARKit allows no PointInstancer): drop --no-skinned "
@@ -219,8 +232,16 @@ def generate(
             textures=textures,
             progress=bar,
             packing=glb_pack,  # type: ignore[arg-type]
+            lod=lod,
         )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
+    if lod and not quiet:
+        from forest.lod.impostor import gl_missing
+
+        if not wrote_skinned:
+            click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
+        elif (why := gl_missing()) is not None:
+            click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
         f"{len(forest.bones)} bones, {frames} frame(s)"

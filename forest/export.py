@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from forest.errors import ForestError
 from forest.gltf import GLB_SUFFIX
 from forest.growth.generate import Forest, Progress
 from forest.usd.files import FORMATS
@@ -36,6 +37,7 @@ def write_forest(
     textures: bool = True,
     progress: Progress | None = None,
     packing: Packing | None = None,
+    lod: bool = False,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
@@ -43,11 +45,14 @@ def write_forest(
     it, a .glb packs its pictures). ``textures``: a USD scene's bark and leaf pictures
     (:func:`forest.usd.scene.write_scene`; False: flat colours); a .glb always packs its
     own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
-    stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it."""
+    stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it.
+    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; USD only so far)."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
 
+        if lod:
+            raise ForestError("levels of detail are written to USD scenes only so far", path="lod")
         folder = Path(path).parent / tiles if tiles else None
         if packing is None:
             return write_glb(forest, path, tiles=folder, progress=progress)
@@ -55,5 +60,11 @@ def write_forest(
     from forest.usd.scene import write_scene
 
     return write_scene(
-        forest, path, skinned=skinned, tiles=tiles, textures=textures, progress=progress
+        forest,
+        path,
+        skinned=skinned,
+        tiles=tiles,
+        textures=textures,
+        progress=progress,
+        lod=lod,
     )

@@ -152,10 +152,7 @@ def test_usd_skinning_matches_ours_at_two_frames(skinned_scene: Path, windy_fore
         # the wind really moves the tree between the two frames (mid-clip: the clip loops, so
         # its last frame is on its way back to the first)
         later = _our_skinned_points(f, inst, 2 / f.options.fps)
-        assert (
-            np.abs(_our_skinned_points(f, inst, 0.0) - later).max()
-            > 1e-4 * size
-        )
+        assert np.abs(_our_skinned_points(f, inst, 0.0) - later).max() > 1e-4 * size
 
 
 @pytest.mark.parametrize("preset", ["pine", "spruce"])

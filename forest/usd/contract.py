@@ -68,7 +68,12 @@ variant), one ``Tree_NNNNN`` (:func:`tree_name`) SkelRoot per tree (kind compone
 name, version, :data:`ASSET_SEED` and :data:`ASSET_TREE`, the tree's index) holding
 :data:`SKELETON` (with its SkelAnimation :data:`WIND_ANIMATION`), :data:`BARK_MESH` (skinned
 quads, indexed UDIM ``st``), :data:`PROXY_MESH` (decimated, purpose proxy) and
-:data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``).
+:data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``); with levels of detail
+a variant set :data:`LOD` (:func:`lod_variant`, default ``lod0``, the meshes above) whose
+higher levels deactivate those three and hold :func:`lod_mesh` meshes bound to the same
+Skeleton; ``lod3`` (when baked) the :data:`IMPOSTOR_MESH` card pair, its
+:data:`IMPOSTOR_MATERIAL` and, on the mesh, the octahedral atlases (:data:`IMPOSTOR_ATLAS`,
+:data:`IMPOSTOR_FRAMES`, :data:`IMPOSTOR_SPHERE`).
 
 ``/World/Looks`` (:data:`LOOKS`): :data:`BARK_MATERIAL` (UsdPreviewSurface; its
 :data:`BARK_TILE_SET` string names the shipped tile set; with a tile folder its
@@ -112,6 +117,25 @@ WIND_ANIMATION = "Wind"  # under SKELETON
 BARK_MESH = "Bark"
 PROXY_MESH = "Proxy"
 LEAVES_MESH = "Leaves"
+# a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
+# as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
+LOD = "lod"
+IMPOSTOR_MESH = "Impostor"  # lod3's crossed card pair
+IMPOSTOR_MATERIAL = "ImpostorLook"  # beside it in lod3: the cards' picture, cut by its alpha
+IMPOSTOR_ATLAS = "forest:impostorAtlas"  # + ":albedo", ":normal", ":depth": asset each
+IMPOSTOR_MAPS = ("albedo", "normal", "depth")
+IMPOSTOR_FRAMES = "forest:impostorFrames"  # int: the atlas's views per side
+IMPOSTOR_SPHERE = "forest:impostorSphere"  # float4: centre (tree space) and radius framed
+
+
+def lod_variant(level: int) -> str:
+    """The :data:`LOD` variant of level ``level`` (``lod0`` is the full tree, the default)."""
+    return f"lod{level}"
+
+
+def lod_mesh(mesh: str, level: int) -> str:
+    """The prim name of a mesh (:data:`BARK_MESH`, :data:`LEAVES_MESH`) at ``level`` >= 1."""
+    return f"{mesh}_lod{level}"
 
 
 def tree_name(k: int) -> str:

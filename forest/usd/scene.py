@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from pxr import Sdf, Usd, UsdShade
 
@@ -38,7 +39,10 @@ from forest.usd.instancer import Progress, write_instancer
 from forest.usd.leaves import write_foliage
 from forest.usd.materials import bark_material
 from forest.usd.prims import define_world, row_major, set_attr, set_frames
-from forest.usd.textures import scene_textures
+from forest.usd.textures import PACKAGE_FOLDER, scene_textures
+
+if TYPE_CHECKING:
+    from forest.lod.usd import LodOptions
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -109,6 +113,8 @@ def write_scene(
     textures: bool = True,
     progress: Progress | None = None,
     joint_budget: int | None = DCC_JOINTS,
+    lod: bool = False,
+    impostor: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
 
@@ -123,9 +129,33 @@ def write_scene(
     the folder ``tiles``, relative to the scene) and the leaf picture, which cuts the leaf
     cards; a .usda/.usdc finds them in ``<stem>.textures/`` beside it
     (:mod:`forest.usd.textures`), a .usdz carries them. Without, flat colours and no
-    picture (but a given ``tiles`` is still read)."""
+    picture (but a given ``tiles`` is still read).
+
+    ``lod`` adds each skinned tree's levels of detail (:mod:`forest.lod`: a variant set
+    ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None: where GL is
+    available, :func:`forest.lod.impostor.gl_missing`), its baked impostor as ``lod3``, the
+    pictures in ``<stem>.lod/`` beside a .usda/.usdc, under ``./textures/`` in a .usdz."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
+    args = (forest, out, skinned, tiles, textures, progress, joint_budget)
+    if not (lod and skinned):
+        return _write_scene(*args, None)
+    from forest.lod.usd import lod_pictures
+
+    with lod_pictures(out, impostor) as lod_options:
+        return _write_scene(*args, lod_options)
+
+
+def _write_scene(
+    forest: Forest,
+    out: Path,
+    skinned: bool,
+    tiles: str | None,
+    textures: bool,
+    progress: Progress | None,
+    joint_budget: int | None,
+    lod: LodOptions | None,
+) -> Path:
     package = out.suffix.lower() == ".usdz"
     anchors = foliage_or_none(forest)
     stage, tmp = new_stage_layer(out)
@@ -140,6 +170,14 @@ def write_scene(
             tiles=tiles,
             textures=textures,
         )
+        if package and lod is not None and lod.impostors is not None:
+            # inside the package beside the other pictures, named ./textures/...: the
+            # packager keeps such paths, where Blender resolves its renamed ones to nothing
+            from forest.lod.usd import ImpostorFiles, LodOptions
+
+            inside = tmp.parent / PACKAGE_FOLDER
+            inside.mkdir(exist_ok=True)
+            lod = LodOptions(ImpostorFiles(inside, f"./{PACKAGE_FOLDER}"))
         setup_stage(stage, forest, instanced=not package)
         vset, targets = representation_variants(stage, skinned, instanced=not package)
         material = bark_material(stage, pictures.bark, forest.grammar.bark)
@@ -159,6 +197,7 @@ def write_scene(
                     pictures.leaf,
                     pictures.bark_st,
                     joint_budget,
+                    lod,
                 )
                 # the skinned trees carry the leaves: each tree is shown once
                 for where in (PIECES, FOLIAGE):

@@ -9,7 +9,8 @@ tree's root joint is the identity and every other local transform is the generat
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
 from weakref import WeakKeyDictionary
 
 import fast_simplification
@@ -45,6 +46,9 @@ from forest.usd.contract import (
 )
 from forest.usd.materials import leaf_material, tile_udim_st
 from forest.usd.prims import row_major, time_code
+
+if TYPE_CHECKING:
+    from forest.lod.usd import LodOptions
 
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
 Progress = Callable[[str, int, int], None]
@@ -396,6 +400,7 @@ def write_skinned_trees(
     leaf_file: str | None = None,
     bark_st: Callable[[F64], F64] | None = None,
     joint_budget: int | None = DCC_JOINTS,
+    lod: LodOptions | None = None,
 ) -> None:
     """``/World/Forest/Trees`` (a group) of one SkelRoot component per tree: Skeleton with
     its wind animation, the welded skinned Bark, its Proxy, and the tree's leaf clouds
@@ -404,7 +409,8 @@ def write_skinned_trees(
     what the material reads (a .usdz's atlas). Extents are authored per frame on every
     prim whose points or joints move. ``joint_budget``: joints per tree
     (:mod:`forest.growth.joint_budget`; twigs move rigidly with their limb's joint), None
-    for one joint per bone."""
+    for one joint per bone. With ``lod``, each tree's levels of detail as the variant set
+    ``lod`` (:mod:`forest.lod.usd`; ``lod0``, the default, is the tree as without)."""
     if progress:  # the joint frames first, then a tree of a big species takes seconds
         progress("skinned trees", 0, forest.options.trees)
     trees = UsdGeom.Xform.Define(stage, TREES)
@@ -482,6 +488,17 @@ def write_skinned_trees(
                 attr.Set(extent, tc)
                 if i == 0:  # and as the default, for tools that read no time
                     attr.Set(extent)
+        if lod is not None:  # after the extents: each level takes the tree's own
+            from forest.lod.select import BarkMesh, LeavesMesh
+            from forest.lod.usd import write_tree_lods
+
+            write_tree_lods(
+                stage, root.GetPrim(), skel, forest, anchors,
+                (inst, bones, to_tree, frames_of.still),
+                BarkMesh(pts, nrm, quads, jidx, jw, st if bark_st is None else bark_st(st)),
+                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials,
+                replace(lod, joint_budget=joint_budget),
+            )  # fmt: skip
         if progress:
             progress("skinned trees", k + 1, len(slices))
 
