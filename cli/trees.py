@@ -367,6 +367,21 @@ def bench_generate(trees: int, preset: str, repeat: int) -> None:
     run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)
 
 
+@bench.command("export")
+@click.option("--preset", default="oak", show_default=True)
+@click.option("--trees", type=click.IntRange(1, 64), default=10, show_default=True)
+@click.option("--frames", type=click.IntRange(0), default=24, show_default=True)
+@click.option("--seed", type=int, default=3, show_default=True)
+@input_errors
+def bench_export(preset: str, trees: int, frames: int, seed: int) -> None:
+    """One forest written as .usdc, .usdz and .glb (game and film profiles, each packing):
+    write seconds, bytes with pictures, joints and triangles per tree at every level of
+    detail, measured from the files; beside ez-tree's Oak Large GLB."""
+    from bench.export import run_export_bench
+
+    run_export_bench(preset, trees, frames, seed, echo=click.echo)
+
+
 @bench.command("forest")
 @click.option("--trees", type=click.IntRange(1), default=1_000_000, show_default=True)
 @click.option(
