@@ -150,6 +150,15 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "Babylon.js, glTFast; Blender 4.2 refuses it) or float (uncompressed float32).",
 )
 @click.option(
+    "--profile",
+    type=click.Choice(["game", "film"]),
+    default=None,
+    help="What a .glb is for: game (the default: per tree LOD0-LOD2 skinned meshes and an "
+    "impostor card pair as LOD3, chained with MSFT_lod, at most 256 joints, LOD0 at most "
+    "150 k triangles, one material per kind) or film (the full tree on every joint, no "
+    "levels). .glb only.",
+)
+@click.option(
     "-o",
     "--output",
     type=click.Path(path_type=Path),
@@ -178,6 +187,7 @@ def generate(
     textures: bool,
     tile_size: float | None,
     glb_pack: str,
+    profile: str | None,
     output: Path,
     quiet: bool = False,
 ) -> None:
@@ -214,7 +224,12 @@ def generate(
         _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
     if lod and glb:
-        raise ForestError("levels of detail are written to USD scenes only so far", path="lod")
+        raise ForestError(
+            "a .glb's levels of detail follow --profile (game: LOD0-LOD3, film: none)",
+            path="lod",
+        )
+    if profile is not None and not glb:
+        raise ForestError("--profile applies to a .glb only", path="profile")
     if skinned is False and output.suffix.lower() == ".usdz":
         raise ForestError(
             "a .usdz is always skinned (ARKit allows no PointInstancer): drop --no-skinned "
@@ -233,6 +248,7 @@ def generate(
             progress=bar,
             packing=glb_pack,  # type: ignore[arg-type]
             lod=lod,
+            profile=profile,  # type: ignore[arg-type]
         )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
     if lod and not quiet:

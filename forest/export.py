@@ -4,7 +4,7 @@ glTF 2.0 binary (.glb)."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from forest.errors import ForestError
 from forest.gltf import GLB_SUFFIX
@@ -13,6 +13,7 @@ from forest.usd.files import FORMATS
 
 if TYPE_CHECKING:
     from forest.gltf.compress import Packing
+    from forest.gltf.document import Profile
 
 SCENE_SUFFIXES = (*FORMATS, GLB_SUFFIX)
 
@@ -38,6 +39,7 @@ def write_forest(
     progress: Progress | None = None,
     packing: Packing | None = None,
     lod: bool = False,
+    profile: Profile | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
@@ -46,17 +48,26 @@ def write_forest(
     (:func:`forest.usd.scene.write_scene`; False: flat colours); a .glb always packs its
     own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
     stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it.
-    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; USD only so far)."""
+    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; a .glb's follow
+    its profile). ``profile``: a .glb's ``game`` (its default: levels of detail, at most 256
+    joints per tree) or ``film`` (the full tree on every joint), :mod:`forest.gltf.document`;
+    USD refuses it."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
 
         if lod:
-            raise ForestError("levels of detail are written to USD scenes only so far", path="lod")
+            raise ForestError(
+                "a .glb's levels of detail follow --profile (game: LOD0-LOD3, film: none)",
+                path="lod",
+            )
         folder = Path(path).parent / tiles if tiles else None
-        if packing is None:
-            return write_glb(forest, path, tiles=folder, progress=progress)
-        return write_glb(forest, path, tiles=folder, progress=progress, packing=packing)
+        extra: dict[str, Any] = {} if packing is None else {"packing": packing}
+        if profile is not None:
+            extra["profile"] = profile
+        return write_glb(forest, path, tiles=folder, progress=progress, **extra)
+    if profile is not None:
+        raise ForestError("--profile applies to a .glb only", path="profile")
     from forest.usd.scene import write_scene
 
     return write_scene(

@@ -60,14 +60,17 @@ _DTYPE: dict[int, type[np.generic]] = {
 
 
 def read(doc: gl.GLTF2, accessor: int) -> np.ndarray:
-    """An accessor's data ``(n,)`` or ``(n, c)`` as stored (normalised integers as fractions)."""
+    """An accessor's data ``(n,)`` or ``(n, c)`` as stored (normalised integers as fractions;
+    a strided view's rows read at its stride)."""
     acc = doc.accessors[accessor]
     view = doc.bufferViews[acc.bufferView]
     dtype = _DTYPE[acc.componentType]
     width = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}[acc.type]
     start = (view.byteOffset or 0) + (acc.byteOffset or 0)
-    a = np.frombuffer(doc.binary_blob(), dtype, acc.count * width, start)
-    a = a.reshape(acc.count, width) if width > 1 else a
+    item = np.dtype(dtype).itemsize
+    stride = view.byteStride or item * width  # quantized vec3 rows are padded to 4 bytes
+    a = np.ndarray((acc.count, width), dtype, doc.binary_blob(), start, (stride, item)).copy()
+    a = a if width > 1 else a.ravel()
     if acc.normalized:
         return a.astype(np.float64) / np.iinfo(dtype).max
     return a
@@ -77,6 +80,13 @@ def quad_corners(doc: gl.GLTF2, prim: gl.Primitive) -> np.ndarray:
     """``(q * 4,)`` the vertex of every quad corner of a primitive written as two triangles
     per quad (0 1 2, 0 2 3)."""
     return read(doc, prim.indices).reshape(-1, 6)[:, [0, 1, 2, 5]].ravel().astype(np.intp)
+
+
+def tree_mesh_nodes(doc: gl.GLTF2) -> list[int]:
+    """Each tree's most detailed skinned node, in tree order: the scene's skinned roots (the
+    film profile's ``Tree_<k>_Mesh``, the game profile's ``Tree_<k>_LOD0``; a game tree's
+    lower levels are in no scene)."""
+    return [i for i in doc.scenes[0].nodes if doc.nodes[i].skin is not None]
 
 
 def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[list[np.ndarray]]:
@@ -90,8 +100,9 @@ def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[lis
     anchors = foliage_or_none(forest)
     dcc = dcc_joints(forest, GAME_JOINTS)
     out = []
+    nodes = tree_mesh_nodes(doc)
     for k, (inst, bones) in enumerate(tree_slices(forest, GAME_JOINTS)):
-        mesh = doc.meshes[k]
+        mesh = doc.meshes[doc.nodes[nodes[k]].mesh]
         corners = quad_corners(doc, mesh.primitives[0])
         want = np.empty((int(corners.max()) + 1, 3))
         want[corners] = bark[k]

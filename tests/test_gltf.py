@@ -50,7 +50,9 @@ def forest() -> Forest:
 
 @pytest.fixture(scope="module")
 def doc(forest: Forest) -> gl.GLTF2:
-    return forest_gltf(forest)
+    """The film profile's layout (one mesh per tree) on the game's joints: what the skinning
+    checks below compare with USD's form on the same joints."""
+    return forest_gltf(forest, joint_budget=GAME_JOINTS, profile="film")
 
 
 def test_same_forest_same_bytes(forest: Forest, tmp_path: Path) -> None:

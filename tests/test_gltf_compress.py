@@ -238,11 +238,12 @@ def test_meshopt_views_decode_to_the_quantized_views(
         else:
             assert _decode(meshopt, v) == raw, v
     assert modes == {"ATTRIBUTES", "TRIANGLES"}
-    # every mesh attribute and index view is compressed
+    # every mesh attribute and index view is compressed, but an impostor card pair's (8
+    # vertices, 12 indices: the codec's header outweighs them, so they stay plain)
     for mesh in meshopt.meshes:
         for prim in mesh.primitives:
             for a in [*vars(prim.attributes).values(), prim.indices]:
-                if a is not None:
+                if a is not None and meshopt.accessors[a].count > 12:
                     assert meshopt.bufferViews[meshopt.accessors[a].bufferView].extensions
     # the accessors are the quantized ones: only where their bytes lie changed
     assert [a.componentType for a in meshopt.accessors] == [

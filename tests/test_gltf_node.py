@@ -4,7 +4,9 @@ primitives) with their textures, the Wind clip; their skinned vertices at two fr
 library's skinning within 3e-4 of the tree's height in the default (quantized) packing: int16
 rotation keys and positions; measured 1.3e-4), 1e-4 in the float one. The meshopt-compressed
 file (three.js with its MeshoptDecoder) skins to exactly the quantized file's vertices; every
-packing passes the validator.
+packing and both profiles pass the validator. The game profile's lower levels of detail
+(MSFT_lod, in no scene) load through GLTFLoader's parser on the LOD0 skeleton's own bones and
+skin as the file says.
 
 The Node packages are pinned in tests/node/package-lock.json; `npm ci` in tests/node (the CI
 script runs it) installs them. A missing install fails these tests, it does not skip them.
@@ -23,6 +25,7 @@ from helpers_gltf import (
     FPS,
     TREES,
     expected_tree,
+    glb_skinned,
     node_tools,
     run_node,
     small_forest,
@@ -97,7 +100,7 @@ def test_three_loads_skinned_trees_with_wind(glb: Path, forest: Forest, tmp_path
     meshes = report["skinned_meshes"]
     # one glTF mesh per tree, its primitives (bark, leaves) two SkinnedMesh on one skeleton
     assert [m["name"] for m in meshes] == [
-        f"Tree_{k:05d}_{p}" for k in range(TREES) for p in (1, 2)
+        f"Tree_{k:05d}_LOD0_{p}" for k in range(TREES) for p in (1, 2)
     ]
     assert all(m["has_texture"] for m in meshes)
     (clip,) = report["animations"]
@@ -146,3 +149,48 @@ def test_other_packings_validate_and_skin_alike(
         qpts = quantized.reshape(-1, 3)
         assert np.abs(qpts.min(axis=0) - lo).max() <= TOLERANCE["quantized"] * height
         assert np.abs(qpts.max(axis=0) - hi).max() <= TOLERANCE["quantized"] * height
+
+
+def test_validator_on_the_film_profile(forest: Forest, tmp_path: Path) -> None:
+    if why := node_tools():
+        pytest.fail(why, pytrace=False)
+    report = validate(write_glb(forest, tmp_path / "film.glb", profile="film"))
+    assert report["issues"]["numWarnings"] == 0, report["issues"]["messages"][:10]
+    assert "MSFT_lod" not in report["info"].get("extensionsUsed", [])
+
+
+def test_three_loads_every_level(glb: Path, tmp_path: Path) -> None:
+    """Each tree's LOD1-LOD3 (nodes in no scene) load as SkinnedMeshes on the bones of its
+    LOD0, textured (leaves and the impostor cut by alpha), and three.js skins them where the
+    file's own skinning (helpers_gltf.glb_skinned) puts them at the last check frame."""
+    out = tmp_path / "lods.bin"
+    frame = CHECK_FRAMES[-1]
+    report = run_node(
+        "three_load.mjs", str(glb), "--lods", "--times", repr(frame / FPS), "--out", str(out)
+    )
+    doc = gl.GLTF2.load(str(glb))
+    by_name = {n.name: i for i, n in enumerate(doc.nodes)}
+    lods = report["lods"]
+    levels = 4 if doc.materials[-1].name == "Impostor" else 3
+    assert [(x["of"], x["name"]) for x in lods] == [
+        (f"Tree_{k:05d}_LOD0", f"Tree_{k:05d}_LOD{lv}")
+        for k in range(TREES)
+        for lv in range(1, levels)
+    ]
+    got = np.fromfile(out, np.float32).astype(np.float64).reshape(-1, 3)
+    at = sum(m["vertices"] for m in report["skinned_meshes"])
+    for lod in lods:
+        assert not lod["in_scene"]
+        want = glb_skinned(doc, by_name[lod["name"]], frame)
+        assert [m["vertices"] for m in lod["skinned_meshes"]] == [len(w) for w in want]
+        for m, w in zip(lod["skinned_meshes"], want, strict=True):
+            assert m["shares_bones"] and m["has_texture"]
+            points = got[at : at + len(w)]
+            at += len(w)
+            # both from int16 keys and positions, three.js in float32: measured 4e-5
+            height = float(np.ptp(w[:, 1]))  # the impostor's cards span the tree too
+            assert np.abs(points - w).max() <= 1e-4 * height, lod["name"]
+        if lod["name"].endswith("LOD3"):
+            (cards,) = lod["skinned_meshes"]
+            assert cards["vertices"] == 8 and cards["alpha_test"] == 0.5
+    assert at == len(got)

@@ -14,24 +14,40 @@ from __future__ import annotations
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import pygltflib as gl
 
 from forest.atomic import replaced_when_written
-from forest.bark.atlas import atlas_uv, make_atlas, read_slices, tile_folder
-from forest.errors import LimitError, OutputError
+from forest.bark.atlas import make_atlas, read_slices, tile_folder
+from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material
 from forest.gltf.buffer import Blob
 from forest.gltf.compress import DEFAULT_PACKING, Packing, glb, pack
 from forest.gltf.leaves import LeafMaterials
+from forest.gltf.lod import (
+    IMPOSTOR_LEVEL,
+    ImpostorSheet,
+    add_impostor_material,
+    add_levels,
+    bark_quads,
+    chain_levels,
+    impostor_quads,
+    leaf_quads,
+)
 from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
+from forest.lod.levels import tree_levels
+from forest.lod.select import GAME_LOD0, BarkMesh, LeavesMesh
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
+
+if TYPE_CHECKING:
+    from forest.lod.impostor import Impostor
 
 Progress = Callable[[str, int, int], None]
 MAX_VERTICES = 8_000_000  # baked vertices per file (bark and leaves): about 450 MB of GLB
@@ -61,55 +77,44 @@ def check_size(forest: Forest) -> None:
         )
 
 
-def bark_quads(
-    forest: Forest,
-    inst: slice,
-    bones: slice,
-    to_tree: F64,
-    still: F64,
-    n_slices: int,
-    size: int,
-    budget: int | None = None,
-) -> SkinnedQuads:
-    """The tree's welded bark as the USD skinned form writes it (tree space, bind pose
-    ``still``, skinned to the tree's joints ``bones``), each quad's tile as atlas UVs."""
-    pts, nrm, quads, jidx, jw, st = tree_mesh(
-        forest, inst, bones, to_tree, still, weld=True, budget=budget
-    )
-    return SkinnedQuads(pts, nrm, quads, jidx, jw, atlas_uv(st, n_slices, size))
+Profile = Literal["game", "film"]
+PROFILES: tuple[Profile, ...] = ("game", "film")
+DEFAULT_PROFILE: Profile = "game"
 
 
-def leaf_quads(
-    forest: Forest,
-    anchors: FoliageAnchors,
-    inst: slice,
-    bones: slice,
-    to_tree: F64,
-    still: F64,
-    budget: int | None = None,
-) -> tuple[SkinnedQuads, F64] | None:
-    """The tree's leaf cards as the USD skinned form's Leaves mesh (each vertex on its
-    cloud's hub joint, weight 1) and their mean colour; None for a tree without clouds."""
-    leaves = leaves_mesh(forest, anchors, inst, bones, to_tree, still, budget)
-    if leaves is None:
-        return None
-    pts, nrm, quads, st, joint, colour = leaves
-    # leaf_texture's row 0 is t = 0, as glTF's v = 0 is the image's top row: st as it is
-    uv = st.astype(np.float32)[quads]
-    mesh = SkinnedQuads(pts, nrm, quads, joint[:, None], np.ones((len(joint), 1)), uv)
-    return mesh, colour.astype(np.float64).mean(axis=0)
+def profile_joints(profile: Profile) -> int | None:
+    """A profile's joints per tree: a game engine's skin limit, or one per bone (film)."""
+    return GAME_JOINTS if profile == "game" else None
 
 
 def forest_gltf(
     forest: Forest,
     tiles: Path | None = None,
     progress: Progress | None = None,
-    joint_budget: int | None = GAME_JOINTS,
+    joint_budget: int | Literal["profile"] | None = "profile",
+    *,
+    profile: Profile = DEFAULT_PROFILE,
+    impostor: bool | None = None,
 ) -> gl.GLTF2:
     """The forest as a glTF document with its binary blob set. ``tiles``: a tile-set folder
     whose ``bark.<UDIM>.png`` make the atlas, instead of the shipped set of the grammar's
-    ``bark``. ``joint_budget``: joints per tree's skin (:mod:`forest.growth.joint_budget`),
-    None for one per bone."""
+    ``bark``. ``profile``: ``game`` (per tree the levels of detail of :mod:`forest.gltf.lod`
+    on at most :data:`GAME_JOINTS` joints, one leaf material for all trees) or ``film`` (one
+    mesh per tree, the full tree on a joint per bone, a leaf material tinted per tree).
+    ``joint_budget``: joints per tree's skin (:mod:`forest.growth.joint_budget`, None for one
+    per bone), the profile's by default. ``impostor``: the game profile's LOD3 (True, False,
+    or None: where the render extra's GL is present)."""
+    if profile not in PROFILES:
+        raise ForestError(
+            f"unknown glTF profile {profile!r}; one of {', '.join(PROFILES)}", path="profile"
+        )
+    if joint_budget == "profile":
+        joint_budget = profile_joints(profile)
+    game = profile == "game"
+    if game and impostor is None:
+        from forest.lod.impostor import gl_missing
+
+        impostor = gl_missing() is None
     check_size(forest)
     opts = forest.options
     gltf = gl.GLTF2(
@@ -124,6 +129,7 @@ def forest_gltf(
                     "trees": opts.trees,
                     "frames": opts.frames,
                     "fps": opts.fps,
+                    "profile": profile,
                 }
             },
         ),
@@ -132,12 +138,19 @@ def forest_gltf(
     )
     blob = Blob(gltf)
     slices = read_slices(tile_folder(forest.grammar.bark, tiles), forest.manifest.n_slices)
+    n_slices, size = len(slices), slices.shape[1]
     bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
     frames = joint_frames(forest, joint_budget)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
     leaf_materials = LeafMaterials(gltf, blob, anchors.family) if anchors is not None else None
+    shared_leaves = None
+    if game and leaf_materials is not None:
+        shared_leaves = leaf_materials.tree_material(None, np.ones(3))
+    tints: list[tuple[F64, int]] = []
     skins: list[tuple[TreeSkin, slice]] = []
+    impostors: list[tuple[int, Impostor]] = []
+    chains: list[list[int]] = []  # per tree (game): its level nodes
     slices_ = tree_slices(forest, joint_budget)
     if progress:
         progress("glTF trees", 0, len(slices_))
@@ -146,25 +159,87 @@ def forest_gltf(
         skins.append((skin, bones))
         n_joints = bones.stop - bones.start
         to_tree = invert_similarity(forest.tree_transforms[k])
-        mesh = bark_quads(
-            forest, inst, bones, to_tree, frames.still, len(slices), slices.shape[1], joint_budget
+        full_bark = BarkMesh(
+            *tree_mesh(forest, inst, bones, to_tree, frames.still, weld=True, budget=joint_budget)
         )
-        prims = [skinned_primitive(blob, mesh, n_joints, bark)]
-        if anchors is not None and leaf_materials is not None:
-            leaves = leaf_quads(forest, anchors, inst, bones, to_tree, frames.still, joint_budget)
-            if leaves is not None:
-                material = leaf_materials.tree_material(k, leaves[1])
-                prims.append(skinned_primitive(blob, leaves[0], n_joints, material))
-        gltf.meshes.append(gl.Mesh(name=f"Tree_{k:05d}", primitives=prims))
-        gltf.nodes.append(
-            gl.Node(name=f"Tree_{k:05d}_Mesh", mesh=len(gltf.meshes) - 1, skin=skin.skin)
-        )
-        gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
+        made = None
+        if anchors is not None:
+            made = leaves_mesh(forest, anchors, inst, bones, to_tree, frames.still, joint_budget)
+        full_leaves = None if made is None else LeavesMesh(*made)
+        if not game:
+            prims = [skinned_primitive(blob, bark_quads(full_bark, n_slices, size), n_joints, bark)]
+            if full_leaves is not None and leaf_materials is not None:
+                colour = full_leaves.colour.astype(np.float64).mean(axis=0)
+                material = leaf_materials.tree_material(k, colour)
+                prims.append(skinned_primitive(blob, leaf_quads(full_leaves), n_joints, material))
+            gltf.meshes.append(gl.Mesh(name=f"Tree_{k:05d}", primitives=prims))
+            gltf.nodes.append(
+                gl.Node(name=f"Tree_{k:05d}_Mesh", mesh=len(gltf.meshes) - 1, skin=skin.skin)
+            )
+            gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
+        else:
+            levels = tree_levels(
+                forest,
+                anchors,
+                inst,
+                bones,
+                to_tree,
+                frames.still,
+                full_bark,
+                full_leaves,
+                joint_budget,
+                GAME_LOD0,
+            )
+            meshes: list[list[tuple[SkinnedQuads, int]]] = []
+            for level in levels:
+                prims_ = [(bark_quads(level.bark, n_slices, size), bark)]
+                if level.leaves is not None and shared_leaves is not None:
+                    prims_.append((leaf_quads(level.leaves), shared_leaves))
+                meshes.append(prims_)
+            if full_leaves is not None:
+                tints.append(
+                    (full_leaves.colour.astype(np.float64).mean(axis=0), len(full_leaves.quads))
+                )
+            if impostor:
+                impostors.append((k, _bake(forest, anchors, full_bark, full_leaves)))
+            chains.append(add_levels(gltf, blob, k, 0, skin.skin, n_joints, meshes))
         if progress:
             progress("glTF trees", k + 1, len(slices_))
+    if game:
+        if shared_leaves is not None and tints:
+            colour = np.average([c for c, _ in tints], axis=0, weights=[n for _, n in tints])
+            gltf.materials[shared_leaves].pbrMetallicRoughness.baseColorFactor = [
+                *(float(c) for c in colour),
+                1.0,
+            ]
+        if impostors:
+            # every tree's cards in one picture: one impostor material for the forest
+            sheet = ImpostorSheet.of(len(impostors))
+            material = add_impostor_material(
+                gltf, blob, sheet.picture([imp.cards for _, imp in impostors])
+            )
+            for i, (k, imp) in enumerate(impostors):
+                skin, bones = skins[k]
+                card = [(impostor_quads(imp, sheet, i), material)]
+                n_joints = bones.stop - bones.start
+                chains[k] += add_levels(gltf, blob, k, IMPOSTOR_LEVEL, skin.skin, n_joints, [card])
+        for chain in chains:
+            chain_levels(gltf, chain)
     add_wind(gltf, blob, pose, skins)
     blob.finish()
     return gltf
+
+
+def _bake(
+    forest: Forest, anchors: FoliageAnchors | None, bark: BarkMesh, leaves: LeavesMesh | None
+) -> Impostor:
+    """The tree's impostor from its full meshes (as the USD lod3's)."""
+    from forest.bark.tilesets import mean_colour
+    from forest.growth.foliage import leaf_texture
+    from forest.lod.impostor import bake_impostor
+
+    family = "broadleaf" if anchors is None else anchors.family
+    return bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
 
 
 def glb_bytes(gltf: gl.GLTF2) -> bytes:
@@ -178,11 +253,15 @@ def write_glb(
     tiles: Path | None = None,
     progress: Progress | None = None,
     packing: Packing = DEFAULT_PACKING,
+    profile: Profile = DEFAULT_PROFILE,
+    impostor: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.glb) atomically; returns the path. ``packing``: how
-    the binary data is stored (:mod:`forest.gltf.compress`)."""
+    the binary data is stored (:mod:`forest.gltf.compress`); ``profile`` and ``impostor``:
+    as :func:`forest_gltf`'s."""
     out = Path(path)
-    gltf = pack(forest_gltf(forest, tiles, progress), packing)
+    doc = forest_gltf(forest, tiles, progress, profile=profile, impostor=impostor)
+    gltf = pack(doc, packing)
     # one step: pygltflib encodes the whole document in one call
     if progress:
         progress("save", 0, 1)

@@ -3,9 +3,10 @@ primitive of the tree's skinned mesh, every card skinned rigidly (weight 1) to i
 joint, exactly as the USD skinned form's ``Leaves`` mesh
 (:func:`forest.usd.skinned.leaves_mesh`): the wind moves each card with its branch.
 
-The leaf texture is stored once; every tree gets a material tinted by its clouds' mean colour
-(a material per cloud colour would split the primitive, and ``COLOR_0`` is not multiplied in
-by every importer).
+The leaf texture is stored once; in the film profile every tree gets a material tinted by its
+clouds' mean colour (a material per cloud colour would split the primitive, and ``COLOR_0`` is
+not multiplied in by every importer), in the game profile all trees share one, tinted by the
+forest's mean.
 """
 
 from __future__ import annotations
@@ -29,11 +30,12 @@ class LeafMaterials:
         self.gltf = gltf
         self.texture = blob.texture(png_bytes(leaf_texture(family)), f"leaf-{family}")
 
-    def tree_material(self, tree: int, colour: F64) -> int:
-        """A material tinted ``colour`` (linear RGB); its index."""
+    def tree_material(self, tree: int | None, colour: F64) -> int:
+        """A material tinted ``colour`` (linear RGB) for tree ``tree`` (None: one for every
+        tree, "Leaves"); its index."""
         self.gltf.materials.append(
             gl.Material(
-                name=f"Leaves_{tree:05d}",
+                name="Leaves" if tree is None else f"Leaves_{tree:05d}",
                 pbrMetallicRoughness=gl.PbrMetallicRoughness(
                     baseColorFactor=[*(float(c) for c in colour), 1.0],
                     baseColorTexture=gl.TextureInfo(index=self.texture),

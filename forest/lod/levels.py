@@ -17,6 +17,7 @@ from forest.lod.select import (
     TARGETS,
     BarkMesh,
     LeavesMesh,
+    LodTarget,
     hang_joints,
     kept_by_radius,
     local_parents,
@@ -59,39 +60,82 @@ def tree_levels(
     bark: BarkMesh,
     leaves: LeavesMesh | None,
     joint_budget: int | None = None,
+    lod0: LodTarget | None = None,
 ) -> list[Level]:
     """LOD0 (``bark``, ``leaves``: the tree's full meshes as :mod:`forest.usd.skinned` makes
     them from ``inst``, ``bones``, ``to_tree`` and ``still``), LOD1 and LOD2, each within its
     :data:`forest.lod.select.TARGETS` of LOD0's triangles; ``joint_budget``: the skeleton's
-    joints per tree, as ``bones`` counts them (:mod:`forest.growth.joint_budget`)."""
-    g = forest.graph
-    scale = g.scale[inst]
+    joints per tree, as ``bones`` counts them (:mod:`forest.growth.joint_budget`). ``lod0``:
+    a cap on LOD0 itself (:data:`forest.lod.select.GAME_LOD0`): over it, LOD0 drops the
+    thinnest pieces and thins the leaf cards as LOD1 does, bark and leaves each keeping
+    their share; LOD1 and LOD2 are still made from the full tree (they keep thicker pieces
+    than any such LOD0, so every level's bark stays a part of LOD0's)."""
+    total = 2 * len(bark.quads) + (0 if leaves is None else leaves.triangles)
+    out = [Level(0, bark, leaves, float(forest.graph.scale[inst].min()))]
+    if lod0 is not None and lod0.triangles(total) < total:
+        share = 2 * len(bark.quads) / total
+        out[0] = _reduced(
+            forest,
+            anchors,
+            inst,
+            bones,
+            bark,
+            leaves,
+            0,
+            lod0.triangles(total),
+            share,
+            joint_budget,
+        )
+    for level in (1, 2):
+        target = TARGETS[level].triangles(total)
+        out.append(
+            _reduced(
+                forest,
+                anchors,
+                inst,
+                bones,
+                bark,
+                leaves,
+                level,
+                target,
+                BARK_SHARE,
+                joint_budget,
+            )
+        )
+    return out
+
+
+def _reduced(
+    forest: Forest,
+    anchors: FoliageAnchors | None,
+    inst: slice,
+    bones: slice,
+    bark: BarkMesh,
+    leaves: LeavesMesh | None,
+    level: int,
+    target: int,
+    bark_share: float,
+    joint_budget: int | None,
+) -> Level:
+    """The tree's ``level`` within ``target`` triangles, ``bark_share`` of them bark: the
+    pieces of at least the root radius that fits, fewer leaf cards (LOD0, LOD1) or crown
+    cards (LOD2) in the rest."""
+    scale = forest.graph.scale[inst]
     parent = local_parents(forest, inst)
     of_quad = quad_instances(forest, inst)
     quads = np.bincount(of_quad, minlength=len(scale))
-    total = 2 * len(bark.quads) + (0 if leaves is None else leaves.triangles)
-    out = [Level(0, bark, leaves, float(scale.min()))]
+    bark_quads = int(bark_share * target) // 2 if leaves is not None else target // 2
+    radius = radius_for(scale, parent, quads, bark_quads)
+    kept = kept_by_radius(scale, parent, radius)
+    lod_bark = select_bark(bark, kept[of_quad])
+    lod_leaves = None
     sel = None if anchors is None or leaves is None else tree_anchors(anchors, inst)
-    for level in (1, 2):
-        target = TARGETS[level].triangles(total)
-        bark_quads = int(BARK_SHARE * target) // 2
-        if leaves is None:
-            bark_quads = target // 2
-        radius = radius_for(scale, parent, quads, bark_quads)
-        kept = kept_by_radius(scale, parent, radius)
-        lod_bark = select_bark(bark, kept[of_quad])
-        lod_leaves = None
-        if anchors is not None and leaves is not None and sel is not None and len(sel):
-            budget = max(target - 2 * len(lod_bark.quads), 0)
-            tree = anchors.select(sel)
-            if level == 1:
-                lod_leaves = _fewer_cards(
-                    forest, tree, inst, bones, kept, leaves, budget, joint_budget
-                )
-            else:
-                lod_leaves = _cards(forest, tree, inst, bones, kept, leaves, budget, joint_budget)
-        out.append(Level(level, lod_bark, lod_leaves, radius))
-    return out
+    if anchors is not None and leaves is not None and sel is not None and len(sel):
+        budget = max(target - 2 * len(lod_bark.quads), 0)
+        tree = anchors.select(sel)
+        make = _cards if level == 2 else _fewer_cards
+        lod_leaves = make(forest, tree, inst, bones, kept, leaves, budget, joint_budget)
+    return Level(level, lod_bark, lod_leaves, radius)
 
 
 def _fewer_cards(
@@ -121,7 +165,7 @@ def _fewer_cards(
     fraction = len(pick) / len(cards)
     quads = leaves.quads[pick]
     mid = leaves.points[quads].mean(axis=1)
-    grow = CARD_GROWTH / np.sqrt(fraction)
+    grow = max(1.0, CARD_GROWTH / np.sqrt(fraction))  # a near-full level keeps its cards' size
     points = mid[:, None] + (leaves.points[quads] - mid[:, None]) * grow
     joint = hang_joints(forest, inst, bones, kept, tree, joint_budget)[spray[pick]]
     return LeavesMesh(

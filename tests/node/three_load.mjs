@@ -1,8 +1,11 @@
 // Load a .glb with three.js's GLTFLoader (with its MeshoptDecoder, for EXT_meshopt_compression)
 // under Node and report what it made; with --times,
 // also the world-space skinned vertex positions of every SkinnedMesh at those seconds of the
-// first animation (float32, mesh after mesh, time after time) written to --out.
-//   node three_load.mjs FILE.glb [--times 0,0.125 --out POS.bin]
+// first animation (float32, mesh after mesh, time after time) written to --out. With --lods,
+// also every lower level of detail a node names with MSFT_lod (nodes in no scene, which
+// GLTFLoader leaves out: loaded through its parser), reported under "lods" and, with --times,
+// their SkinnedMesh vertices after the scene's, level after level.
+//   node three_load.mjs FILE.glb [--times 0,0.125 --out POS.bin] [--lods]
 import { readFileSync, writeFileSync } from 'node:fs';
 
 // the few browser globals GLTFLoader touches: images arrive as Blobs, which we do not decode
@@ -66,6 +69,37 @@ const report = {
   images,
   leaf_card_meshes: cards,
 };
+
+if (args.includes('--lods')) {
+  const parser = gltf.parser;
+  report.lods = [];
+  for (const [index, def] of (parser.json.nodes || []).entries()) {
+    const ids = def.extensions?.MSFT_lod?.ids;
+    if (!ids) continue;
+    const top = await parser.getDependency('node', index);
+    const topBones = new Set();
+    top.traverse((o) => { if (o.isSkinnedMesh) o.skeleton.bones.forEach((b) => topBones.add(b)); });
+    for (const id of ids) {
+      const node = await parser.getDependency('node', id);
+      const meshes = [];
+      node.traverse((o) => { if (o.isSkinnedMesh) meshes.push(o); });
+      report.lods.push({
+        of: def.name,
+        name: parser.json.nodes[id].name,
+        in_scene: node.parent !== null,
+        skinned_meshes: meshes.map((m) => ({
+          name: m.name,
+          vertices: m.geometry.attributes.position.count,
+          bones: m.skeleton.bones.length,
+          shares_bones: m.skeleton.bones.every((b) => topBones.has(b)),
+          has_texture: !!m.material.map,
+          alpha_test: m.material.alphaTest,
+        })),
+      });
+      skinned.push(...meshes);
+    }
+  }
+}
 
 const times = opt('--times');
 if (times) {
