@@ -105,7 +105,7 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "full tree (default), lod1 without the thinnest pieces (about 1/4 of the triangles, at "
     "most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k), lod3 a baked impostor "
     "card pair with its view atlas in OUT.lod/ (needs the render extra's GL; skipped with a "
-    "note without it).",
+    "note without it). A .glb's levels follow --profile instead.",
 )
 @click.option(
     "--season",
@@ -223,11 +223,6 @@ def generate(
             )
         _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
-    if lod and glb:
-        raise ForestError(
-            "a .glb's levels of detail follow --profile (game: LOD0-LOD3, film: none)",
-            path="lod",
-        )
     if profile is not None and not glb:
         raise ForestError("--profile applies to a .glb only", path="profile")
     if skinned is False and output.suffix.lower() == ".usdz":
@@ -251,7 +246,12 @@ def generate(
             profile=profile,  # type: ignore[arg-type]
         )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
-    if lod and not quiet:
+    if glb and profile != "film" and not quiet:
+        from forest.lod.impostor import gl_missing
+
+        if (why := gl_missing()) is not None:
+            click.echo(f"note: LOD3 (the impostor) not baked: {why}")
+    elif lod and not quiet:
         from forest.lod.impostor import gl_missing
 
         if not wrote_skinned:

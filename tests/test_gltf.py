@@ -270,6 +270,16 @@ def test_cli_writes_glb_by_suffix(tmp_path: Path) -> None:
     assert "skinned" in r.stdout
     doc = gl.GLTF2.load(str(tmp_path / "t.glb"))
     assert len(doc.skins) == 1 and len(doc.animations) == 1
+    assert "MSFT_lod" in doc.extensionsUsed  # the game profile: levels of detail
+
+
+def test_cli_profile_film(tmp_path: Path) -> None:
+    r = cli("generate", "--preset", "almond", "--seed", "2", "--frames", "2", "--profile",
+            "film", "-o", "t.glb", cwd=tmp_path)  # fmt: skip
+    assert r.returncode == 0, r.stderr
+    doc = gl.GLTF2.load(str(tmp_path / "t.glb"))
+    assert not doc.extensionsUsed or "MSFT_lod" not in doc.extensionsUsed
+    assert [n.name for n in doc.nodes if n.mesh is not None] == ["Tree_00000_Mesh"]
 
 
 @pytest.mark.parametrize(
@@ -279,6 +289,7 @@ def test_cli_writes_glb_by_suffix(tmp_path: Path) -> None:
         (["-o", "missing/t.glb"], "missing"),
         (["--trees", "0", "-o", "t.glb"], "trees"),
         (["--tiles", "nowhere", "-o", "t.glb"], "nowhere"),
+        (["--profile", "film", "-o", "t.usdc"], "profile"),
     ],
 )
 def test_cli_bad_input_is_one_line(tmp_path: Path, args: list[str], field: str) -> None:

@@ -1,0 +1,114 @@
+"""The glTF game profile's levels of detail, read back from the written file of a mature oak
+(seed 3, 24 wind frames): each level within its triangle budget (LOD0 <= 150 k, LOD1 <= 40 k,
+LOD2 <= 8 k, LOD3 <= 4), one skin of at most 256 joints per tree, the MSFT_lod chain (LOD0 in
+the scene, the lower levels in none), one material per kind, the meshopt file within 6 MB,
+and every level's bark skinned at the last wind frame exactly where LOD0's is (the same
+vertices on the same joints). The film profile keeps the full tree on every joint."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pygltflib as gl
+import pytest
+from helpers_gltf import glb_skinned, read
+
+from forest.gltf.document import write_glb
+from forest.gltf.lod import COVERAGE, MSFT_LOD, SCREEN_COVERAGE
+from forest.growth.generate import Forest, ForestOptions, generate_forest
+from forest.growth.joint_budget import GAME_JOINTS
+from forest.growth.presets import load_preset
+from forest.lod.impostor import gl_missing
+
+FRAMES = 24
+BUDGETS = (150_000, 40_000, 8_000, 4)  # triangles of LOD0..LOD3 (issue 24's game budgets)
+MESHOPT_BYTES = 6_000_000
+
+
+@pytest.fixture(scope="module")
+def oak() -> Forest:
+    return generate_forest(load_preset("oak"), 3, ForestOptions(trees=1, frames=FRAMES))
+
+
+@pytest.fixture(scope="module")
+def glb(oak: Forest, tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return write_glb(oak, tmp_path_factory.mktemp("oak") / "oak.glb")
+
+
+def _triangles(doc: gl.GLTF2, mesh: int) -> int:
+    return sum(doc.accessors[p.indices].count // 3 for p in doc.meshes[mesh].primitives)
+
+
+def test_levels_within_their_budgets(glb: Path) -> None:
+    doc = gl.GLTF2.load(str(glb))
+    baked = gl_missing() is None
+    by_name = {n.name: i for i, n in enumerate(doc.nodes)}
+    lod0 = doc.nodes[by_name["Tree_00000_LOD0"]]
+    levels = 4 if baked else 3
+    ids = lod0.extensions[MSFT_LOD]["ids"]
+    assert [doc.nodes[i].name for i in ids] == [f"Tree_00000_LOD{k}" for k in range(1, levels)]
+    assert lod0.extras[SCREEN_COVERAGE] == list(COVERAGE[:levels])
+    assert doc.extensionsUsed.count(MSFT_LOD) == 1 and MSFT_LOD not in doc.extensionsRequired
+    scene = set(doc.scenes[0].nodes)
+    assert by_name["Tree_00000_LOD0"] in scene and not scene & set(ids)
+    tris = []
+    for k in range(levels):
+        node = doc.nodes[by_name[f"Tree_00000_LOD{k}"]]
+        assert node.skin == lod0.skin and doc.meshes[node.mesh].name == node.name
+        tris.append(_triangles(doc, node.mesh))
+    print("triangles per level", tris, "bytes", glb.stat().st_size)
+    for k, (n, budget) in enumerate(zip(tris, BUDGETS, strict=False)):
+        assert 0 < n <= budget, (k, n, budget)
+    assert tris[0] >= 0.95 * BUDGETS[0]  # the full oak is heavier: LOD0 is cut to the budget
+    assert len(doc.skins) == 1 and len(doc.skins[0].joints) <= GAME_JOINTS
+    names = sorted(m.name for m in doc.materials)
+    assert names == sorted(["Bark", "Leaves", *(["Impostor"] if baked else [])])
+    if baked:
+        impostor = next(m for m in doc.materials if m.name == "Impostor")
+        assert impostor.alphaMode == gl.MASK and impostor.pbrMetallicRoughness.baseColorTexture
+    (anim,) = doc.animations
+    assert anim.name == "Wind"
+
+
+def test_meshopt_file_within_six_megabytes(oak: Forest, tmp_path: Path) -> None:
+    path = write_glb(oak, tmp_path / "oak.glb", packing="meshopt")
+    assert path.stat().st_size <= MESHOPT_BYTES, path.stat().st_size
+
+
+def test_each_levels_bark_is_lod0s_at_the_last_frame(glb: Path) -> None:
+    """Every bark vertex of LOD1 and LOD2 is one of LOD0's (the same quantized rest point,
+    joints and weights) and glTF's skinning from the file puts it where LOD0's is at the last
+    wind frame; the impostor's cards stay inside LOD0's bounds grown by 2 % of the height."""
+    doc = gl.GLTF2.load(str(glb))
+    by_name = {n.name: i for i, n in enumerate(doc.nodes)}
+    last = FRAMES - 1
+    lod0 = by_name["Tree_00000_LOD0"]
+    prim0 = doc.meshes[doc.nodes[lod0].mesh].primitives[0]
+    rest0 = read(doc, prim0.attributes.POSITION)
+    joints0 = read(doc, prim0.attributes.JOINTS_0)
+    posed0 = glb_skinned(doc, lod0, last)
+    height = float(np.ptp(np.concatenate(posed0)[:, 1]))
+    where = {row.tobytes(): i for i, row in enumerate(rest0)}
+    for k in (1, 2):
+        node = by_name[f"Tree_00000_LOD{k}"]
+        prim = doc.meshes[doc.nodes[node].mesh].primitives[0]
+        rest = read(doc, prim.attributes.POSITION)
+        index = np.array([where[row.tobytes()] for row in rest])
+        assert np.array_equal(read(doc, prim.attributes.JOINTS_0), joints0[index])
+        posed = glb_skinned(doc, node, last)[0]
+        assert np.abs(posed - posed0[0][index]).max() <= 1e-6 * height, k
+    if "Tree_00000_LOD3" in by_name:
+        (cards,) = glb_skinned(doc, by_name["Tree_00000_LOD3"], last)
+        every = np.concatenate(posed0)
+        lo, hi = every.min(axis=0) - 0.02 * height, every.max(axis=0) + 0.02 * height
+        assert np.all((cards >= lo) & (cards <= hi))
+
+
+def test_film_profile_keeps_the_full_tree(oak: Forest, tmp_path: Path) -> None:
+    doc = gl.GLTF2.load(str(write_glb(oak, tmp_path / "film.glb", profile="film")))
+    assert MSFT_LOD not in (doc.extensionsUsed or [])
+    (node,) = [n for n in doc.nodes if n.mesh is not None]
+    assert node.name == "Tree_00000_Mesh" and node.extensions in (None, {})
+    assert _triangles(doc, node.mesh) > BUDGETS[0]  # the full oak (about 265 k)
+    assert len(doc.skins[0].joints) > GAME_JOINTS  # a joint per bone
