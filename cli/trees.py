@@ -105,7 +105,7 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
     "full tree (default), lod1 without the thinnest pieces (about 1/4 of the triangles, at "
     "most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k), lod3 a baked impostor "
     "card pair with its view atlas in OUT.lod/ (needs the render extra's GL; skipped with a "
-    "note without it). A .glb's levels follow --profile instead.",
+    "note without it). A .glb's levels follow --profile instead (--lod is refused there).",
 )
 @click.option(
     "--season",
@@ -223,6 +223,12 @@ def generate(
             )
         _generate_tiled(g, seed, options, tile_size, bool(skinned), output, quiet)
         return
+    if lod and glb:
+        raise ForestError(
+            "a .glb's levels of detail are written by its --profile (game: LOD0-LOD3, "
+            "film: none), not --lod",
+            path="lod",
+        )
     if profile is not None and not glb:
         raise ForestError("--profile applies to a .glb only", path="profile")
     if skinned is False and output.suffix.lower() == ".usdz":

@@ -49,13 +49,19 @@ def write_forest(
     own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
     stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it.
     ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; a .glb's follow
-    its ``profile`` whatever ``lod`` says). ``profile``: a .glb's ``game`` (its default:
+    its ``profile``, and it refuses ``lod``). ``profile``: a .glb's ``game`` (its default:
     levels of detail, at most 256 joints per tree) or ``film`` (the full tree on every
     joint), :mod:`forest.gltf.document`; USD refuses it."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
 
+        if lod:
+            raise ForestError(
+                "a .glb's levels of detail are written by its --profile (game: LOD0-LOD3, "
+                "film: none), not --lod",
+                path="lod",
+            )
         folder = Path(path).parent / tiles if tiles else None
         extra: dict[str, Any] = {} if packing is None else {"packing": packing}
         if profile is not None:

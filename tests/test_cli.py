@@ -178,7 +178,7 @@ def test_bad_grammar_gets_one_line_and_exit_2(tmp_path: Path, grammar: dict, mes
         (["--preset", "almond", "--wind", "nan"], "'--wind': 'nan' is not a finite number"),
         (["--preset", "almond", "--wind", "1e9"], "'--wind'"),
         (["--preset", "almond", "--fps", "inf"], "'--fps'"),
-        (["--preset", "almond", "--lod", "-o", "f.glb"], "lod: levels of detail are written"),
+        (["--preset", "almond", "--lod", "-o", "f.glb"], "lod: a .glb's levels of detail"),
     ],
 )
 def test_bad_options_get_one_line_and_exit_2(tmp_path: Path, args: list[str], message: str) -> None:

@@ -290,6 +290,7 @@ def test_cli_profile_film(tmp_path: Path) -> None:
         (["--trees", "0", "-o", "t.glb"], "trees"),
         (["--tiles", "nowhere", "-o", "t.glb"], "nowhere"),
         (["--profile", "film", "-o", "t.usdc"], "profile"),
+        (["--lod", "-o", "t.glb"], "--profile"),
     ],
 )
 def test_cli_bad_input_is_one_line(tmp_path: Path, args: list[str], field: str) -> None:
