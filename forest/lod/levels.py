@@ -32,6 +32,11 @@ from forest.lod.select import (
 # once fewer cover more. Measured on oak seed 3 (alpha coverage at 1024 px, side and top):
 # 1.0 covered 20 % more than LOD0, 0.9 matches it within a few per cent
 CARD_GROWTH = 0.85
+# a capped LOD0 (forest.lod.select.GAME_LOD0) keeps most sprays, which overlap as much as
+# before: its cards grow by the area they stand for. Oak seed 3 at 150 k triangles, alpha
+# coverage at 512 px (front, side, top): 12.2, 12.7, 22.9 % full; 12.2, 12.7, 23.2 % at 1.0
+# (11.3, 11.8, 21.4 % at 0.85)
+LOD0_CARD_GROWTH = 1.0
 
 
 @dataclass(frozen=True, eq=False)
@@ -133,8 +138,13 @@ def _reduced(
     if anchors is not None and leaves is not None and sel is not None and len(sel):
         budget = max(target - 2 * len(lod_bark.quads), 0)
         tree = anchors.select(sel)
-        make = _cards if level == 2 else _fewer_cards
-        lod_leaves = make(forest, tree, inst, bones, kept, leaves, budget, joint_budget)
+        if level == 2:
+            lod_leaves = _cards(forest, tree, inst, bones, kept, leaves, budget, joint_budget)
+        else:
+            growth = LOD0_CARD_GROWTH if level == 0 else CARD_GROWTH
+            lod_leaves = _fewer_cards(
+                forest, tree, inst, bones, kept, leaves, budget, joint_budget, growth
+            )
     return Level(level, lod_bark, lod_leaves, radius)
 
 
@@ -147,10 +157,11 @@ def _fewer_cards(
     leaves: LeavesMesh,
     budget: int,
     joint_budget: int | None = None,
+    growth: float = CARD_GROWTH,
 ) -> LeavesMesh | None:
     """LOD0's ``leaves`` with an evenly spread subset of their leaf cards within ``budget``
     triangles, every spray keeping its share: each kept card grows about its middle by
-    ``1 / sqrt(kept fraction)`` (the crown's coverage stays, its outline barely moves), stem
+    ``growth / sqrt(kept fraction)`` (the crown's coverage stays, its outline barely moves), stem
     cards go (a spray's stalk is thinner than a pixel where this level shows), and every
     card is bound to the nearest kept joint (:func:`hang_joints`)."""
     models = tree.models()
@@ -165,7 +176,7 @@ def _fewer_cards(
     fraction = len(pick) / len(cards)
     quads = leaves.quads[pick]
     mid = leaves.points[quads].mean(axis=1)
-    grow = max(1.0, CARD_GROWTH / np.sqrt(fraction))  # a near-full level keeps its cards' size
+    grow = growth / np.sqrt(fraction)
     points = mid[:, None] + (leaves.points[quads] - mid[:, None]) * grow
     joint = hang_joints(forest, inst, bones, kept, tree, joint_budget)[spray[pick]]
     return LeavesMesh(
