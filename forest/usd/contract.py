@@ -117,6 +117,7 @@ WIND_ANIMATION = "Wind"  # under SKELETON
 BARK_MESH = "Bark"
 PROXY_MESH = "Proxy"
 LEAVES_MESH = "Leaves"
+LEAVES_PROXY_MESH = "LeavesProxy"  # with levels of detail: LEAVES_MESH's proxy, lod2's cards
 # a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
 # as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
 LOD = "lod"

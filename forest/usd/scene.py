@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,10 +40,10 @@ from forest.usd.instancer import Progress, write_instancer
 from forest.usd.leaves import write_foliage
 from forest.usd.materials import bark_material
 from forest.usd.prims import define_world, row_major, set_attr, set_frames
-from forest.usd.textures import PACKAGE_FOLDER, scene_textures
+from forest.usd.textures import PACKAGE_FOLDER, scene_textures, texture_folder
 
 if TYPE_CHECKING:
-    from forest.lod.usd import LodOptions
+    from forest.lod.usd import ImpostorFiles, LodOptions
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -113,7 +114,7 @@ def write_scene(
     textures: bool = True,
     progress: Progress | None = None,
     joint_budget: int | None = DCC_JOINTS,
-    lod: bool = False,
+    lod: bool = True,
     impostor: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
@@ -131,19 +132,31 @@ def write_scene(
     (:mod:`forest.usd.textures`), a .usdz carries them. Without, flat colours and no
     picture (but a given ``tiles`` is still read).
 
-    ``lod`` adds each skinned tree's levels of detail (:mod:`forest.lod`: a variant set
-    ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None: where GL is
-    available, :func:`forest.lod.impostor.gl_missing`), its baked impostor as ``lod3``, the
-    pictures in ``<stem>.lod/`` beside a .usda/.usdc, under ``./textures/`` in a .usdz."""
+    ``lod`` (default) adds each skinned tree's levels of detail (:mod:`forest.lod`: a
+    variant set ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None:
+    where GL is available, :func:`forest.lod.impostor.gl_missing`, and the scene has
+    ``textures``), its baked impostor as ``lod3``, the pictures beside the others: in
+    ``<stem>.textures/`` beside a .usda/.usdc, under ``./textures/`` in a .usdz."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
-    args = (forest, out, skinned, tiles, textures, progress, joint_budget)
-    if not (lod and skinned):
-        return _write_scene(*args, None)
-    from forest.lod.usd import lod_pictures
+    lod_options = None
+    if lod and skinned:
+        from forest.lod.usd import LodOptions
 
-    with lod_pictures(out, impostor) as lod_options:
-        return _write_scene(*args, lod_options)
+        lod_options = LodOptions()
+        if impostor is None:
+            impostor = textures and impostor_available()
+    return _write_scene(
+        forest, out, skinned, tiles, textures, progress, joint_budget, lod_options, bool(impostor)
+    )
+
+
+def impostor_available() -> bool:
+    """Whether :func:`write_scene` bakes the impostors by default: the render extra's GL is
+    there (:func:`forest.lod.impostor.gl_missing`)."""
+    from forest.lod.impostor import gl_missing
+
+    return gl_missing() is None
 
 
 def _write_scene(
@@ -155,6 +168,7 @@ def _write_scene(
     progress: Progress | None,
     joint_budget: int | None,
     lod: LodOptions | None,
+    impostor: bool,
 ) -> Path:
     package = out.suffix.lower() == ".usdz"
     anchors = foliage_or_none(forest)
@@ -170,14 +184,8 @@ def _write_scene(
             tiles=tiles,
             textures=textures,
         )
-        if package and lod is not None and lod.impostors is not None:
-            # inside the package beside the other pictures, named ./textures/...: the
-            # packager keeps such paths, where Blender resolves its renamed ones to nothing
-            from forest.lod.usd import ImpostorFiles, LodOptions
-
-            inside = tmp.parent / PACKAGE_FOLDER
-            inside.mkdir(exist_ok=True)
-            lod = LodOptions(ImpostorFiles(inside, f"./{PACKAGE_FOLDER}"))
+        if lod is not None and impostor:
+            lod = replace(lod, impostors=impostor_files(out, tmp.parent))
         setup_stage(stage, forest, instanced=not package)
         vset, targets = representation_variants(stage, skinned, instanced=not package)
         material = bark_material(stage, pictures.bark, forest.grammar.bark)
@@ -204,6 +212,8 @@ def _write_scene(
                     if stage.GetPrimAtPath(where):
                         stage.GetPrimAtPath(where).SetActive(False)
         vset.SetVariantSelection(SKINNED if skinned else POSED)
+        if lod is not None and lod.impostors is not None and not package:
+            pictures = pictures.with_files(lod.impostors.written(), texture_folder(out))
         # the pictures before the scene that names them: a reader never finds a scene
         # whose pictures are not there yet
         made_folder = pictures.write(staged=not package)
@@ -222,6 +232,18 @@ def _write_scene(
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
+
+
+def impostor_files(out: Path, layer_folder: Path) -> ImpostorFiles:
+    """Where the impostors of the scene ``out``, whose layer is written in ``layer_folder``,
+    go: beside the package's other pictures (named ``./textures/...``: the packager keeps
+    such paths, where Blender resolves its renamed ones to nothing), or staged beside the
+    layer, to join the other pictures in ``<stem>.textures/`` when those are written."""
+    from forest.lod.usd import ImpostorFiles
+
+    if out.suffix.lower() == ".usdz":
+        return ImpostorFiles(layer_folder / PACKAGE_FOLDER, f"./{PACKAGE_FOLDER}", packed=True)
+    return ImpostorFiles(layer_folder / "impostors", f"./{texture_folder(out).name}")
 
 
 def _write_instanced(
