@@ -24,15 +24,21 @@ from forest.bark.atlas import atlas_uv, slice_files
 from forest.bark.tilesets import set_dir
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.usd.contract import FOREST, REPRESENTATION, SKINNED, TREES
-from forest.usd.scene import write_scene
+from forest.usd.contract import FOREST, REPRESENTATION, SKINNED, TREES, tree_name
+from forest.usd.scene import impostor_available, write_scene
 from forest.usd.textures import TILE_INSET
 from schemas.tileset import UDIM_TOKEN
 
 ROOT = Path(__file__).resolve().parents[1]
 ARKIT_CHECK = ROOT / "tests" / "usdz_arkit_check.py"
-# a Python whose pxr still has UsdUtils.ComplianceChecker (usd-core 25.x; 26.x removed it)
-ARKIT_PYTHON = os.environ.get("FOREST_ARKIT_PYTHON")
+# a Python whose pxr still has UsdUtils.ComplianceChecker (usd-core 25.x; 26.x removed it):
+# FOREST_ARKIT_PYTHON, else .venv-arkit's (tests/setup_arkit_venv.sh, run by `make test`)
+ARKIT_PYTHON = Path(
+    os.environ.get("FOREST_ARKIT_PYTHON") or ROOT / ".venv-arkit" / "bin" / "python"
+)
+ARKIT_SETUP = "bash tests/setup_arkit_venv.sh"
+# where the checker must run: CI (.ci/run sets FOREST_REQUIRE_ARKIT; CI=true as CI services do)
+ARKIT_REQUIRED = os.environ.get("FOREST_REQUIRE_ARKIT") == "1" or os.environ.get("CI") == "true"
 
 
 @pytest.fixture(scope="module")
@@ -186,21 +192,29 @@ def test_usdz_carries_an_atlas_and_the_leaf_picture_under_dot_paths(
 
 
 def test_usdz_passes_the_arkit_compliance_checker(birch: Forest, tmp_path: Path) -> None:
-    """``UsdUtils.ComplianceChecker(arkit=True)``, i.e. ``usdchecker --arkit``: in this
-    Python where its USD still has it, else through ``FOREST_ARKIT_PYTHON`` (a Python with
-    usd-core 25.x: ``pip install usd-core==25.5``)."""
+    """``UsdUtils.ComplianceChecker(arkit=True)``, i.e. ``usdchecker --arkit``, on a .usdz
+    written with the defaults (levels of detail; the impostor's picture under ./textures/
+    where GL bakes it): in this Python where its USD still has the checker, else in
+    :data:`ARKIT_PYTHON` (usd-core 25.5). Missing there, it fails in CI and skips elsewhere."""
     out = write_scene(birch, tmp_path / "b.usdz")
+    names = zipfile.ZipFile(out).namelist()
+    if impostor_available():
+        assert f"textures/{tree_name(0)}.cards.png" in names, names
     from pxr import UsdUtils
 
     if hasattr(UsdUtils, "ComplianceChecker"):
         python = sys.executable
-    elif ARKIT_PYTHON and Path(ARKIT_PYTHON).exists():
-        python = ARKIT_PYTHON
+    elif ARKIT_PYTHON.exists():
+        python = str(ARKIT_PYTHON)
     else:
-        pytest.skip(
-            "usd-core 26 has no UsdUtils.ComplianceChecker: set FOREST_ARKIT_PYTHON to a "
-            "Python with usd-core 25.x"
+        why = (
+            f"usd-core 26 has no UsdUtils.ComplianceChecker and {ARKIT_PYTHON} does not exist: "
+            f"create it with `{ARKIT_SETUP}` or set FOREST_ARKIT_PYTHON to a Python with "
+            "usd-core 25.x"
         )
+        if ARKIT_REQUIRED:
+            pytest.fail(why)
+        pytest.skip(why)
     proc = subprocess.run(
         [python, str(ARKIT_CHECK), str(out)],
         capture_output=True,
