@@ -37,7 +37,7 @@ def write_forest(
     textures: bool = True,
     progress: Progress | None = None,
     packing: Packing | None = None,
-    lod: bool = False,
+    lod: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
@@ -46,7 +46,8 @@ def write_forest(
     (:func:`forest.usd.scene.write_scene`; False: flat colours); a .glb always packs its
     own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
     stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it.
-    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; USD only so far)."""
+    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; USD only so far,
+    where None means yes)."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
@@ -66,5 +67,5 @@ def write_forest(
         tiles=tiles,
         textures=textures,
         progress=progress,
-        lod=lod,
+        lod=lod is not False,
     )
