@@ -235,12 +235,12 @@ def generate(
         )
     wrote_skinned = glb or wants_skinned(forest, output, skinned)
     if lod is not False and not glb and not quiet:
-        from forest.lod.impostor import gl_missing
+        from forest.usd.scene import impostor_skipped
 
         if not wrote_skinned:
             if lod:
                 click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
-        elif textures and (why := gl_missing()) is not None:
+        elif (why := impostor_skipped(forest, textures)) is not None:
             click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

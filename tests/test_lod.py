@@ -31,7 +31,7 @@ from forest.usd.contract import (
     lod_variant,
     tree_name,
 )
-from forest.usd.scene import write_scene
+from forest.usd.scene import IMPOSTOR_MAX_TREES, impostor_skipped, write_scene
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 from tests.helpers_skin import usd_skinned_points
 
@@ -303,3 +303,15 @@ def test_a_failed_write_leaves_no_pictures(tmp_path: Path, monkeypatch: pytest.M
         [f"{tree_name(0)}.{kind}.png" for kind in kinds] + ["Tree_00000.mine.png"]
     )
     assert (folder / "notes.png").is_file()
+
+
+def test_impostors_are_baked_by_default_for_small_textured_forests() -> None:
+    """The default bake's reasons not to (forest.usd.scene.impostor_skipped): no pictures,
+    over IMPOSTOR_MAX_TREES trees (the bake's second or so a tree), or no GL."""
+    small = generate_forest(load_preset("alternating"), 1, ForestOptions(trees=IMPOSTOR_MAX_TREES))
+    many = generate_forest(
+        load_preset("alternating"), 1, ForestOptions(trees=IMPOSTOR_MAX_TREES + 1)
+    )
+    assert impostor_skipped(small) == gl_missing()
+    assert "no pictures" in (impostor_skipped(small, textures=False) or "")
+    assert f"over {IMPOSTOR_MAX_TREES} trees" in (impostor_skipped(many) or "")

@@ -24,10 +24,11 @@ from forest.bark.atlas import atlas_uv, slice_files
 from forest.bark.tilesets import set_dir
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.usd.contract import FOREST, REPRESENTATION, SKINNED, TREES, tree_name
-from forest.usd.scene import impostor_available, write_scene
+from forest.usd.contract import FOREST, REPRESENTATION, SKINNED, TREES
+from forest.usd.scene import write_scene
 from forest.usd.textures import TILE_INSET
 from schemas.tileset import UDIM_TOKEN
+from tests.helpers_lod import impostor_pictures
 
 ROOT = Path(__file__).resolve().parents[1]
 ARKIT_CHECK = ROOT / "tests" / "usdz_arkit_check.py"
@@ -104,7 +105,7 @@ def test_textures_resolve_beside_the_scene_from_another_working_directory(
     # the species' own tiles, byte for byte, and nothing else in the folder
     folder = scene_dir / "b.textures"
     assert sorted(p.name for p in folder.iterdir()) == sorted(
-        [p.name for p in shipped] + ["leaf-birch.png"]
+        [p.name for p in shipped] + ["leaf-birch.png", *impostor_pictures(1)]
     )
     for p in shipped:
         assert (folder / p.name).read_bytes() == p.read_bytes()
@@ -125,7 +126,8 @@ def test_tiles_option_names_its_folder_and_keeps_the_leaf_picture(
     scene = write_scene(birch, tmp_path / "b.usdc", tiles="mine")
     inputs = set(texture_inputs(Usd.Stage.Open(str(scene))).values())
     assert inputs == {"./mine/bark.<UDIM>.png", "./b.textures/leaf-birch.png"}
-    assert [p.name for p in (tmp_path / "b.textures").iterdir()] == ["leaf-birch.png"]
+    written = sorted(p.name for p in (tmp_path / "b.textures").iterdir())
+    assert written == sorted(["leaf-birch.png", *impostor_pictures(1)])
 
 
 def test_no_textures_keeps_flat_colours_and_writes_no_folder(tmp_path: Path) -> None:
@@ -153,7 +155,8 @@ def test_usdz_carries_an_atlas_and_the_leaf_picture_under_dot_paths(
     with zipfile.ZipFile(out) as z:
         names = z.namelist()
     assert names[0] == "b.usdc"
-    assert sorted(names[1:]) == ["textures/bark.png", "textures/leaf-birch.png"]
+    pictures = ["bark.png", "leaf-birch.png", *impostor_pictures(1, packed=True)]
+    assert sorted(names[1:]) == sorted(f"textures/{name}" for name in pictures)
     stage = Usd.Stage.Open(str(out))
     inputs = texture_inputs(stage)
     assert set(inputs.values()) == {"./textures/bark.png", "./textures/leaf-birch.png"}
@@ -198,8 +201,7 @@ def test_usdz_passes_the_arkit_compliance_checker(birch: Forest, tmp_path: Path)
     :data:`ARKIT_PYTHON` (usd-core 25.5). Missing there, it fails in CI and skips elsewhere."""
     out = write_scene(birch, tmp_path / "b.usdz")
     names = zipfile.ZipFile(out).namelist()
-    if impostor_available():
-        assert f"textures/{tree_name(0)}.cards.png" in names, names
+    assert {f"textures/{name}" for name in impostor_pictures(1, packed=True)} <= set(names)
     from pxr import UsdUtils
 
     if hasattr(UsdUtils, "ComplianceChecker"):

@@ -51,6 +51,11 @@ if TYPE_CHECKING:
 # write time of its instanced pieces (4 oaks, 14k pieces, 24 frames: 374 MB, 64 s).
 SKINNED_MAX_TREES = 64
 SKINNED_MAX_PIECES = 20_000
+# Forests of up to this many trees get their impostors (lod3) baked by default: the bake draws
+# each tree 18 times on the CPU's GL (llvmpipe), 0.7-1.6 s a tree (almond, oak), which
+# doubled the write of 20 almonds (18,922 pieces, 24 frames: 16.7 s without levels, 19.2 s
+# with lod0-2, 32.0 s with the impostors)
+IMPOSTOR_MAX_TREES = 16
 
 
 def setup_stage(stage: Usd.Stage, forest: Forest, instanced: bool = True) -> None:
@@ -134,9 +139,9 @@ def write_scene(
 
     ``lod`` (default) adds each skinned tree's levels of detail (:mod:`forest.lod`: a
     variant set ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None:
-    where GL is available, :func:`forest.lod.impostor.gl_missing`, and the scene has
-    ``textures``), its baked impostor as ``lod3``, the pictures beside the others: in
-    ``<stem>.textures/`` beside a .usda/.usdc, under ``./textures/`` in a .usdz."""
+    unless :func:`impostor_skipped` says why not), its baked impostor as ``lod3``, the
+    pictures beside the others: in ``<stem>.textures/`` beside a .usda/.usdc, under
+    ``./textures/`` in a .usdz."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
     lod_options = None
@@ -145,18 +150,31 @@ def write_scene(
 
         lod_options = LodOptions()
         if impostor is None:
-            impostor = textures and impostor_available()
+            impostor = impostor_skipped(forest, textures) is None
     return _write_scene(
         forest, out, skinned, tiles, textures, progress, joint_budget, lod_options, bool(impostor)
     )
 
 
 def impostor_available() -> bool:
-    """Whether :func:`write_scene` bakes the impostors by default: the render extra's GL is
-    there (:func:`forest.lod.impostor.gl_missing`)."""
+    """Whether the impostors can be baked here: the render extra's GL is there
+    (:func:`forest.lod.impostor.gl_missing`)."""
     from forest.lod.impostor import gl_missing
 
     return gl_missing() is None
+
+
+def impostor_skipped(forest: Forest, textures: bool = True) -> str | None:
+    """Why :func:`write_scene` bakes no impostor by default for ``forest``, or None when it
+    does: the scene writes no pictures, has over :data:`IMPOSTOR_MAX_TREES` trees, or GL is
+    missing."""
+    from forest.lod.impostor import gl_missing
+
+    if not textures:
+        return "the scene has no pictures (--no-textures)"
+    if len(forest.tree_transforms) > IMPOSTOR_MAX_TREES:
+        return f"over {IMPOSTOR_MAX_TREES} trees (each takes a second or so to bake)"
+    return gl_missing()
 
 
 def _write_scene(
