@@ -1,8 +1,8 @@
 """A skinned tree's levels of detail in USD: the variant set :data:`LOD` on its SkelRoot.
 
-``lod0`` authors nothing: the tree's own Bark, Proxy and Leaves (written outside the variant
-set) are LOD0, so a stage that selects it composes exactly the tree without levels. Each
-higher level deactivates those three (``active`` is authored nowhere else, so the variant's
+``lod0`` authors nothing: the tree's own Bark, Proxy, Leaves and LeavesProxy (written outside
+the variant set) are LOD0, so a stage that selects it composes the tree as it stands. Each
+higher level deactivates those four (``active`` is authored nowhere else, so the variant's
 opinion holds) and defines its own :func:`lod_mesh` Bark and Leaves, skinned to the same
 Skeleton: a consumer switches with ``GetVariantSet('lod').SetVariantSelection('lod2')``.
 With :class:`LodOptions` ``impostors``, ``lod3`` is the impostor (:mod:`forest.lod.impostor`,
