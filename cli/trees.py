@@ -240,7 +240,7 @@ def generate(
         if not wrote_skinned:
             if lod:
                 click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
-        elif (why := impostor_skipped(forest, textures)) is not None:
+        elif textures and (why := impostor_skipped(forest)) is not None:  # asked for none
             click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
