@@ -99,13 +99,13 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 )
 @click.option(
     "--lod/--no-lod",
-    default=False,
-    show_default=True,
-    help="Write each skinned tree's levels of detail as a variant set 'lod' (USD): lod0 the "
-    "full tree (default), lod1 without the thinnest pieces (about 1/4 of the triangles, at "
-    "most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k), lod3 a baked impostor "
-    "card pair with its view atlas in OUT.lod/ (needs the render extra's GL; skipped with a "
-    "note without it). A .glb's levels follow --profile instead (--lod is refused there).",
+    default=None,
+    help="Write each skinned tree's levels of detail as a variant set 'lod' (USD; default "
+    "on): lod0 the full tree (selected), lod1 without the thinnest pieces (about 1/4 of the "
+    "triangles, at most 40 k), lod2 the limbs and crown cards (1/20, at most 8 k; also the "
+    "leaves' proxy), lod3 a baked impostor card pair with its view atlas beside the other "
+    "pictures (needs the render extra's GL; skipped with a note without it). A .glb's levels "
+    "follow --profile instead (--lod is refused there).",
 )
 @click.option(
     "--season",
@@ -181,7 +181,7 @@ def generate(
     wind_deg: float,
     segments: int,
     skinned: bool | None,
-    lod: bool,
+    lod: bool | None,
     season: str,
     tiles_dir: str | None,
     textures: bool,
@@ -257,12 +257,19 @@ def generate(
 
         if (why := gl_missing()) is not None:
             click.echo(f"note: LOD3 (the impostor) not baked: {why}")
-    elif lod and not quiet:
-        from forest.lod.impostor import gl_missing
+    elif lod is not False and not glb and not quiet:
+        from forest.usd.scene import impostor_skipped
 
         if not wrote_skinned:
-            click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
-        elif (why := gl_missing()) is not None:
+            if lod:
+                click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
+        elif textures and (why := impostor_skipped(forest)) is not None:  # asked for none
+            click.echo(f"note: lod3 (the impostor) not baked: {why}")
+
+        if not wrote_skinned:
+            if lod:
+                click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
+        elif textures and (why := impostor_skipped(forest)) is not None:  # asked for none
             click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "

@@ -7,8 +7,11 @@ process holds anyway. Measured (alternating and oak, segments 1 and 8, 0 to 24 f
 posed USD scene keeps about 320 B per piece and 70-75 B per piece-frame, its generation about
 4 KB and 85 B; a skinned one (every .usdz) 16-18 KB and 130 B in the file, 40-90 KB and 310 B
 in memory; a .glb 9 KB and 240 B in the file, 45-85 KB (110 KB once in a loaded CI run) and
-1.7 KB in memory. A .usda is about 3.5 times its .usdc. ``tests/test_cost.py`` fails when a
-writer outgrows these figures.
+1.7 KB in memory. A .usda is about 3.5 times its .usdc. The skinned trees' levels of detail
+(on by default) add 11-18 % to the file (oak, almond; in the figures above) and, where the
+impostors are baked (GL present), about 300-400 MB to the peak for the GL context and one
+tree's views (1 oak: 336 -> 735 MB; 20 almonds: 670 -> 935 MB): :data:`IMPOSTOR_MEMORY`.
+``tests/test_cost.py`` fails when a writer outgrows these figures.
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from forest.usd.scene import SKINNED_MAX_PIECES, SKINNED_MAX_TREES
 BASE_MEMORY = 256 << 20  # the interpreter, numpy, pxr and the piece library
 BASE_SCENE = 16 << 20  # a glb's bark atlas, leaf prototypes, the scene's fixed prims
 USDA_FACTOR = 4.0  # text against crate
+IMPOSTOR_MEMORY = 512 << 20  # a skinned USD scene's impostor bake (forest.lod.impostor)
 
 
 @dataclass(frozen=True)
@@ -77,6 +81,8 @@ def forest_cost(
     if fmt == "usda":
         scene *= USDA_FACTOR
     memory = pieces * (rates.memory * geometry + rates.memory_frame * frames)
+    if rates is SKINNED:  # counted wherever it may run: the estimate cannot see the GL
+        memory += IMPOSTOR_MEMORY
     return Cost(
         memory_bytes=BASE_MEMORY + math.ceil(memory),
         scene_bytes=BASE_SCENE + math.ceil(scene),

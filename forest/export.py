@@ -38,7 +38,7 @@ def write_forest(
     textures: bool = True,
     progress: Progress | None = None,
     packing: Packing | None = None,
-    lod: bool = False,
+    lod: bool | None = None,
     profile: Profile | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
@@ -48,10 +48,10 @@ def write_forest(
     (:func:`forest.usd.scene.write_scene`; False: flat colours); a .glb always packs its
     own. ``skinned``: USD's choice; a .glb is always skinned. ``packing``: how a .glb
     stores its data (:mod:`forest.gltf.compress`, its default when None); USD ignores it.
-    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; a .glb's follow
-    its ``profile``, and it refuses ``lod``). ``profile``: a .glb's ``game`` (its default:
-    levels of detail, at most 256 joints per tree) or ``film`` (the full tree on every
-    joint), :mod:`forest.gltf.document`; USD refuses it."""
+    ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; None means yes; a
+    .glb's follow its ``profile``, and it refuses ``lod``). ``profile``: a .glb's ``game``
+    (its default: levels of detail, at most 256 joints per tree) or ``film`` (the full tree on
+    every joint), :mod:`forest.gltf.document`; USD refuses it."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
@@ -78,5 +78,5 @@ def write_forest(
         tiles=tiles,
         textures=textures,
         progress=progress,
-        lod=lod,
+        lod=lod is not False,
     )

@@ -66,6 +66,12 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--render", help="also render a small Cycles picture here")
     ap.add_argument("--size", type=int, default=240)
     ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument(
+        "--impostor",
+        action="store_true",
+        help="the scene selects lod3: expect the impostor's material (colour and alpha from "
+        "its picture) instead of bark and leaves",
+    )
     args = ap.parse_args(argv)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     t0 = time.perf_counter()
@@ -111,10 +117,15 @@ def main(argv: list[str]) -> int:
             failures.append(f"{mat.name}: Base Color not from a picture")
         if mat.name.startswith("Leaf") and not entry["alpha_textured"]:
             failures.append(f"{mat.name}: Alpha not from the leaf picture (square cards)")
-    if not any(m.startswith("Bark") for m in materials):
-        failures.append(f"no bark material among {sorted(materials)}")
-    if not any(m.startswith("Leaf") for m in materials):
-        failures.append(f"no leaf material among {sorted(materials)}")
+    kinds = ("ImpostorLook",) if args.impostor else ("Bark", "Leaf")
+    for kind in kinds:
+        if not any(m.startswith(kind) for m in materials):
+            failures.append(f"no {kind} material among {sorted(materials)}")
+    for name, entry in materials.items():
+        if name.startswith("ImpostorLook") and not (
+            entry["base_color_textured"] and entry["alpha_textured"]
+        ):
+            failures.append(f"{name}: Base Color and Alpha not from the cards' picture")
     report = {
         "blender": bpy.app.version_string,
         "scene": args.scene,

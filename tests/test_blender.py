@@ -24,8 +24,16 @@ from forest.bark.images import read_pixels
 from forest.bark.tilesets import default_dir, set_dir
 from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.presets import load_preset
-from forest.usd.contract import FOLIAGE, PIECES
-from forest.usd.scene import write_scene
+from forest.usd.contract import (
+    FOLIAGE,
+    IMPOSTOR_MATERIAL,
+    LOD,
+    PIECES,
+    lod_variant,
+    tree_name,
+)
+from forest.usd.contract import TREES as TREES_PATH
+from forest.usd.scene import impostor_available, write_scene
 from forest.usd.skinned import tree_slices
 
 pytestmark = pytest.mark.slow  # Blender (bpy) imports and renders in a subprocess
@@ -311,6 +319,38 @@ def test_blender_imports_textured_birch_and_renders_bark_and_cut_leaves(
     # Blender's missing-texture magenta, shaded: red and blue well above green
     magenta = (rgb[..., 0] > 1.25 * rgb[..., 1] + 10) & (rgb[..., 2] > 1.25 * rgb[..., 1] + 10)
     assert green.mean() > 0.002 and magenta.sum() == 0, (green.mean(), magenta.sum())
+
+
+@pytest.mark.skipif(not impostor_available(), reason="no GL here: no impostor is baked")
+@pytest.mark.parametrize("suffix", [".usdc", ".usdz"])
+def test_blender_loads_the_impostor_pictures(tmp_path: Path, suffix: str) -> None:
+    """The default birch seen at ``lod3`` (a layer beside it referencing it, the tree's
+    variant selected: Blender's importer takes the selection it finds), imported from another
+    folder: the impostor's material reads its cards' picture (from birch.textures/, or from
+    ./textures/ inside the .usdz) for colour and alpha, and nothing else is drawn."""
+    if not BLENDER_PY.exists():
+        pytest.fail(f"{BLENDER_PY.relative_to(ROOT)} does not exist: run `{SETUP}`", pytrace=False)
+    forest = generate_forest(load_preset("birch"), 3, ForestOptions(trees=1, frames=2))
+    (tmp_path / "scene").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    scene = write_scene(forest, tmp_path / "scene" / f"birch{suffix}")
+    far = Usd.Stage.CreateNew(str(tmp_path / "scene" / "far.usda"))
+    far.DefinePrim("/World").GetReferences().AddReference(f"./{scene.name}")
+    far.SetDefaultPrim(far.GetPrimAtPath("/World"))
+    tree = far.OverridePrim(f"{TREES_PATH}/{tree_name(0)}")
+    tree.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(3))
+    far.GetRootLayer().Save()
+    proc = subprocess.run(
+        [str(BLENDER_PY), str(TEXTURE_CHECK), far.GetRootLayer().realPath, "--impostor"],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path / "elsewhere",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads(proc.stdout.splitlines()[-1])
+    assert set(report["materials"]) == {IMPOSTOR_MATERIAL}, report["materials"]
+    (cards,) = report["materials"][IMPOSTOR_MATERIAL]["images"]
+    assert cards["loaded"], cards
+    if suffix == ".usdc":
+        assert Path(cards["filepath"]).parent == tmp_path / "scene" / "birch.textures"
 
 
 def test_explicit_skinned_is_the_small_default(small_forest: Forest, tmp_path: Path) -> None:

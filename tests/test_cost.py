@@ -46,6 +46,7 @@ print(json.dumps({"memory": rss, "scene": out.stat().st_size, "pieces": forest.n
     [
         ("alternating", 200, 12, 1, "usdc", None),  # posed (over 64 trees)
         ("alternating", 20, 4, 8, "usdc", True),  # skinned, fine pieces
+        ("oak", 1, 24, 1, "usdc", None),  # one big skinned tree: the impostor bake's peak
         ("alternating", 20, 4, 1, "glb", None),
     ],
 )

@@ -23,6 +23,7 @@ from forest.usd.contract import (
     IMPOSTOR_MATERIAL,
     IMPOSTOR_MESH,
     LEAVES_MESH,
+    LEAVES_PROXY_MESH,
     LOD,
     PROXY_MESH,
     TREES,
@@ -30,7 +31,7 @@ from forest.usd.contract import (
     lod_variant,
     tree_name,
 )
-from forest.usd.scene import write_scene
+from forest.usd.scene import IMPOSTOR_MAX_TREES, impostor_skipped, write_scene
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 from tests.helpers_skin import usd_skinned_points
 
@@ -84,8 +85,8 @@ def test_kept_bark_is_lod0_bark() -> None:
 def lod_scene(tmp_path_factory: pytest.TempPathFactory) -> tuple[Forest, Path, Path]:
     forest = generate_forest(load_preset("almond"), 11, ForestOptions(trees=2, frames=3, fps=4))
     out = tmp_path_factory.mktemp("lod")
-    plain = write_scene(forest, out / "plain.usdc", skinned=True)
-    lod = write_scene(forest, out / "lod.usdc", skinned=True, lod=True, impostor=BAKES)
+    plain = write_scene(forest, out / "plain.usdc", skinned=True, lod=False)
+    lod = write_scene(forest, out / "lod.usdc", skinned=True)  # levels by default
     return forest, plain, lod
 
 
@@ -106,10 +107,41 @@ def test_lod0_composes_the_tree_as_without_levels(lod_scene: tuple[Forest, Path,
         vset = rb.GetVariantSets().GetVariantSet(LOD)
         assert vset.GetVariantNames() == [lod_variant(i) for i in range(3 + BAKES)]
         assert vset.GetVariantSelection() == lod_variant(0)
-        assert _meshes(ra) == _meshes(rb)
+        light = _meshes(rb).pop(LEAVES_PROXY_MESH)  # the leaves' proxy: see below
+        assert {**_meshes(ra), LEAVES_PROXY_MESH: light} == _meshes(rb)
         tc = Usd.TimeCode(2.0)
         ext = UsdGeom.Boundable(ra).GetExtentAttr()
         assert ext.Get(tc) == UsdGeom.Boundable(rb).GetExtentAttr().Get(tc)
+
+
+def test_leaves_have_a_light_proxy(lod_scene: tuple[Forest, Path, Path]) -> None:
+    """LOD0's Leaves are purpose render with a proxyPrim: lod2's crown cards, purpose proxy,
+    bound to the same skeleton, so a DCC's proxy display skips the heavy leaves; without
+    levels the leaves keep purpose default (no proxy to stand in)."""
+    forest, plain, lod = lod_scene
+    stage = Usd.Stage.Open(str(lod))
+    for k in range(forest.options.trees):
+        root = stage.GetPrimAtPath(f"{TREES}/{tree_name(k)}")
+        leaves = root.GetChild(LEAVES_MESH)
+        proxy = root.GetChild(LEAVES_PROXY_MESH)
+        assert UsdGeom.Imageable(leaves).GetPurposeAttr().Get() == UsdGeom.Tokens.render
+        assert UsdGeom.Imageable(proxy).GetPurposeAttr().Get() == UsdGeom.Tokens.proxy
+        assert leaves.GetRelationship("proxyPrim").GetTargets() == [proxy.GetPath()]
+        skel = UsdSkel.BindingAPI(proxy).GetSkeletonRel().GetTargets()
+        assert skel == UsdSkel.BindingAPI(leaves).GetSkeletonRel().GetTargets()
+        light = np.asarray(UsdGeom.Mesh(proxy).GetPointsAttr().Get())
+        full = np.asarray(UsdGeom.Mesh(leaves).GetPointsAttr().Get())
+        assert len(light) <= 0.1 * len(full), (len(light), len(full))
+        vset = root.GetVariantSets().GetVariantSet(LOD)
+        vset.SetVariantSelection(lod_variant(2))
+        cards = UsdGeom.Mesh(root.GetChild(lod_mesh(LEAVES_MESH, 2))).GetPointsAttr().Get()
+        np.testing.assert_array_equal(np.asarray(cards), light)
+        vset.SetVariantSelection(lod_variant(0))
+    plain_stage = Usd.Stage.Open(str(plain))
+    root = plain_stage.GetPrimAtPath(f"{TREES}/{tree_name(0)}")
+    assert not root.GetChild(LEAVES_PROXY_MESH)
+    purpose = UsdGeom.Imageable(root.GetChild(LEAVES_MESH)).GetPurposeAttr().Get()
+    assert purpose == UsdGeom.Tokens.default_
 
 
 def test_switching_levels(lod_scene: tuple[Forest, Path, Path]) -> None:
@@ -244,8 +276,9 @@ def test_lod1_leaves_follow_lod0s(lod_scene: tuple[Forest, Path, Path]) -> None:
 
 @pytest.mark.skipif(not BAKES, reason="no GL here: the impostor needs the render extra")
 def test_a_failed_write_leaves_no_pictures(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    """The impostors' pictures reach ``<stem>.lod/`` only with their scene: a write that fails
-    at its last step (the layer's rename) leaves the folder as it was, here empty."""
+    """The impostors' pictures reach ``<stem>.textures/`` (beside the bark and leaf pictures)
+    only with their scene: a write that fails at its last step (the layer's rename) leaves
+    nothing; a later write replaces a stale tree's pictures and no file it did not make."""
     from forest.usd import files
 
     small = generate_forest(load_preset("almond"), 11, ForestOptions(trees=1))
@@ -258,6 +291,27 @@ def test_a_failed_write_leaves_no_pictures(tmp_path: Path, monkeypatch: pytest.M
         write_scene(small, tmp_path / "t.usdc", skinned=True, lod=True, impostor=True)
     assert list(tmp_path.iterdir()) == []
     monkeypatch.undo()
+    folder = tmp_path / "t.textures"
+    folder.mkdir()
+    for name in ("Tree_00007.cards.png", "Tree_00000.mine.png", "notes.png"):
+        (folder / name).write_bytes(b"an earlier write's or the artist's")
     write_scene(small, tmp_path / "t.usdc", skinned=True, lod=True, impostor=True)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.lod", "t.textures", "t.usdc"]
-    assert len(list((tmp_path / "t.lod").iterdir())) == 4
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.textures", "t.usdc"]
+    trees = sorted(p.name for p in folder.glob("Tree_*"))
+    kinds = ("albedo", "cards", "depth", "normal")
+    assert trees == sorted(
+        [f"{tree_name(0)}.{kind}.png" for kind in kinds] + ["Tree_00000.mine.png"]
+    )
+    assert (folder / "notes.png").is_file()
+
+
+def test_impostors_are_baked_by_default_for_small_textured_forests() -> None:
+    """The default bake's reasons not to (forest.usd.scene.impostor_skipped): no pictures,
+    over IMPOSTOR_MAX_TREES trees (the bake's second or so a tree), or no GL."""
+    small = generate_forest(load_preset("alternating"), 1, ForestOptions(trees=IMPOSTOR_MAX_TREES))
+    many = generate_forest(
+        load_preset("alternating"), 1, ForestOptions(trees=IMPOSTOR_MAX_TREES + 1)
+    )
+    assert impostor_skipped(small) == gl_missing()
+    assert "no pictures" in (impostor_skipped(small, textures=False) or "")
+    assert f"over {IMPOSTOR_MAX_TREES} trees" in (impostor_skipped(many) or "")

@@ -29,6 +29,7 @@ from forest.usd.contract import BARK_TILES
 from forest.usd.files import FORMATS
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
+from tests.helpers_lod import impostor_pictures
 
 STEM = "forest"
 
@@ -185,10 +186,10 @@ def test_cli_generate_usdz_keeps_the_usdc_beside_it(tmp_path: Path) -> None:
     assert set(after) == set(before)
     assert all(after[n] == d for n, d in before.items() if n != out.name)
     # the layer, and the pictures it carries (nothing of the folder's own files)
+    pictures = ["bark.png", "leaf-broadleaf.png", *impostor_pictures(1, packed=True)]
     assert sorted(zipfile.ZipFile(out).namelist()) == [
         f"{STEM}.usdc",
-        "textures/bark.png",
-        "textures/leaf-broadleaf.png",
+        *sorted(f"textures/{name}" for name in pictures),
     ]
 
 

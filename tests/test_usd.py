@@ -57,8 +57,8 @@ def test_every_mesh_has_valid_topology_and_extent(name: str, tmp_path: Path) -> 
     assert len(meshes) == len(PIECE_NAMES) + MODELS
     default = Usd.Stage.Open(str(stage.GetRootLayer().identifier))  # skinned
     skinned = [UsdGeom.Mesh(p) for p in default.Traverse() if p.IsA(UsdGeom.Mesh)]
-    # (bark, proxy, leaves) per tree
-    assert len(skinned) == 3 * 2
+    # (bark, proxy, leaves, the leaves' proxy) per tree
+    assert len(skinned) == 4 * 2
     meshes += skinned
     for mesh in meshes:
         ok, why = UsdGeom.Mesh.ValidateTopology(

@@ -23,6 +23,7 @@ from forest.bark.tilesets import default_dir
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.scene import write_scene
+from tests.helpers_lod import impostor_pictures
 
 pytestmark = pytest.mark.slow  # NVIDIA's validator in its own venv
 
@@ -165,8 +166,9 @@ def test_usdz_follows_arkit_rules(scenes: dict[str, Path]) -> None:
     with zipfile.ZipFile(path) as z:
         names = z.namelist()
     assert names[0] == "tiles.usdc"  # the root layer: crate
-    # the tiles as one atlas (no UDIM inside a package) and the leaf picture
-    assert sorted(names[1:]) == ["textures/bark.png", "textures/leaf-almond.png"]
+    # the tiles as one atlas (no UDIM inside a package), the leaf picture and the impostors'
+    pictures = ["bark.png", "leaf-almond.png", *impostor_pictures(2, packed=True)]
+    assert sorted(names[1:]) == sorted(f"textures/{name}" for name in pictures)
 
     types = Counter(p.GetTypeName() for p in stage.Traverse())
     assert set(types) <= ARKIT_PRIM_TYPES, types

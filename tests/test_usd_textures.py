@@ -28,11 +28,18 @@ from forest.usd.contract import FOREST, REPRESENTATION, SKINNED, TREES
 from forest.usd.scene import write_scene
 from forest.usd.textures import TILE_INSET
 from schemas.tileset import UDIM_TOKEN
+from tests.helpers_lod import impostor_pictures
 
 ROOT = Path(__file__).resolve().parents[1]
 ARKIT_CHECK = ROOT / "tests" / "usdz_arkit_check.py"
-# a Python whose pxr still has UsdUtils.ComplianceChecker (usd-core 25.x; 26.x removed it)
-ARKIT_PYTHON = os.environ.get("FOREST_ARKIT_PYTHON")
+# a Python whose pxr still has UsdUtils.ComplianceChecker (usd-core 25.x; 26.x removed it):
+# FOREST_ARKIT_PYTHON, else .venv-arkit's (tests/setup_arkit_venv.sh, run by `make test`)
+ARKIT_PYTHON = Path(
+    os.environ.get("FOREST_ARKIT_PYTHON") or ROOT / ".venv-arkit" / "bin" / "python"
+)
+ARKIT_SETUP = "bash tests/setup_arkit_venv.sh"
+# where the checker must run: CI (.ci/run sets FOREST_REQUIRE_ARKIT; CI=true as CI services do)
+ARKIT_REQUIRED = os.environ.get("FOREST_REQUIRE_ARKIT") == "1" or os.environ.get("CI") == "true"
 
 
 @pytest.fixture(scope="module")
@@ -98,7 +105,7 @@ def test_textures_resolve_beside_the_scene_from_another_working_directory(
     # the species' own tiles, byte for byte, and nothing else in the folder
     folder = scene_dir / "b.textures"
     assert sorted(p.name for p in folder.iterdir()) == sorted(
-        [p.name for p in shipped] + ["leaf-birch.png"]
+        [p.name for p in shipped] + ["leaf-birch.png", *impostor_pictures(1)]
     )
     for p in shipped:
         assert (folder / p.name).read_bytes() == p.read_bytes()
@@ -119,7 +126,8 @@ def test_tiles_option_names_its_folder_and_keeps_the_leaf_picture(
     scene = write_scene(birch, tmp_path / "b.usdc", tiles="mine")
     inputs = set(texture_inputs(Usd.Stage.Open(str(scene))).values())
     assert inputs == {"./mine/bark.<UDIM>.png", "./b.textures/leaf-birch.png"}
-    assert [p.name for p in (tmp_path / "b.textures").iterdir()] == ["leaf-birch.png"]
+    written = sorted(p.name for p in (tmp_path / "b.textures").iterdir())
+    assert written == sorted(["leaf-birch.png", *impostor_pictures(1)])
 
 
 def test_no_textures_keeps_flat_colours_and_writes_no_folder(tmp_path: Path) -> None:
@@ -147,7 +155,8 @@ def test_usdz_carries_an_atlas_and_the_leaf_picture_under_dot_paths(
     with zipfile.ZipFile(out) as z:
         names = z.namelist()
     assert names[0] == "b.usdc"
-    assert sorted(names[1:]) == ["textures/bark.png", "textures/leaf-birch.png"]
+    pictures = ["bark.png", "leaf-birch.png", *impostor_pictures(1, packed=True)]
+    assert sorted(names[1:]) == sorted(f"textures/{name}" for name in pictures)
     stage = Usd.Stage.Open(str(out))
     inputs = texture_inputs(stage)
     assert set(inputs.values()) == {"./textures/bark.png", "./textures/leaf-birch.png"}
@@ -186,21 +195,28 @@ def test_usdz_carries_an_atlas_and_the_leaf_picture_under_dot_paths(
 
 
 def test_usdz_passes_the_arkit_compliance_checker(birch: Forest, tmp_path: Path) -> None:
-    """``UsdUtils.ComplianceChecker(arkit=True)``, i.e. ``usdchecker --arkit``: in this
-    Python where its USD still has it, else through ``FOREST_ARKIT_PYTHON`` (a Python with
-    usd-core 25.x: ``pip install usd-core==25.5``)."""
+    """``UsdUtils.ComplianceChecker(arkit=True)``, i.e. ``usdchecker --arkit``, on a .usdz
+    written with the defaults (levels of detail; the impostor's picture under ./textures/
+    where GL bakes it): in this Python where its USD still has the checker, else in
+    :data:`ARKIT_PYTHON` (usd-core 25.5). Missing there, it fails in CI and skips elsewhere."""
     out = write_scene(birch, tmp_path / "b.usdz")
+    names = zipfile.ZipFile(out).namelist()
+    assert {f"textures/{name}" for name in impostor_pictures(1, packed=True)} <= set(names)
     from pxr import UsdUtils
 
     if hasattr(UsdUtils, "ComplianceChecker"):
         python = sys.executable
-    elif ARKIT_PYTHON and Path(ARKIT_PYTHON).exists():
-        python = ARKIT_PYTHON
+    elif ARKIT_PYTHON.exists():
+        python = str(ARKIT_PYTHON)
     else:
-        pytest.skip(
-            "usd-core 26 has no UsdUtils.ComplianceChecker: set FOREST_ARKIT_PYTHON to a "
-            "Python with usd-core 25.x"
+        why = (
+            f"usd-core 26 has no UsdUtils.ComplianceChecker and {ARKIT_PYTHON} does not exist: "
+            f"create it with `{ARKIT_SETUP}` or set FOREST_ARKIT_PYTHON to a Python with "
+            "usd-core 25.x"
         )
+        if ARKIT_REQUIRED:
+            pytest.fail(why)
+        pytest.skip(why)
     proc = subprocess.run(
         [python, str(ARKIT_CHECK), str(out)],
         capture_output=True,

@@ -1,8 +1,8 @@
 """A skinned tree's levels of detail in USD: the variant set :data:`LOD` on its SkelRoot.
 
-``lod0`` authors nothing: the tree's own Bark, Proxy and Leaves (written outside the variant
-set) are LOD0, so a stage that selects it composes exactly the tree without levels. Each
-higher level deactivates those three (``active`` is authored nowhere else, so the variant's
+``lod0`` authors nothing: the tree's own Bark, Proxy, Leaves and LeavesProxy (written outside
+the variant set) are LOD0, so a stage that selects it composes the tree as it stands. Each
+higher level deactivates those four (``active`` is authored nowhere else, so the variant's
 opinion holds) and defines its own :func:`lod_mesh` Bark and Leaves, skinned to the same
 Skeleton: a consumer switches with ``GetVariantSet('lod').SetVariantSelection('lod2')``.
 With :class:`LodOptions` ``impostors``, ``lod3`` is the impostor (:mod:`forest.lod.impostor`,
@@ -16,21 +16,17 @@ variant selection.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from pxr import Gf, Sdf, Usd, UsdGeom, UsdShade, UsdSkel
 
-from forest.atomic import move_into_place, private_folder
 from forest.geometry.pieces import MAX_INFLUENCES
-from forest.geometry.transforms import F64
 from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest
-from forest.lod.levels import Level, tree_levels
+from forest.lod.levels import Level
 from forest.lod.select import BarkMesh, LeavesMesh
 from forest.usd.contract import (
     BARK_MESH,
@@ -41,6 +37,7 @@ from forest.usd.contract import (
     IMPOSTOR_MESH,
     IMPOSTOR_SPHERE,
     LEAVES_MESH,
+    LEAVES_PROXY_MESH,
     LOD,
     PROXY_MESH,
     SURFACE,
@@ -49,30 +46,34 @@ from forest.usd.contract import (
 )
 from forest.usd.materials import LeafMaterials, st_texture
 from forest.usd.prims import set_attr
-from forest.usd.skinned import _bind, _indexed_st, _mesh
+from forest.usd.skinned import _bind, _indexed_st, _mesh, write_leaves
 
 if TYPE_CHECKING:
     from forest.lod.impostor import Impostor
 
 
 IMPOSTOR_LEVEL = 3
-PICTURES_SUFFIX = ".lod"  # <stem>.lod/ beside a .usda/.usdc holds its impostors' pictures
 
 
 @dataclass(frozen=True)
 class ImpostorFiles:
-    """Where a scene's impostor pictures are written (``folder``, a private staging folder)
-    and the folder its layer names them in (``asset_folder``, relative to the layer: what the
-    pictures beside a .usda/.usdc need), or None for their absolute staging paths (a .usdz's
-    packager embeds them under names of its own)."""
+    """Where a scene's impostor pictures are written (``folder``, in the layer's private
+    folder) and the folder its layer names them in (``asset_folder``, relative to the layer:
+    the scene's texture folder, :mod:`forest.usd.textures`, which the pictures join);
+    ``packed``: a .usdz's, which names the cards' picture only."""
 
     folder: Path
-    asset_folder: str | None
+    asset_folder: str
+    packed: bool = False
 
     def asset(self, path: Path) -> str:
-        if self.asset_folder is None:
-            return path.resolve().as_posix()
         return f"{self.asset_folder}/{path.name}"
+
+    def written(self) -> list[Path]:
+        """The pictures written so far, by name."""
+        if not self.folder.is_dir():
+            return []
+        return sorted(p for p in self.folder.iterdir() if p.is_file())
 
 
 @dataclass(frozen=True)
@@ -81,31 +82,6 @@ class LodOptions:
     LOD0-LOD2 always, LOD3 (the impostor) where ``impostors`` says where its pictures go."""
 
     impostors: ImpostorFiles | None = None
-    joint_budget: int | None = None  # the skeleton's joints per tree (forest.growth.joint_budget)
-
-
-@contextmanager
-def lod_pictures(out: Path, impostor: bool | None) -> Iterator[LodOptions]:
-    """The :class:`LodOptions` of a scene written to ``out`` in the block: impostors (with
-    ``impostor`` True, or None where GL is present, :func:`forest.lod.impostor.gl_missing`)
-    staged in a private folder, moved into ``<stem>.lod/`` beside a .usda/.usdc only when the
-    block ends without an error (a .usdz packs them from there); no folder is left behind."""
-    from forest.lod.impostor import gl_missing
-
-    if impostor is False or (impostor is None and gl_missing() is not None):
-        yield LodOptions()
-        return
-    final = out.parent / f"{out.stem}{PICTURES_SUFFIX}"
-    packed = out.suffix.lower() == ".usdz"
-    with private_folder(final) as staging:
-        yield LodOptions(ImpostorFiles(staging, None if packed else f"./{final.name}"))
-        if packed:
-            return
-        pictures = sorted(p for p in staging.iterdir() if p.is_file())
-        if pictures:
-            final.mkdir(exist_ok=True)
-        for picture in pictures:
-            move_into_place(picture, final / picture.name)
 
 
 def write_tree_lods(
@@ -114,21 +90,16 @@ def write_tree_lods(
     skel: UsdSkel.Skeleton,
     forest: Forest,
     anchors: FoliageAnchors | None,
-    tree: tuple[slice, slice, F64, F64],
+    levels: list[Level],
     bark: BarkMesh,
     leaves: LeavesMesh | None,
     bark_material: UsdShade.Material,
     leaf_materials: LeafMaterials | None,
     options: LodOptions,
-) -> list[Level]:
-    """The levels of the tree ``root`` (``tree``: its instances, joints, world-to-tree
-    transform and still palette, as :func:`forest.usd.skinned.tree_mesh` takes them; ``bark``
-    and ``leaves`` its LOD0 meshes) as its :data:`LOD` variant set, the impostor too where
-    ``options`` asks; returns the levels made of pieces."""
-    inst, bones, to_tree, still = tree
-    levels = tree_levels(
-        forest, anchors, inst, bones, to_tree, still, bark, leaves, options.joint_budget
-    )
+) -> None:
+    """The levels of the tree ``root`` (``levels``: :func:`forest.lod.levels.tree_levels` of
+    its LOD0 meshes ``bark`` and ``leaves``) as its :data:`LOD` variant set, the impostor
+    too where ``options`` asks."""
     impostor = None
     if options.impostors is not None:
         from forest.bark.tilesets import mean_colour
@@ -139,7 +110,6 @@ def write_tree_lods(
         imp = bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
         impostor = (imp, options.impostors)
     write_lod_variants(stage, root, skel, levels, bark_material, leaf_materials, impostor)
-    return levels
 
 
 def write_lod_variants(
@@ -166,7 +136,7 @@ def write_lod_variants(
         spec = outer.MapToSpecPath(path).AppendVariantSelection(LOD, name)
         target = Usd.EditTarget.ForLocalDirectVariant(outer.GetLayer(), spec)
         with Usd.EditContext(stage, target):
-            for full in (BARK_MESH, PROXY_MESH, LEAVES_MESH):
+            for full in (BARK_MESH, PROXY_MESH, LEAVES_MESH, LEAVES_PROXY_MESH):
                 if root.GetChild(full):
                     stage.OverridePrim(path.AppendChild(full)).SetActive(False)
             if level is not None:
@@ -226,22 +196,9 @@ def _write_level(
     _indexed_st(mesh.GetPrim(), b.st, UsdGeom.Tokens.faceVarying)
     _bind(mesh.GetPrim(), skel, b.joints, b.weights, MAX_INFLUENCES)
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(bark_material)
-    leaves = level.leaves
-    if leaves is None or leaf_materials is None:
-        return
-    lm = _mesh(
-        stage,
-        str(path.AppendChild(lod_mesh(LEAVES_MESH, level.level))),
-        leaves.points,
-        leaves.normals,
-        leaves.quads,
-        UsdGeom.Tokens.default_,
-    )
-    lm.CreateDoubleSidedAttr(True)
-    _indexed_st(lm.GetPrim(), leaves.st, UsdGeom.Tokens.vertex)
-    lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(leaves.colour))
-    _bind(lm.GetPrim(), skel, leaves.joint, np.ones(len(leaves.joint)), 1)
-    leaf_materials.bind(lm.GetPrim())
+    if level.leaves is not None and leaf_materials is not None:
+        name = lod_mesh(LEAVES_MESH, level.level)
+        write_leaves(stage, str(path.AppendChild(name)), skel, level.leaves, leaf_materials)
 
 
 def _write_impostor(
@@ -267,7 +224,7 @@ def _write_impostor(
     prim = mesh.GetPrim()
     # a .usdz carries the cards' picture only: usdz packaging warns on (but packs) assets
     # outside shaders, and Quick Look has no octahedral impostor to feed
-    for kind in IMPOSTOR_MAPS if files.asset_folder is not None else ():
+    for kind in IMPOSTOR_MAPS if not files.packed else ():
         asset = Sdf.AssetPath(files.asset(written[kind]))
         set_attr(prim, f"{IMPOSTOR_ATLAS}:{kind}", Sdf.ValueTypeNames.Asset, asset)
     set_attr(prim, IMPOSTOR_FRAMES, Sdf.ValueTypeNames.Int, imp.frames)

@@ -69,8 +69,10 @@ name, version, :data:`ASSET_SEED` and :data:`ASSET_TREE`, the tree's index) hold
 :data:`SKELETON` (with its SkelAnimation :data:`WIND_ANIMATION`), :data:`BARK_MESH` (skinned
 quads, indexed UDIM ``st``), :data:`PROXY_MESH` (decimated, purpose proxy) and
 :data:`LEAVES_MESH` (the tree's leaf clouds, uniform ``displayColor``); with levels of detail
-a variant set :data:`LOD` (:func:`lod_variant`, default ``lod0``, the meshes above) whose
-higher levels deactivate those three and hold :func:`lod_mesh` meshes bound to the same
+(the default) the leaves are purpose render with :data:`LEAVES_PROXY_MESH` (lod2's cards,
+purpose proxy) as their ``proxyPrim``, and a variant set :data:`LOD` (:func:`lod_variant`,
+default ``lod0``, the meshes above) whose higher levels deactivate those four and hold
+:func:`lod_mesh` meshes bound to the same
 Skeleton; ``lod3`` (when baked) the :data:`IMPOSTOR_MESH` card pair, its
 :data:`IMPOSTOR_MATERIAL` and, on the mesh, the octahedral atlases (:data:`IMPOSTOR_ATLAS`,
 :data:`IMPOSTOR_FRAMES`, :data:`IMPOSTOR_SPHERE`).
@@ -117,6 +119,7 @@ WIND_ANIMATION = "Wind"  # under SKELETON
 BARK_MESH = "Bark"
 PROXY_MESH = "Proxy"
 LEAVES_MESH = "Leaves"
+LEAVES_PROXY_MESH = "LeavesProxy"  # with levels of detail: LEAVES_MESH's proxy, lod2's cards
 # a skinned tree's levels of detail (forest.lod): a variant set on its SkelRoot, LOD0 the tree
 # as above; a higher level deactivates those meshes and holds its own, named by lod_mesh
 LOD = "lod"

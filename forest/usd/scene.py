@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import json
 import shutil
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -39,10 +40,10 @@ from forest.usd.instancer import Progress, write_instancer
 from forest.usd.leaves import write_foliage
 from forest.usd.materials import bark_material
 from forest.usd.prims import define_world, row_major, set_attr, set_frames
-from forest.usd.textures import PACKAGE_FOLDER, scene_textures
+from forest.usd.textures import PACKAGE_FOLDER, scene_textures, texture_folder
 
 if TYPE_CHECKING:
-    from forest.lod.usd import LodOptions
+    from forest.lod.usd import ImpostorFiles, LodOptions
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -50,6 +51,11 @@ if TYPE_CHECKING:
 # write time of its instanced pieces (4 oaks, 14k pieces, 24 frames: 374 MB, 64 s).
 SKINNED_MAX_TREES = 64
 SKINNED_MAX_PIECES = 20_000
+# Forests of up to this many trees get their impostors (lod3) baked by default: the bake draws
+# each tree 18 times on the CPU's GL (llvmpipe), 0.7-1.6 s a tree (almond, oak), which
+# doubled the write of 20 almonds (18,922 pieces, 24 frames: 16.7 s without levels, 19.2 s
+# with lod0-2, 32.0 s with the impostors)
+IMPOSTOR_MAX_TREES = 16
 
 
 def setup_stage(stage: Usd.Stage, forest: Forest, instanced: bool = True) -> None:
@@ -113,7 +119,7 @@ def write_scene(
     textures: bool = True,
     progress: Progress | None = None,
     joint_budget: int | None = DCC_JOINTS,
-    lod: bool = False,
+    lod: bool = True,
     impostor: bool | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.usda, .usdc or .usdz); returns the path.
@@ -131,19 +137,44 @@ def write_scene(
     (:mod:`forest.usd.textures`), a .usdz carries them. Without, flat colours and no
     picture (but a given ``tiles`` is still read).
 
-    ``lod`` adds each skinned tree's levels of detail (:mod:`forest.lod`: a variant set
-    ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None: where GL is
-    available, :func:`forest.lod.impostor.gl_missing`), its baked impostor as ``lod3``, the
-    pictures in ``<stem>.lod/`` beside a .usda/.usdc, under ``./textures/`` in a .usdz."""
+    ``lod`` (default) adds each skinned tree's levels of detail (:mod:`forest.lod`: a
+    variant set ``lod`` on its SkelRoot, ``lod0`` the default) and, with ``impostor`` (None:
+    unless :func:`impostor_skipped` says why not), its baked impostor as ``lod3``, the
+    pictures beside the others: in ``<stem>.textures/`` beside a .usda/.usdc, under
+    ``./textures/`` in a .usdz."""
     out = check_output_path(path)
     skinned = wants_skinned(forest, out, skinned)
-    args = (forest, out, skinned, tiles, textures, progress, joint_budget)
-    if not (lod and skinned):
-        return _write_scene(*args, None)
-    from forest.lod.usd import lod_pictures
+    lod_options = None
+    if lod and skinned:
+        from forest.lod.usd import LodOptions
 
-    with lod_pictures(out, impostor) as lod_options:
-        return _write_scene(*args, lod_options)
+        lod_options = LodOptions()
+        if impostor is None:
+            impostor = impostor_skipped(forest, textures) is None
+    return _write_scene(
+        forest, out, skinned, tiles, textures, progress, joint_budget, lod_options, bool(impostor)
+    )
+
+
+def impostor_available() -> bool:
+    """Whether the impostors can be baked here: the render extra's GL is there
+    (:func:`forest.lod.impostor.gl_missing`)."""
+    from forest.lod.impostor import gl_missing
+
+    return gl_missing() is None
+
+
+def impostor_skipped(forest: Forest, textures: bool = True) -> str | None:
+    """Why :func:`write_scene` bakes no impostor by default for ``forest``, or None when it
+    does: the scene writes no pictures, has over :data:`IMPOSTOR_MAX_TREES` trees, or GL is
+    missing."""
+    from forest.lod.impostor import gl_missing
+
+    if not textures:
+        return "the scene has no pictures (--no-textures)"
+    if len(forest.tree_transforms) > IMPOSTOR_MAX_TREES:
+        return f"over {IMPOSTOR_MAX_TREES} trees (each takes a second or so to bake)"
+    return gl_missing()
 
 
 def _write_scene(
@@ -155,6 +186,7 @@ def _write_scene(
     progress: Progress | None,
     joint_budget: int | None,
     lod: LodOptions | None,
+    impostor: bool,
 ) -> Path:
     package = out.suffix.lower() == ".usdz"
     anchors = foliage_or_none(forest)
@@ -170,14 +202,8 @@ def _write_scene(
             tiles=tiles,
             textures=textures,
         )
-        if package and lod is not None and lod.impostors is not None:
-            # inside the package beside the other pictures, named ./textures/...: the
-            # packager keeps such paths, where Blender resolves its renamed ones to nothing
-            from forest.lod.usd import ImpostorFiles, LodOptions
-
-            inside = tmp.parent / PACKAGE_FOLDER
-            inside.mkdir(exist_ok=True)
-            lod = LodOptions(ImpostorFiles(inside, f"./{PACKAGE_FOLDER}"))
+        if lod is not None and impostor:
+            lod = replace(lod, impostors=impostor_files(out, tmp.parent))
         setup_stage(stage, forest, instanced=not package)
         vset, targets = representation_variants(stage, skinned, instanced=not package)
         material = bark_material(stage, pictures.bark, forest.grammar.bark)
@@ -204,6 +230,8 @@ def _write_scene(
                     if stage.GetPrimAtPath(where):
                         stage.GetPrimAtPath(where).SetActive(False)
         vset.SetVariantSelection(SKINNED if skinned else POSED)
+        if lod is not None and lod.impostors is not None and not package:
+            pictures = pictures.with_files(lod.impostors.written(), texture_folder(out))
         # the pictures before the scene that names them: a reader never finds a scene
         # whose pictures are not there yet
         made_folder = pictures.write(staged=not package)
@@ -222,6 +250,18 @@ def _write_scene(
         del stage
         discard(tmp)  # the private folder, with whatever a failed write left in it
     return out
+
+
+def impostor_files(out: Path, layer_folder: Path) -> ImpostorFiles:
+    """Where the impostors of the scene ``out``, whose layer is written in ``layer_folder``,
+    go: beside the package's other pictures (named ``./textures/...``: the packager keeps
+    such paths, where Blender resolves its renamed ones to nothing), or staged beside the
+    layer, to join the other pictures in ``<stem>.textures/`` when those are written."""
+    from forest.lod.usd import ImpostorFiles
+
+    if out.suffix.lower() == ".usdz":
+        return ImpostorFiles(layer_folder / PACKAGE_FOLDER, f"./{PACKAGE_FOLDER}", packed=True)
+    return ImpostorFiles(layer_folder / "impostors", f"./{texture_folder(out).name}")
 
 
 def _write_instanced(

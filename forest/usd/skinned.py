@@ -9,7 +9,7 @@ tree's root joint is the identity and every other local transform is the generat
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 from weakref import WeakKeyDictionary
 
@@ -38,16 +38,18 @@ from forest.usd.contract import (
     ASSET_TREE,
     BARK_MESH,
     LEAVES_MESH,
+    LEAVES_PROXY_MESH,
     PROXY_MESH,
     SKELETON,
     TREES,
     WIND_ANIMATION,
     tree_name,
 )
-from forest.usd.materials import leaf_material, tile_udim_st
+from forest.usd.materials import LeafMaterials, leaf_material, tile_udim_st
 from forest.usd.prims import row_major, time_code
 
 if TYPE_CHECKING:
+    from forest.lod.select import LeavesMesh
     from forest.lod.usd import LodOptions
 
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
@@ -295,6 +297,25 @@ def leaves_mesh(
     )
 
 
+def write_leaves(
+    stage: Usd.Stage,
+    path: str,
+    skel: UsdSkel.Skeleton,
+    leaves: LeavesMesh,
+    materials: LeafMaterials,
+    purpose: str = UsdGeom.Tokens.default_,
+) -> UsdGeom.Mesh:
+    """``leaves`` as a double-sided Mesh at ``path``, each vertex bound rigidly to its joint
+    of ``skel``, with the leaf ``materials``."""
+    lm = _mesh(stage, path, leaves.points, leaves.normals, leaves.quads, purpose)
+    lm.CreateDoubleSidedAttr(True)
+    _indexed_st(lm.GetPrim(), leaves.st, UsdGeom.Tokens.vertex)
+    lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(leaves.colour))
+    _bind(lm.GetPrim(), skel, leaves.joint, np.ones(len(leaves.joint)), 1)
+    materials.bind(lm.GetPrim())
+    return lm
+
+
 def _bind(
     prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64, size: int
 ) -> None:
@@ -422,6 +443,8 @@ def write_skinned_trees(
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
     codes = [Usd.TimeCode(0.0) if t is None else time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
+    from forest.lod.select import BarkMesh, LeavesMesh  # it reads this module's joints
+
     leaf_materials = None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
     slices = tree_slices(forest, joint_budget)
     for k, (inst, bones) in enumerate(slices):
@@ -472,14 +495,30 @@ def write_skinned_trees(
             if anchors is None
             else leaves_mesh(forest, anchors, inst, bones, to_tree, frames_of.still, joint_budget)
         )
-        if leaves is not None and leaf_materials is not None:
-            lp, ln, lq, lst, lj, lc = leaves
-            lm = _mesh(stage, f"{path}/{LEAVES_MESH}", lp, ln, lq, UsdGeom.Tokens.default_)
-            lm.CreateDoubleSidedAttr(True)
-            _indexed_st(lm.GetPrim(), lst, UsdGeom.Tokens.vertex)
-            lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(lc))
-            _bind(lm.GetPrim(), skel, lj, np.ones(len(lj)), 1)
-            leaf_materials.bind(lm.GetPrim())
+        bark = BarkMesh(pts, nrm, quads, jidx, jw, st if bark_st is None else bark_st(st))
+        leaf_mesh = None if leaves is None else LeavesMesh(*leaves)
+        levels = None
+        if lod is not None:
+            from forest.lod.levels import tree_levels
+
+            levels = tree_levels(
+                forest, anchors, inst, bones, to_tree, frames_of.still, bark, leaf_mesh,
+                joint_budget,
+            )  # fmt: skip
+        if leaf_mesh is not None and leaf_materials is not None:
+            # the farthest level's crown cards stand in for the leaves where a DCC shows
+            # proxies: the leaves are most of the tree's vertices
+            light = None if levels is None else levels[-1].leaves
+            purpose = UsdGeom.Tokens.default_ if light is None else UsdGeom.Tokens.render
+            lm = write_leaves(
+                stage, f"{path}/{LEAVES_MESH}", skel, leaf_mesh, leaf_materials, purpose
+            )
+            if light is not None:
+                lp = write_leaves(
+                    stage, f"{path}/{LEAVES_PROXY_MESH}", skel, light, leaf_materials,
+                    UsdGeom.Tokens.proxy,
+                )  # fmt: skip
+                lm.GetPrim().CreateRelationship("proxyPrim").SetTargets([lp.GetPath()])
         # the skeleton's joints, then the whole tree: one extent per frame, as they move
         for boundable in (skel, root):
             attr = boundable.CreateExtentAttr()
@@ -488,16 +527,12 @@ def write_skinned_trees(
                 attr.Set(extent, tc)
                 if i == 0:  # and as the default, for tools that read no time
                     attr.Set(extent)
-        if lod is not None:  # after the extents: each level takes the tree's own
-            from forest.lod.select import BarkMesh, LeavesMesh
+        if lod is not None and levels is not None:  # after the extents: each level takes its own
             from forest.lod.usd import write_tree_lods
 
             write_tree_lods(
-                stage, root.GetPrim(), skel, forest, anchors,
-                (inst, bones, to_tree, frames_of.still),
-                BarkMesh(pts, nrm, quads, jidx, jw, st if bark_st is None else bark_st(st)),
-                None if leaves is None else LeavesMesh(*leaves), material, leaf_materials,
-                replace(lod, joint_budget=joint_budget),
+                stage, root.GetPrim(), skel, forest, anchors, levels, bark, leaf_mesh,
+                material, leaf_materials, lod,
             )  # fmt: skip
         if progress:
             progress("skinned trees", k + 1, len(slices))

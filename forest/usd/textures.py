@@ -1,6 +1,7 @@
 """A USD scene's pictures: the bark tile set and the leaf picture its materials read.
 
-A .usda/.usdc names them in ``<stem>.textures/`` beside it (the bark as the set's UDIM tiles
+A .usda/.usdc names them (and each tree's impostor pictures, :mod:`forest.lod.usd`) in
+``<stem>.textures/`` beside it (the bark as the set's UDIM tiles
 ``bark.<UDIM>.png``), by asset paths ``./<stem>.textures/...`` anchored to the layer (see
 :func:`forest.usd.materials.tile_asset_path`). A .usdz carries them inside, under
 ``./textures/``: Blender and Quick Look read no UDIM tile inside a package, so its bark is
@@ -14,7 +15,8 @@ from __future__ import annotations
 
 import re
 import shutil
-from dataclasses import dataclass, field
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -35,8 +37,11 @@ ATLAS_FILE = "bark.png"
 # tile: Blender 4.2's Cycles draws a whole face magenta (a missing tile) whose u reaches 10.0,
 # the right edge of tile column 9 (1010, 1020, 1030: every tile set has them)
 TILE_INSET = 1.0 / 1024.0
-# the names this writer puts in a texture folder: only these are ever replaced or removed
-_OURS = re.compile(r"bark\.1\d{3}\.png|bark\.png|leaf-[a-z]+\.png")
+# the names this writer puts in a texture folder: only these are ever replaced or removed (the
+# last: each tree's impostor pictures, forest.lod.impostor.write_impostor)
+_OURS = re.compile(
+    r"bark\.1\d{3}\.png|bark\.png|leaf-[a-z]+\.png|Tree_\d{5}\.(albedo|normal|depth|cards)\.png"
+)
 
 
 def texture_folder(scene: Path) -> Path:
@@ -71,6 +76,14 @@ class SceneTextures:
             return tile + TILE_INSET + (st - tile) * (1.0 - 2.0 * TILE_INSET)
         uv = atlas_uv(st, *self.atlas).astype(np.float64)
         return np.stack([uv[..., 0], 1.0 - uv[..., 1]], axis=-1)
+
+    def with_files(self, files: Sequence[Path], folder: Path) -> SceneTextures:
+        """These pictures and ``files`` (written elsewhere: copied in by :meth:`write`), into
+        :attr:`folder` or, where the scene had no picture, ``folder``."""
+        if not files:
+            return self
+        sources = {**self.sources, **{p.name: p for p in files}}
+        return replace(self, folder=self.folder or folder, sources=sources)
 
     def write(self, staged: bool) -> bool:
         """Write the pictures into :attr:`folder`: straight in (a private folder, as a
