@@ -24,7 +24,7 @@ from forest.usd.scene import SKINNED_MAX_PIECES, SKINNED_MAX_TREES
 BASE_MEMORY = 256 << 20  # the interpreter, numpy, pxr and the piece library
 BASE_SCENE = 16 << 20  # a glb's bark atlas, leaf prototypes, the scene's fixed prims
 USDA_FACTOR = 4.0  # text against crate
-IMPOSTOR_MEMORY = 512 << 20  # a skinned USD scene's impostor bake (forest.lod.impostor)
+IMPOSTOR_MEMORY = 512 << 20  # a skinned scene's impostor bake, USD or .glb (forest.lod.impostor)
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,8 @@ def forest_cost(
     if fmt == "usda":
         scene *= USDA_FACTOR
     memory = pieces * (rates.memory * geometry + rates.memory_frame * frames)
-    if rates is SKINNED:  # counted wherever it may run: the estimate cannot see the GL
-        memory += IMPOSTOR_MEMORY
+    if rates is SKINNED or rates is GLB:  # wherever it may run: the estimate cannot see GL
+        memory += IMPOSTOR_MEMORY  # a .glb's game profile bakes its LOD3 the same way
     return Cost(
         memory_bytes=BASE_MEMORY + math.ceil(memory),
         scene_bytes=BASE_SCENE + math.ceil(scene),
