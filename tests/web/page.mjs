@@ -144,6 +144,21 @@ try {
   step("canvas", { drawn: a.drawn, total: a.total, changed_between_frames: changed });
   step("clips", await page.getAttribute("#viewer", "data-clips"));
   step("viewer_msg", await page.textContent("#viewer-msg"));
+  // levels of detail: the tree's LOD0 up close, a lighter level from far away
+  step("levels", await page.getAttribute("#viewer", "data-levels"));
+  step("lod_near", await page.getAttribute("#viewer", "data-lod"));
+  await page.evaluate(() => window.forestViewer.zoom(12));
+  // the level changes on the next drawn frame: wait for it (a busy machine draws slowly)
+  await page.waitForFunction(() => document.querySelector("#viewer").dataset.lod !== "0", null, { timeout: 15000 }).catch(() => {});
+  step("lod_far", await page.getAttribute("#viewer", "data-lod"));
+  await page.evaluate(() => window.forestViewer.zoom(1 / 12));
+  // the tree shown downloads as GLB and as USD
+  const names = [];
+  for (const button of ["#download-glb", "#download-usd"]) {
+    const [saved] = await Promise.all([page.waitForEvent("download", { timeout: 120000 }), page.click(button)]);
+    names.push(saved.suggestedFilename());
+  }
+  step("tree_downloads", names);
 
   // -- a small forest as a glb job, shown in the viewer from its scene.glb
   await page.fill("#trees", "2");

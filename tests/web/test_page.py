@@ -164,6 +164,17 @@ def test_viewer_draws_the_tree_in_the_wind(seen: dict[str, Any]) -> None:
     assert canvas["changed_between_frames"] > 0, canvas  # the animation plays
 
 
+def test_viewer_switches_levels_of_detail_and_downloads_the_tree(seen: dict[str, Any]) -> None:
+    """The game-profile GLB carries LOD1-LOD3 (MSFT_lod): up close the viewer shows LOD0, from
+    twelve times as far a lighter level; the tree downloads as the GLB shown and as a .usdz."""
+    s = seen["steps"]
+    assert int(s["levels"]) >= 3, s["levels"]
+    assert s["lod_near"] == "0"
+    assert int(s["lod_far"]) >= 1, s["lod_far"]
+    glb, usd = s["tree_downloads"]
+    assert glb.endswith(".glb") and usd.endswith(".usdz"), s["tree_downloads"]
+
+
 def test_viewer_shows_a_glb_forest_job(seen: dict[str, Any]) -> None:
     s = seen["steps"]
     assert s["forest_canvas"]["drawn"] > 0.02 * s["forest_canvas"]["total"], s["forest_canvas"]

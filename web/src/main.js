@@ -233,14 +233,29 @@ $("#forest-form").addEventListener("submit", async (ev) => {
 const viewer = new Viewer($("#viewer-canvas"), $("#viewer"));
 window.forestViewer = viewer; // for a console (and the tests): the scene, camera, mixer
 
-async function showGlb(fetchBuffer, title) {
+let shownTree = null; // {body, buffer} of the tree in the viewer: what "Download" saves
+
+function save(blob, name) {
+  const a = el("a", { href: URL.createObjectURL(blob), download: name });
+  document.body.append(a);
+  a.click();
+  a.remove();
+  setTimeout(() => URL.revokeObjectURL(a.href), 60000);
+}
+
+async function showGlb(fetchBuffer, title, tree = null) {
   $("#viewer").dataset.state = "loading";
   $("#viewer-msg").textContent = "loading…";
+  $("#viewer-downloads").hidden = true;
   try {
-    const info = await viewer.show(await fetchBuffer());
+    const buffer = await fetchBuffer();
+    const info = await viewer.show(buffer);
     $("#viewer-title").textContent = title;
+    const lods = info.levels > 1 ? `; ${info.levels} levels of detail by distance (scroll out)` : "";
     $("#viewer-msg").textContent =
-      `${info.meshes} meshes; animation: ${info.clips.join(", ") || "none"}; drag to orbit`;
+      `${info.meshes} meshes; animation: ${info.clips.join(", ") || "none"}${lods}; drag to orbit`;
+    shownTree = tree ? { ...tree, buffer } : null;
+    $("#viewer-downloads").hidden = shownTree === null;
   } catch (err) {
     $("#viewer").dataset.state = "error";
     $("#viewer-msg").textContent = "";
@@ -253,7 +268,24 @@ $("#view-tree").addEventListener("click", () => {
   const body = { ...requestBody(), format: "glb" };
   if (!body.frames) body.frames = 48; // the wind needs frames to play
   const name = body.preset ?? "grammar";
-  showGlb(() => api("/v1/trees", { method: "POST", body, as: "arraybuffer" }), `${name}, seed ${body.seed}`);
+  const tree = { body, name: `${name}-${body.seed}` };
+  showGlb(() => api("/v1/trees", { method: "POST", body, as: "arraybuffer" }), `${name}, seed ${body.seed}`, tree);
+});
+
+// the tree in the viewer, as its GLB (the very file shown) or as USD (a .usdz: one file with
+// its bark and leaf pictures inside, for Blender, usdview, Omniverse, Quick Look)
+$("#download-glb").addEventListener("click", () => {
+  if (shownTree) save(new Blob([shownTree.buffer], { type: "model/gltf-binary" }), `${shownTree.name}.glb`);
+});
+$("#download-usd").addEventListener("click", async () => {
+  if (!shownTree) return;
+  const status = $("#viewer-msg");
+  try {
+    const blob = await api("/v1/trees", { method: "POST", body: { ...shownTree.body, format: "usdz" }, as: "blob" });
+    save(blob, `${shownTree.name}.usdz`);
+  } catch (err) {
+    status.textContent = `USD download: ${err.message}`;
+  }
 });
 
 // ---- jobs -----------------------------------------------------------------------------------

@@ -1,8 +1,65 @@
 // three.js viewer of a GLB (one tree from POST /v1/trees, or a glb forest job's scene.glb):
-// the skinned trees with their wind animation playing, an orbit camera framing the scene.
+// the skinned trees with their wind animation playing, an orbit camera framing the scene, and
+// each tree's levels of detail (MSFT_lod) switched by its size on screen.
 import * as THREE from "three";
 import { GLTFLoader } from "three/addons/loaders/GLTFLoader.js";
 import { OrbitControls } from "three/addons/controls/OrbitControls.js";
+import { MeshoptDecoder } from "three/addons/libs/meshopt_decoder.module.js";
+
+/**
+ * Each node with MSFT_lod becomes a THREE.LOD: its own object at level 0, then the nodes its
+ * `ids` name (not in the scene: GLTFLoader leaves them out), each from the distance where the
+ * tree's height covers the fraction of the view that the node's MSFT_screencoverage extras
+ * give for the level before it. The LOD nodes share the tree's skin, so the wind moves them.
+ */
+async function levelsOfDetail(gltf, fovDeg) {
+  const lods = [];
+  const holders = [];
+  gltf.scene.traverse((o) => {
+    if (o.userData?.gltfExtensions?.MSFT_lod) holders.push(o);
+  });
+  const tan = Math.tan(THREE.MathUtils.degToRad(fovDeg / 2));
+  for (const node of holders) {
+    const ids = node.userData.gltfExtensions.MSFT_lod.ids ?? [];
+    const coverage = node.userData.MSFT_screencoverage ?? [];
+    const others = await Promise.all(ids.map((i) => gltf.parser.getDependency("node", i)));
+    const box = new THREE.Box3().setFromObject(node);
+    const height = Math.max(box.getSize(new THREE.Vector3()).y, 0.1);
+    const lod = new THREE.LOD();
+    lod.name = `${node.name}_levels`;
+    // skinned meshes stand at the scene's origin (their joints place them): measure the
+    // camera's distance from the tree itself, not from the LOD object
+    lod.userData.centre = box.getCenter(new THREE.Vector3());
+    lod.autoUpdate = false;
+    node.parent.add(lod);
+    lod.addLevel(node, 0);
+    others.forEach((other, k) => {
+      const c = Math.max(coverage[k] ?? 0.5 / 2 ** k, 1e-4);
+      lod.addLevel(other, height / (c * 2 * tan));
+    });
+    lods.push(lod);
+  }
+  return lods;
+}
+
+const _eye = new THREE.Vector3();
+
+/** THREE.LOD's own level choice, from the tree's centre (see levelsOfDetail). */
+function chooseLevel(lod, camera) {
+  const levels = lod.levels;
+  const distance = _eye.setFromMatrixPosition(camera.matrixWorld).distanceTo(lod.userData.centre) / camera.zoom;
+  let i = 1;
+  levels[0].object.visible = true;
+  for (; i < levels.length; i += 1) {
+    let at = levels[i].distance;
+    if (levels[i].object.visible) at -= at * levels[i].hysteresis;
+    if (distance < at) break;
+    levels[i - 1].object.visible = false;
+    levels[i].object.visible = true;
+  }
+  lod._currentLevel = i - 1;
+  for (; i < levels.length; i += 1) levels[i].object.visible = false;
+}
 
 export const BACKGROUND = 0xdfe8ee;
 
@@ -27,6 +84,8 @@ export class Viewer {
     this.mixer = null;
     this.model = null;
     this.loader = new GLTFLoader();
+    this.loader.setMeshoptDecoder(MeshoptDecoder); // a --glb-pack meshopt file
+    this.lods = [];
     new ResizeObserver(() => this.resize()).observe(canvas);
     this.resize();
     this.renderer.setAnimationLoop(() => this.frame());
@@ -45,7 +104,22 @@ export class Viewer {
     const dt = this.clock.getDelta();
     if (this.mixer) this.mixer.update(dt);
     this.controls.update();
+    this.camera.updateMatrixWorld();
+    for (const lod of this.lods) chooseLevel(lod, this.camera);
     this.renderer.render(this.scene, this.camera);
+    if (this.lods.length) {
+      // the first tree's level, for the tests
+      const level = String(this.lods[0].getCurrentLevel());
+      if (this.root.dataset.lod !== level) this.root.dataset.lod = level;
+    }
+  }
+
+  /** Move the camera along its view to ``factor`` times its distance from the target. */
+  zoom(factor) {
+    const offset = this.camera.position.clone().sub(this.controls.target).multiplyScalar(factor);
+    this.camera.position.copy(this.controls.target).add(offset);
+    this.camera.far = Math.max(this.camera.far, offset.length() * 4);
+    this.camera.updateProjectionMatrix();
   }
 
   /** Show a .glb (ArrayBuffer); resolves with {clips, meshes} once it is in the scene. */
@@ -58,6 +132,18 @@ export class Viewer {
       });
     }
     this.model = gltf.scene;
+    this.model.traverse((o) => {
+      // leaf cards are cut by alpha (MASK, cutoff 0.5); small leaves seen from afar read
+      // from mip levels whose averaged alpha falls under the cutoff and vanish: test lower,
+      // and let MSAA smooth the cut edges instead
+      for (const m of [o.material].flat()) {
+        if (m && m.alphaTest > 0) {
+          m.alphaTest = 0.2;
+          m.alphaToCoverage = true;
+        }
+      }
+    });
+    this.lods = await levelsOfDetail(gltf, this.camera.fov);
     this.scene.add(this.model);
     this.mixer = null;
     if (gltf.animations.length) {
@@ -81,8 +167,10 @@ export class Viewer {
     this.model.traverse((o) => {
       if (o.isMesh) meshes += 1;
     });
+    const levels = this.lods.length ? this.lods[0].levels.length : 1;
+    this.root.dataset.levels = String(levels);
     this.root.dataset.state = "ready";
     this.root.dataset.clips = gltf.animations.map((a) => a.name).join(",");
-    return { clips: gltf.animations.map((a) => a.name), meshes };
+    return { clips: gltf.animations.map((a) => a.name), meshes, levels };
   }
 }
