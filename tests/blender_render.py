@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import math
 import sys
+from pathlib import Path
 
 import numpy as np
 
@@ -22,6 +23,8 @@ try:
     from mathutils import Vector
 except ImportError:  # pragma: no cover - depends on the interpreter
     sys.exit("blender_render.py needs Blender's bpy module: run it with .venv-blender/bin/python")
+
+from blender_import_check import usd_import
 
 
 def world_bounds() -> tuple[Vector, Vector]:
@@ -86,21 +89,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--size", type=int, default=360)
     ap.add_argument("--samples", type=int, default=16)
     args = ap.parse_args(argv)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    result = bpy.ops.wm.usd_import(
-        filepath=args.scene,
-        import_render=True,
-        import_proxy=False,
-        import_guide=False,
-        import_usd_preview=True,
-        import_materials=True,
-        read_mesh_uvs=True,
-        import_skeletons=True,
-        set_frame_range=True,
-    )
-    if "FINISHED" not in result:
-        print(f"FAILED: USD import returned {result}")
-        return 1
+    usd_import(Path(args.scene))  # the options every check uses; exits on a failed import
     stage_and_render(args.out, args.size, args.samples)
     return 0
 

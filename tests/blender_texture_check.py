@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +24,7 @@ except ImportError:  # pragma: no cover - depends on the interpreter
     sys.exit("blender_texture_check.py needs Blender's bpy module: run it with .venv-blender")
 
 sys.path.insert(0, str(Path(__file__).parent))
+from blender_import_check import usd_import
 from blender_render import stage_and_render
 
 
@@ -73,24 +73,8 @@ def main(argv: list[str]) -> int:
         "its picture) instead of bark and leaves",
     )
     args = ap.parse_args(argv)
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    t0 = time.perf_counter()
-    result = bpy.ops.wm.usd_import(
-        filepath=args.scene,
-        import_render=True,
-        import_proxy=False,
-        import_guide=False,
-        import_usd_preview=True,
-        import_materials=True,
-        read_mesh_uvs=True,
-        import_skeletons=True,
-        set_frame_range=True,
-    )
-    took = time.perf_counter() - t0
+    _used, _missing, took = usd_import(Path(args.scene))  # exits on a failed import
     failures: list[str] = []
-    if "FINISHED" not in result:
-        print(json.dumps({"failures": [f"import returned {result}"]}))
-        return 1
     materials: dict[str, Any] = {}
     used = {s.material.name for ob in bpy.data.objects for s in ob.material_slots if s.material}
     for mat in bpy.data.materials:
