@@ -41,6 +41,7 @@ lint: $(DEV)
 test: $(DEV) lint docs
 	bash tests/setup_node.sh
 	bash tests/setup_blender_venv.sh
+	bash tests/setup_blender_venv.sh 5.2
 	bash tests/setup_validator_venv.sh
 	bash tests/setup_arkit_venv.sh
 	$(BIN)/python -m pytest -n 2 --dist loadfile
@@ -63,4 +64,4 @@ web: $(RENDER)
 	cd web && npm ci --no-audit --no-fund && npm run build
 
 clean:
-	rm -rf $(VENV) .venv-blender .venv-validator .venv-arkit demo .pytest_cache .mypy_cache .ruff_cache .hypothesis
+	rm -rf $(VENV) .venv-blender .venv-blender52 .venv-validator .venv-arkit demo .pytest_cache .mypy_cache .ruff_cache .hypothesis
