@@ -30,13 +30,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from forest.bark.tile_folder import TileImages
+from forest.gl.context import create_context, gl_info, raise_gl_error
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import SceneArrays, read_scene
 from forest.usd.scene import write_scene
 from schemas.grammar import Grammar
 from worker.render.foliage import FOLIAGE_MODES
-from worker.render.gl_context import create_context, gl_info, raise_gl_error
 from worker.render.instance_cull import DEFAULT_LOD_PIXELS
 from worker.render.render_file import preview_view
 from worker.render.renderer import Renderer, TessSettings

@@ -1,4 +1,4 @@
-"""What a default write adds for the skinned trees' levels of detail (forest.lod.usd)."""
+"""What a default write adds for the skinned trees' levels of detail (forest.usd.lod)."""
 
 from __future__ import annotations
 

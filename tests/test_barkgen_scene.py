@@ -53,7 +53,9 @@ def test_scene_names_the_set_and_its_mean_colour(birch_scene: Path) -> None:
     mat = stage.GetPrimAtPath("/World/Looks/Bark")
     assert mat.GetAttribute(BARK_TILE_SET).Get() == "birch"
     surface = UsdShade.Shader(stage.GetPrimAtPath("/World/Looks/Bark/Surface"))
-    colour = np.array(surface.GetInput("diffuseColor").Get())
+    # textured by default: the tiles' texture, the set's mean colour as its fallback
+    (source,) = surface.GetInput("diffuseColor").GetConnectedSources()[0]
+    colour = np.array(source.source.GetInput("fallback").Get())[:3]
     assert np.allclose(colour, mean_colour("birch"), atol=1e-6)
     assert colour.min() > 0.4  # pale: birch is white (linear RGB)
     assert max(mean_colour("oak")) < 0.3

@@ -377,7 +377,7 @@ def test_a_failed_tile_set_write_leaves_the_old_set(
 
 @pytest.fixture(scope="module")
 def gl_ok() -> None:
-    from worker.render.gl_context import GLUnavailableError, create_context
+    from forest.gl.context import GLUnavailableError, create_context
 
     try:
         create_context(require=330).release()

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from forest.bark.images import write_png
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64
+from forest.gl.context import create_context, raise_gl_error
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset, preset_names
 from forest.usd.read import SceneArrays, read_scene
@@ -37,7 +38,6 @@ from worker.render.camera import (
     with_ground,
 )
 from worker.render.foliage import foliage_points
-from worker.render.gl_context import create_context, raise_gl_error
 from worker.render.instance_cull import DEFAULT_LOD_PIXELS
 from worker.render.renderer import Renderer, auto_lod
 from worker.render.staging import STAGED

@@ -27,9 +27,9 @@ from numpy.typing import NDArray
 from forest.bark.images import write_png
 from forest.extras import MissingExtraError
 from forest.geometry.transforms import F64
+from forest.gl.context import INSTALL_EGL, GLUnavailableError
 from forest.usd.read import SceneArrays
 from worker.render.camera import Camera, frame_points
-from worker.render.gl_context import INSTALL_EGL, GLUnavailableError
 from worker.render.scene_buffers import scene_points
 
 I64 = NDArray[np.int64]

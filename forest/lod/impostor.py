@@ -134,7 +134,7 @@ def gl_missing() -> str | None:
     from forest.errors import ForestError
 
     try:
-        from worker.render.gl_context import create_context
+        from forest.gl.context import create_context
 
         create_context(GL_VERSION).release()
     except (ImportError, ForestError) as exc:

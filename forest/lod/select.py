@@ -26,7 +26,7 @@ from forest.errors import ForestError
 from forest.geometry.transforms import F64
 from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest
-from forest.usd.skinned import dcc_joints
+from forest.growth.joints import dcc_joints
 
 I32 = NDArray[np.int32]
 

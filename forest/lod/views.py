@@ -4,7 +4,7 @@ depth. They make the impostor's atlas (:mod:`forest.lod.impostor`) and the side-
 look at the levels.
 
 The core install has no GL: :func:`draw_views` raises
-:class:`worker.render.gl_context.GLUnavailableError` naming the extra to install.
+:class:`forest.gl.context.GLUnavailableError` naming the extra to install.
 """
 
 from __future__ import annotations
@@ -111,8 +111,8 @@ def draw_views(
     (towards the camera) of the meshes (leaf cards cut by ``leaf_picture``, the family's
     RGBA picture, row 0 at t = 0), framing ``centre`` and ``radius`` (default: the meshes'
     bounding sphere). Albedo (``lit``: under a sun and sky), normals and depth."""
-    from worker.render.gl_context import create_context
-    from worker.render.shaders import sources
+    from forest.gl.context import create_context
+    from forest.gl.shaders import sources
 
     soup = _soup(bark, leaves, bark_colour)
     pts = soup[:, :3].astype(np.float64)

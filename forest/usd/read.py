@@ -67,6 +67,7 @@ from forest.usd.contract import (
     YAW,
     primvar,
 )
+from forest.usd.textures import FOLDER_SUFFIX
 from schemas.tileset import TileSetManifest
 
 I32 = NDArray[np.int32]
@@ -449,12 +450,19 @@ def _bark_tile_set(stage: Usd.Stage) -> str:
 
 
 def _tile_folder(stage: Usd.Stage, path: Path) -> Path | None:
+    """The tile folder the bark material names (relative to the scene), or None where it
+    names none or only a scene's own ``<stem>.textures/`` (by name: a scene may be renamed, as
+    a job's artifact is). That folder holds a copy of the shipped set the material's
+    ``forest:barkTileSet`` names, which the renderer reads itself, so a scene handed on
+    without its folder renders the same."""
     prim = stage.GetPrimAtPath(BARK_TILES)
     attr = prim.GetAttribute("inputs:file") if prim else None
     asset = attr.Get() if attr else None
     if asset is None or not asset.path:
         return None
     folder = Path(asset.path).parent
+    if not folder.is_absolute() and folder.name.endswith(FOLDER_SUFFIX):
+        return None
     return folder if folder.is_absolute() else path.parent / folder
 
 

@@ -43,7 +43,7 @@ from forest.usd.prims import define_world, row_major, set_attr, set_frames
 from forest.usd.textures import PACKAGE_FOLDER, scene_textures, texture_folder
 
 if TYPE_CHECKING:
-    from forest.lod.usd import ImpostorFiles, LodOptions
+    from forest.usd.lod import ImpostorFiles, LodOptions
 
 # Forests of up to this many trees and pieces get the skinned representation (exact: USD's
 # own skinning) unless the caller asks otherwise; larger ones are posed only (rigid best fit
@@ -146,7 +146,7 @@ def write_scene(
     skinned = wants_skinned(forest, out, skinned)
     lod_options = None
     if lod and skinned:
-        from forest.lod.usd import LodOptions
+        from forest.usd.lod import LodOptions
 
         lod_options = LodOptions()
         if impostor is None:
@@ -257,7 +257,7 @@ def impostor_files(out: Path, layer_folder: Path) -> ImpostorFiles:
     go: beside the package's other pictures (named ``./textures/...``: the packager keeps
     such paths, where Blender resolves its renamed ones to nothing), or staged beside the
     layer, to join the other pictures in ``<stem>.textures/`` when those are written."""
-    from forest.lod.usd import ImpostorFiles
+    from forest.usd.lod import ImpostorFiles
 
     if out.suffix.lower() == ".usdz":
         return ImpostorFiles(layer_folder / PACKAGE_FOLDER, f"./{PACKAGE_FOLDER}", packed=True)

@@ -11,12 +11,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
-from weakref import WeakKeyDictionary
 
 import fast_simplification
 import numpy as np
 from numpy.typing import NDArray
-from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, UsdSkel, Vt
+from pxr import Gf, Kind, Usd, UsdGeom, UsdShade, UsdSkel, Vt
 
 from forest.geometry.pieces import MAX_INFLUENCES
 from forest.geometry.transforms import (
@@ -32,7 +31,9 @@ from forest.geometry.transforms import (
 from forest.geometry.weld import close_pairs, weld_labels
 from forest.growth.foliage import FoliageAnchors, anchor_positions
 from forest.growth.generate import Forest
-from forest.growth.joint_budget import DCC_JOINTS, keep_joints, merge_influences, nearest_kept
+from forest.growth.joint_budget import DCC_JOINTS, merge_influences
+from forest.growth.joints import DccJoints, bind_transforms, dcc_joints, tree_slices
+from forest.lod.select import BarkMesh, LeavesMesh
 from forest.usd.contract import (
     ASSET_SEED,
     ASSET_TREE,
@@ -45,117 +46,15 @@ from forest.usd.contract import (
     WIND_ANIMATION,
     tree_name,
 )
-from forest.usd.materials import LeafMaterials, leaf_material, tile_udim_st
+from forest.usd.materials import leaf_material, tile_udim_st
 from forest.usd.prims import row_major, time_code
+from forest.usd.skin_prims import bind_skin, define_mesh, indexed_st, write_leaves
 
 if TYPE_CHECKING:
-    from forest.lod.select import LeavesMesh
-    from forest.lod.usd import LodOptions
+    from forest.usd.lod import LodOptions
 
 PROXY_KEEP = 0.2  # fraction of triangles the proxy keeps
 Progress = Callable[[str, int, int], None]
-
-
-@dataclass(frozen=True, eq=False)
-class DccJoints:
-    """The forest's bones as the joints of its skinned forms (USD and glTF).
-
-    A piece that hangs on a parent's terminal has its root bone at a rim twist from that
-    terminal, the same in every frame (wind turns hubs and terminals, never a root), so the
-    root's skinning matrix is the terminal's: ``G_t L (J_t L)^-1 = G_t J_t^-1``. Such roots
-    are left out and their vertices bound to the terminal, a third of every tree's bones:
-    DCC importers are slow in the joint count (Blender's import time grows about with its
-    square: an oak of 9,794 bones took 11.7 s, a spruce of 17,069 took 47 s).
-
-    bone : (k,) the generator's bone of each joint (ascending: trees stay contiguous)
-    parent : (k,) parent joint, -1 at a tree's root
-    of_bone : (b,) each bone's joint (a left-out root: its parent terminal's; with a joint
-        budget, a dropped bone: the nearest kept joint above it)
-    via : (k,) the left-out root between a joint and its parent terminal, else -1
-    """
-
-    bone: NDArray[np.intp]
-    parent: NDArray[np.intp]
-    of_bone: NDArray[np.intp]
-    via: NDArray[np.intp]
-
-    def __len__(self) -> int:
-        return len(self.bone)
-
-    def locals(self, local: F64) -> F64:
-        """The bones' local transforms ``(b, 4, 4)`` -> the joints' ``(k, 4, 4)``: a joint
-        under a left-out root takes that root's (constant) twist into its own."""
-        out = local[self.bone]
-        hung = self.via >= 0
-        out[hung] = local[self.via[hung]] @ out[hung]
-        return out
-
-
-_JOINTS: WeakKeyDictionary[Forest, dict[int | None, DccJoints]] = WeakKeyDictionary()
-
-
-def dcc_joints(forest: Forest, budget: int | None = None) -> DccJoints:
-    """The forest's :class:`DccJoints` (made once per forest and budget): every bone but the
-    hung roots, or with ``budget`` at most that many per tree, those of the longest reach
-    (:mod:`forest.growth.joint_budget`); a dropped bone's ``of_bone`` is then its nearest kept
-    joint above it."""
-    made = _JOINTS.setdefault(forest, {})
-    if budget not in made:
-        made[budget] = _all_joints(forest) if budget is None else _cut(forest, budget)
-    return made[budget]
-
-
-def _all_joints(forest: Forest) -> DccJoints:
-    b, g = forest.bones, forest.graph
-    left_out = np.zeros(len(b), bool)
-    left_out[b.offset[g.parent >= 0]] = True
-    bone = np.flatnonzero(~left_out)
-    index = np.full(len(b), -1, np.intp)
-    index[bone] = np.arange(len(bone))
-    up = b.parent[bone].astype(np.intp)
-    via = np.where((up >= 0) & left_out[np.maximum(up, 0)], up, -1)
-    up = np.where(via >= 0, b.parent[np.maximum(via, 0)], up)
-    of_bone = index.copy()
-    of_bone[left_out] = index[b.parent[left_out]]
-    return DccJoints(
-        bone=bone,
-        parent=np.where(up >= 0, index[np.maximum(up, 0)], -1),
-        of_bone=of_bone,
-        via=via,
-    )
-
-
-def _cut(forest: Forest, budget: int) -> DccJoints:
-    """The joints of :func:`_all_joints` cut to ``budget`` per tree. The kept set is closed
-    under parents, so a kept joint's parent and the left-out root between them (``via``) are
-    those it had: its local transforms are unchanged."""
-    full = dcc_joints(forest)
-    position = _bind_transforms(forest, forest.palette())[full.bone, :3, 3]
-    tree = forest.graph.tree[forest.bones.instance[full.bone]]
-    keep = keep_joints(full.parent, tree, position, budget)
-    index = np.cumsum(keep) - 1
-    return DccJoints(
-        bone=full.bone[keep],
-        parent=np.where(full.parent[keep] >= 0, index[full.parent[keep]], -1),
-        of_bone=index[nearest_kept(full.parent, keep)[full.of_bone]],
-        via=full.via[keep],
-    )
-
-
-def tree_slices(forest: Forest, budget: int | None = None) -> list[tuple[slice, slice]]:
-    """Per tree: its instance range and its range of :func:`dcc_joints` ``(forest, budget)``
-    (both contiguous, tree-major)."""
-    tree = forest.graph.tree
-    starts = np.searchsorted(tree, np.arange(forest.options.trees + 1))
-    dcc = dcc_joints(forest, budget)
-    first = dcc.of_bone[forest.bones.offset]  # each instance's root's joint
-    n_joints = len(dcc)
-    n = len(first)
-    out = []
-    for i in range(forest.options.trees):
-        a, z = int(starts[i]), int(starts[i + 1])
-        out.append((slice(a, z), slice(int(first[a]), int(first[z]) if z < n else n_joints)))
-    return out
 
 
 def joint_paths(forest: Forest, inst: slice, joints: slice, budget: int | None = None) -> list[str]:
@@ -297,59 +196,6 @@ def leaves_mesh(
     )
 
 
-def write_leaves(
-    stage: Usd.Stage,
-    path: str,
-    skel: UsdSkel.Skeleton,
-    leaves: LeavesMesh,
-    materials: LeafMaterials,
-    purpose: str = UsdGeom.Tokens.default_,
-) -> UsdGeom.Mesh:
-    """``leaves`` as a double-sided Mesh at ``path``, each vertex bound rigidly to its joint
-    of ``skel``, with the leaf ``materials``."""
-    lm = _mesh(stage, path, leaves.points, leaves.normals, leaves.quads, purpose)
-    lm.CreateDoubleSidedAttr(True)
-    _indexed_st(lm.GetPrim(), leaves.st, UsdGeom.Tokens.vertex)
-    lm.CreateDisplayColorPrimvar(UsdGeom.Tokens.uniform).Set(Vt.Vec3fArray.FromNumpy(leaves.colour))
-    _bind(lm.GetPrim(), skel, leaves.joint, np.ones(len(leaves.joint)), 1)
-    materials.bind(lm.GetPrim())
-    return lm
-
-
-def _bind(
-    prim: Usd.Prim, skel: UsdSkel.Skeleton, jidx: NDArray[np.int32], jw: F64, size: int
-) -> None:
-    api = UsdSkel.BindingAPI.Apply(prim)
-    api.CreateSkeletonRel().SetTargets([skel.GetPath()])
-    api.CreateJointIndicesPrimvar(False, size).Set(Vt.IntArray.FromNumpy(jidx.ravel()))
-    api.CreateJointWeightsPrimvar(False, size).Set(
-        Vt.FloatArray.FromNumpy(jw.astype(np.float32).ravel())
-    )
-    api.CreateGeomBindTransformAttr(Gf.Matrix4d(1.0))
-
-
-def _mesh(
-    stage: Usd.Stage,
-    path: str,
-    pts: F64,
-    normals: F64,
-    faces: NDArray[np.int32],
-    purpose: str,
-) -> UsdGeom.Mesh:
-    mesh = UsdGeom.Mesh.Define(stage, path)
-    mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(pts, np.float32)))
-    mesh.CreateNormalsAttr(Vt.Vec3fArray.FromNumpy(np.ascontiguousarray(normals, np.float32)))
-    mesh.SetNormalsInterpolation(UsdGeom.Tokens.vertex)
-    mesh.CreateFaceVertexCountsAttr(
-        Vt.IntArray.FromNumpy(np.full(len(faces), faces.shape[1], np.int32))
-    )
-    mesh.CreateFaceVertexIndicesAttr(Vt.IntArray.FromNumpy(np.ascontiguousarray(faces).ravel()))
-    mesh.CreateSubdivisionSchemeAttr(UsdGeom.Tokens.none)
-    mesh.CreateExtentAttr(UsdGeom.Mesh.ComputeExtent(mesh.GetPointsAttr().Get()))
-    mesh.CreatePurposeAttr(purpose)
-    return mesh
-
-
 def _proxy(
     stage: Usd.Stage,
     path: str,
@@ -378,21 +224,9 @@ def _proxy(
     length = np.linalg.norm(normals, axis=1, keepdims=True)
     # a vertex the decimation left in no face gets up, so every normal has unit length
     normals = np.where(length > 1e-12, normals / np.maximum(length, 1e-12), [0.0, 1.0, 0.0])
-    mesh = _mesh(stage, path, p2, normals, f2, UsdGeom.Tokens.proxy)
-    _bind(mesh.GetPrim(), skel, jidx[near], jw[near], MAX_INFLUENCES)
+    mesh = define_mesh(stage, path, p2, normals, f2, UsdGeom.Tokens.proxy)
+    bind_skin(mesh.GetPrim(), skel, jidx[near], jw[near], MAX_INFLUENCES)
     return mesh
-
-
-def _indexed_st(prim: Usd.Prim, st: F64, interp: str) -> None:
-    """``st`` as an indexed primvar: the few distinct UVs and an index per element."""
-    # distinct as stored (float32 pairs), each pair one uint64: a 1-D unique is ten times
-    # faster than np.unique(axis=0), which sorted rows as opaque records
-    pairs = np.ascontiguousarray(st.reshape(-1, 2), dtype=np.float32).view(np.uint64).ravel()
-    keys, index = np.unique(pairs, return_inverse=True)
-    values = keys.view(np.float32).reshape(-1, 2)
-    pv = UsdGeom.PrimvarsAPI(prim).CreatePrimvar("st", Sdf.ValueTypeNames.TexCoord2fArray, interp)
-    pv.Set(Vt.Vec2fArray.FromNumpy(values))
-    pv.SetIndices(Vt.IntArray.FromNumpy(index.ravel().astype(np.int32)))
 
 
 def nearest_source(pts: F64, p2: F64, to_proxy: NDArray[np.intp]) -> NDArray[np.intp]:
@@ -431,7 +265,7 @@ def write_skinned_trees(
     prim whose points or joints move. ``joint_budget``: joints per tree
     (:mod:`forest.growth.joint_budget`; twigs move rigidly with their limb's joint), None
     for one joint per bone. With ``lod``, each tree's levels of detail as the variant set
-    ``lod`` (:mod:`forest.lod.usd`; ``lod0``, the default, is the tree as without)."""
+    ``lod`` (:mod:`forest.usd.lod`; ``lod0``, the default, is the tree as without)."""
     if progress:  # the joint frames first, then a tree of a big species takes seconds
         progress("skinned trees", 0, forest.options.trees)
     trees = UsdGeom.Xform.Define(stage, TREES)
@@ -443,8 +277,6 @@ def write_skinned_trees(
     frames = [(t, frames_of.unscaled(frames_of.locals(forest, t))) for t in times]
     codes = [Usd.TimeCode(0.0) if t is None else time_code(t, forest.options.fps) for t in times]
     rest_unscaled = frames_of.unscaled(frames_of.rest)
-    from forest.lod.select import BarkMesh, LeavesMesh  # it reads this module's joints
-
     leaf_materials = None if anchors is None else leaf_material(stage, anchors.color, leaf_file)
     slices = tree_slices(forest, joint_budget)
     for k, (inst, bones) in enumerate(slices):
@@ -482,11 +314,11 @@ def write_skinned_trees(
         pts, nrm, quads, jidx, jw, st = tree_mesh(
             forest, inst, bones, to_tree, frames_of.still, weld=True, budget=joint_budget
         )
-        mesh = _mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
-        _indexed_st(
+        mesh = define_mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
+        indexed_st(
             mesh.GetPrim(), st if bark_st is None else bark_st(st), UsdGeom.Tokens.faceVarying
         )
-        _bind(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
+        bind_skin(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/{PROXY_MESH}", pts, quads, skel, jidx, jw)
         mesh.GetPrim().CreateRelationship("proxyPrim").SetTargets([proxy.GetPath()])
@@ -528,7 +360,7 @@ def write_skinned_trees(
                 if i == 0:  # and as the default, for tools that read no time
                     attr.Set(extent)
         if lod is not None and levels is not None:  # after the extents: each level takes its own
-            from forest.lod.usd import write_tree_lods
+            from forest.usd.lod import write_tree_lods
 
             write_tree_lods(
                 stage, root.GetPrim(), skel, forest, anchors, levels, bark, leaf_mesh,
@@ -599,18 +431,9 @@ def joint_frames(forest: Forest, budget: int | None = None) -> JointFrames:
     tree_root = dcc.of_bone[b.offset[g.parent < 0]]
     rest = dcc.locals(forest.local_bones(None))
     rest[tree_root] = np.eye(4)
-    binds = _bind_transforms(forest, still)[dcc.bone]
+    binds = bind_transforms(forest, still)[dcc.bone]
     bind_scale = similarity_scale(binds)
     binds[:, :3, :3] /= bind_scale[:, None, None]
     parent_scale = np.where(dcc.parent >= 0, bind_scale[np.maximum(dcc.parent, 0)], 1.0)
     parent_scale[tree_root] = 1.0
     return JointFrames(dcc, binds, rest, similarity_scale(rest), parent_scale, tree_root, still)
-
-
-def _bind_transforms(forest: Forest, still: F64) -> F64:
-    """``(b, 4, 4)`` joint frames of the posed, windless forest in their tree's space (the
-    skeleton's space): each entry of ``still`` (prototype space -> world) times the joint's
-    rest frame in its prototype."""
-    b, g = forest.bones, forest.graph
-    to_tree = invert_similarity(forest.tree_transforms)[g.tree[b.instance]]
-    return to_tree @ still @ b.rest[g.piece[b.instance], b.joint]

@@ -1,6 +1,6 @@
 """A USD scene's pictures: the bark tile set and the leaf picture its materials read.
 
-A .usda/.usdc names them (and each tree's impostor pictures, :mod:`forest.lod.usd`) in
+A .usda/.usdc names them (and each tree's impostor pictures, :mod:`forest.usd.lod`) in
 ``<stem>.textures/`` beside it (the bark as the set's UDIM tiles
 ``bark.<UDIM>.png``), by asset paths ``./<stem>.textures/...`` anchored to the layer (see
 :func:`forest.usd.materials.tile_asset_path`). A .usdz carries them inside, under

@@ -1,5 +1,5 @@
 """GL fixtures for the render worker's tests: one EGL context per test session (made by
-``worker.render.gl_context``, the one place that creates contexts), reset around each test, with
+``forest.gl.context``, the one place that creates contexts), reset around each test, with
 ``ctx.error == "GL_NO_ERROR"`` asserted after each. Features are skipped by capability
 (``ctx.version_code``), never by guessing the machine. Without any EGL context the GL tests
 skip, unless ``FOREST_REQUIRE_GL=1`` (CI sets it) turns that into a failure.
@@ -88,7 +88,7 @@ def make_current(session: Any) -> None:
 
 @pytest.fixture(scope="session")
 def gl_session() -> Iterator[Any]:
-    from worker.render.gl_context import GLUnavailableError, create_context
+    from forest.gl.context import GLUnavailableError, create_context
 
     try:
         # the renderer's version first: NVIDIA's EGL gives exactly the version asked for

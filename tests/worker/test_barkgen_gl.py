@@ -9,12 +9,12 @@ from typing import Any
 import numpy as np
 import pytest
 
+from forest.gl.context import create_context
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
 from forest.usd.read import read_scene
 from forest.usd.scene import write_scene
 from worker.render.camera import Camera
-from worker.render.gl_context import create_context
 from worker.render.renderer import Renderer, TessSettings
 from worker.render.scene_buffers import scene_bounds
 

@@ -70,7 +70,7 @@ def test_saturated_gpu_timer_reports_no_gpu_time() -> None:
     frame at level 4 read 4294.97 ms): such a pass has no GPU time, not a wrong one."""
     from types import SimpleNamespace
 
-    from worker.render.gl_context import TIMER_SATURATED_NS, elapsed_ms
+    from forest.gl.context import TIMER_SATURATED_NS, elapsed_ms
 
     assert elapsed_ms(SimpleNamespace(elapsed=5_000_000)) == 5.0  # type: ignore[arg-type]
     assert elapsed_ms(SimpleNamespace(elapsed=TIMER_SATURATED_NS)) is None  # type: ignore[arg-type]

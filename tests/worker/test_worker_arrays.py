@@ -12,12 +12,12 @@ import pytest
 
 from forest.errors import LimitError, SceneError
 from forest.geometry.pieces import QUAD_ST
+from forest.gl import shaders
+from forest.gl.context import GLUnavailableError, create_context
 from forest.usd.read import SceneArrays
 from schemas.tileset import DEFAULT_MANIFEST
 from tests.helpers_skin import skin
-from worker.render import shaders
 from worker.render.camera import box_corners, frame_box
-from worker.render.gl_context import GLUnavailableError, create_context
 from worker.render.scene_buffers import (
     InstanceLayout,
     SceneBuffers,

@@ -14,8 +14,8 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.gl import shaders
 from forest.growth.rig import BoneRig
-from worker.render import shaders
 
 if TYPE_CHECKING:
     import moderngl

@@ -49,12 +49,12 @@ from numpy.typing import NDArray
 
 from forest.errors import LimitError
 from forest.geometry.transforms import F64
+from forest.gl import shaders
+from forest.gl.context import elapsed_ms
 from forest.growth.foliage import YAW_STEPS, LeafCloud, cloud_models, leaf_texture
 from forest.usd.contract import FOLIAGE
 from forest.usd.read import SceneArrays
-from worker.render import shaders
 from worker.render.camera import Camera, box_corners
-from worker.render.gl_context import elapsed_ms
 
 if TYPE_CHECKING:
     import moderngl

@@ -23,7 +23,7 @@ from numpy.typing import NDArray
 
 from forest.geometry.pieces import MAX_JOINTS, PieceArrays
 from forest.geometry.transforms import F64
-from worker.render import shaders
+from forest.gl import shaders
 from worker.render.camera import Camera
 from worker.render.staging import SHADOW_SIZE, SunCamera
 

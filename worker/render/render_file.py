@@ -20,12 +20,12 @@ from forest.atomic import all_replaced_when_written
 from forest.bark.images import write_png
 from forest.bark.tile_folder import shipped_tile_folder
 from forest.errors import ForestError, OutputError
+from forest.gl.context import create_context, raise_gl_error
 from forest.usd.read import SceneArrays, read_scene
 from schemas.metrics import RenderMetrics
 from worker.render.camera import Camera, CameraSpec, place_camera
 from worker.render.clip import DEFAULT_FPS, ORBIT_FRAMES, check_clip, orbit_camera_eyes, write_clip
 from worker.render.foliage import FOLIAGE_MODES, IMPOSTOR_SIZE, FoliageMode, foliage_points
-from worker.render.gl_context import create_context, raise_gl_error
 from worker.render.instance_cull import DEFAULT_LOD_PIXELS
 from worker.render.metrics import render_metrics, write_metrics
 from worker.render.renderer import Renderer, TessSettings, auto_lod

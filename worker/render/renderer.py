@@ -13,12 +13,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from forest.bark.tile_folder import TileImages
+from forest.gl import shaders
+from forest.gl.context import elapsed_ms, gl_info
 from forest.usd.read import SceneArrays
 from schemas.metrics import TessellationSettings
-from worker.render import shaders
 from worker.render.camera import GROUND_SPAN, Camera
 from worker.render.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
-from worker.render.gl_context import elapsed_ms, gl_info
 from worker.render.instance_cull import InstanceCuller, pixel_size
 from worker.render.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
 from worker.render.staging import StageRenderer, Staging, SunCamera, sun_camera

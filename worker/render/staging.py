@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, cast
 import numpy as np
 
 from forest.geometry.transforms import F64
-from worker.render import shaders
+from forest.gl import shaders
 from worker.render.camera import GROUND_SPAN, Camera, box_corners, look_at
 
 if TYPE_CHECKING:

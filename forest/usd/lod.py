@@ -46,7 +46,7 @@ from forest.usd.contract import (
 )
 from forest.usd.materials import LeafMaterials, st_texture
 from forest.usd.prims import set_attr
-from forest.usd.skinned import _bind, _indexed_st, _mesh, write_leaves
+from forest.usd.skin_prims import bind_skin, define_mesh, indexed_st, write_leaves
 
 if TYPE_CHECKING:
     from forest.lod.impostor import Impostor
@@ -185,7 +185,7 @@ def _write_level(
     leaf_materials: LeafMaterials | None,
 ) -> None:
     b = level.bark
-    mesh = _mesh(
+    mesh = define_mesh(
         stage,
         str(path.AppendChild(lod_mesh(BARK_MESH, level.level))),
         b.points,
@@ -193,8 +193,8 @@ def _write_level(
         b.quads,
         UsdGeom.Tokens.default_,
     )
-    _indexed_st(mesh.GetPrim(), b.st, UsdGeom.Tokens.faceVarying)
-    _bind(mesh.GetPrim(), skel, b.joints, b.weights, MAX_INFLUENCES)
+    indexed_st(mesh.GetPrim(), b.st, UsdGeom.Tokens.faceVarying)
+    bind_skin(mesh.GetPrim(), skel, b.joints, b.weights, MAX_INFLUENCES)
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(bark_material)
     if level.leaves is not None and leaf_materials is not None:
         name = lod_mesh(LEAVES_MESH, level.level)
@@ -210,7 +210,7 @@ def _write_impostor(
 
     written = write_impostor(imp, files.folder, path.name)
     pts, nrm, quads, st = card_pair(imp)
-    mesh = _mesh(
+    mesh = define_mesh(
         stage,
         str(path.AppendChild(IMPOSTOR_MESH)),
         pts,
@@ -219,8 +219,8 @@ def _write_impostor(
         UsdGeom.Tokens.default_,
     )
     mesh.CreateDoubleSidedAttr(True)
-    _indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.vertex)
-    _bind(mesh.GetPrim(), skel, np.zeros(len(pts), np.int32), np.ones(len(pts)), 1)
+    indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.vertex)
+    bind_skin(mesh.GetPrim(), skel, np.zeros(len(pts), np.int32), np.ones(len(pts)), 1)
     prim = mesh.GetPrim()
     # a .usdz carries the cards' picture only: usdz packaging warns on (but packs) assets
     # outside shaders, and Quick Look has no octahedral impostor to feed
