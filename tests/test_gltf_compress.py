@@ -16,6 +16,7 @@ import pytest
 from helpers_gltf import small_forest
 
 from forest.errors import OutputError
+from forest.geometry.transforms import quat_to_matrix
 from forest.gltf.buffer import Blob
 from forest.gltf.compress import (
     MESHOPT,
@@ -155,14 +156,7 @@ def test_unskinned_meshes_carry_their_dequantisation_on_the_node() -> None:
     def local(doc: gl.GLTF2, n: int) -> np.ndarray:
         node = doc.nodes[n]
         t = np.asarray(node.translation or (0, 0, 0), np.float64)
-        x, y, z, w = node.rotation or (0, 0, 0, 1)
-        r = np.array(
-            [
-                [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-            ]
-        )
+        r = quat_to_matrix(node.rotation or (0, 0, 0, 1))[:3, :3]
         (prim,) = doc.meshes[node.mesh].primitives
         p = read_accessor(doc, prim.attributes.POSITION).astype(np.float64)
         return (r @ (np.asarray(node.scale or (1, 1, 1)) * p).T).T + t

@@ -28,6 +28,7 @@ import pygltflib as gl
 from numpy.typing import NDArray
 
 from forest.errors import OutputError
+from forest.geometry.transforms import quat_to_matrix
 
 Packing = Literal["float", "quantized", "meshopt"]
 PACKINGS: tuple[Packing, ...] = ("float", "quantized", "meshopt")
@@ -233,14 +234,7 @@ def _place_dequant(gltf: gl.GLTF2, by_mesh: dict[int, Dequant]) -> None:
         else:
             # T R S (offset, scale): the offset turns with R and S, the scales multiply
             s = np.asarray(node.scale or (1.0, 1.0, 1.0), np.float64)
-            x, y, z, w = node.rotation or (0.0, 0.0, 0.0, 1.0)
-            r = np.array(
-                [
-                    [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-                    [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-                    [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-                ]
-            )
+            r = quat_to_matrix(node.rotation or (0.0, 0.0, 0.0, 1.0))[:3, :3]
             t = np.asarray(node.translation or (0.0, 0.0, 0.0), np.float64)
             node.translation = [float(v) for v in t + r @ (s * d.offset)]
             node.scale = [float(v) for v in s * d.scale]
