@@ -199,6 +199,8 @@ PROVIDERS = {
 LAYERS = {
     "worker": (),  # the package's entry point; its sub-packages below
     "forest": (),
+    # GL on EGL: the renderer and the impostor bake import it only when they draw
+    "forest/gl": ("render",),
     "schemas": (),
     "cli": ("service",),  # forest keys; every other command module imports its extra lazily
     "cli/sheets/gallery.py": ("render",),
