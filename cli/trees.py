@@ -265,12 +265,6 @@ def generate(
                 click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
         elif textures and (why := impostor_skipped(forest)) is not None:  # asked for none
             click.echo(f"note: lod3 (the impostor) not baked: {why}")
-
-        if not wrote_skinned:
-            if lod:
-                click.echo("note: --lod applies to skinned trees; this scene is posed (--skinned)")
-        elif textures and (why := impostor_skipped(forest)) is not None:  # asked for none
-            click.echo(f"note: lod3 (the impostor) not baked: {why}")
     click.echo(
         f"wrote {output}: {trees} tree(s), {forest.n_instances} pieces, "
         f"{len(forest.bones)} bones, {frames} frame(s)"

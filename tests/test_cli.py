@@ -71,6 +71,19 @@ def test_generate_writes_a_forest(tmp_path: Path) -> None:
     assert len(stage.GetPrimAtPath("/World/Forest/Trees").GetChildren()) == 3
 
 
+def test_generate_says_once_why_no_impostor_was_baked(tmp_path: Path) -> None:
+    """Over the bake's tree limit the levels are written without lod3, and one note says so."""
+    from forest.usd.scene import IMPOSTOR_MAX_TREES
+
+    trees = str(IMPOSTOR_MAX_TREES + 1)
+    out = forest(
+        "generate", "--preset", "alternating", "--trees", trees, "-o", "m.usdc", cwd=tmp_path
+    )
+    assert out.returncode == 0, out.stderr
+    notes = [line for line in out.stdout.splitlines() if line.startswith("note:")]
+    assert len(notes) == 1 and f"over {IMPOSTOR_MAX_TREES} trees" in notes[0]
+
+
 def test_generate_shows_progress_lines_unless_quiet(tmp_path: Path) -> None:
     """stderr is a pipe here, as in a CI log: plain lines with counts, not redrawn bars;
     ``--quiet`` leaves only the result line. The files are the same either way."""
