@@ -4,7 +4,6 @@ triangles per tree at every level of detail and joints per tree; beside ez-tree'
 
 from __future__ import annotations
 
-import inspect
 import json
 import os
 import struct
@@ -42,13 +41,6 @@ FORMS = (
     Form("glb game, meshopt", ".glb", {"profile": "game", "packing": "meshopt"}),
     Form("glb film, quantized", ".glb", {"profile": "film", "packing": "quantized"}),
 )
-
-
-def _accepted(options: dict[str, Any]) -> dict[str, Any]:
-    """The keywords of ``options`` that ``write_forest`` takes (a form it cannot write yet is
-    written with the rest)."""
-    known = inspect.signature(write_forest).parameters
-    return {k: v for k, v in options.items() if k in known}
 
 
 def bytes_on_disk(path: Path) -> int:
@@ -138,7 +130,7 @@ def run_export_bench(
             folder.mkdir()
             out = folder / f"{preset}{form.suffix}"
             t0 = time.perf_counter()
-            write_forest(forest, out, **_accepted(form.options))
+            write_forest(forest, out, **form.options)
             seconds = time.perf_counter() - t0
             size = bytes_on_disk(out)
             levels, joints = glb_levels(out) if form.suffix == ".glb" else usd_levels(out)

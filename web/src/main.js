@@ -235,12 +235,18 @@ window.forestViewer = viewer; // for a console (and the tests): the scene, camer
 
 let shownTree = null; // {body, buffer} of the tree in the viewer: what "Download" saves
 
-function save(blob, name) {
-  const a = el("a", { href: URL.createObjectURL(blob), download: name });
+// the browser saves what ``href`` names as ``name``
+function clickDownload(href, name) {
+  const a = el("a", { href, download: name });
   document.body.append(a);
   a.click();
   a.remove();
-  setTimeout(() => URL.revokeObjectURL(a.href), 60000);
+}
+
+function save(blob, name) {
+  const href = URL.createObjectURL(blob);
+  clickDownload(href, name);
+  setTimeout(() => URL.revokeObjectURL(href), 60000);
 }
 
 async function showGlb(fetchBuffer, title, tree = null) {
@@ -298,10 +304,7 @@ async function artifactUrl(url) {
 }
 
 async function download(artifact) {
-  const a = el("a", { href: await artifactUrl(artifact.url), download: artifact.name });
-  document.body.append(a);
-  a.click();
-  a.remove();
+  clickDownload(await artifactUrl(artifact.url), artifact.name);
 }
 
 async function render(job) {
