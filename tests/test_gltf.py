@@ -32,7 +32,8 @@ from forest.bark.images import read_pixels
 from forest.bark.tilesets import set_dir
 from forest.errors import ForestError, LimitError
 from forest.gltf import document
-from forest.gltf.document import forest_gltf, glb_bytes, write_glb
+from forest.gltf.compress import glb
+from forest.gltf.document import forest_gltf, write_glb
 from forest.gltf.skin import CONSTANT_TOL, sample_pose
 from forest.growth.generate import Forest
 from forest.growth.joint_budget import GAME_JOINTS
@@ -248,7 +249,7 @@ def test_missing_tiles_name_the_folder(forest: Forest, tmp_path: Path) -> None:
 
 
 def test_glb_round_trips_through_pygltflib(doc: gl.GLTF2) -> None:
-    data = glb_bytes(doc)
+    data = glb(doc)
     again = gl.GLTF2.load_from_bytes(data)
     assert len(again.nodes) == len(doc.nodes)
     assert again.binary_blob() == doc.binary_blob()

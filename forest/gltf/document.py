@@ -39,7 +39,6 @@ from forest.gltf.lod import (
 )
 from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
-from forest.growth.foliage import FoliageAnchors
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.lod.levels import tree_levels
@@ -201,7 +200,9 @@ def forest_gltf(
                     (full_leaves.colour.astype(np.float64).mean(axis=0), len(full_leaves.quads))
                 )
             if impostor:
-                impostors.append((k, _bake(forest, anchors, full_bark, full_leaves)))
+                from forest.lod.impostor import bake_tree_impostor
+
+                impostors.append((k, bake_tree_impostor(forest, anchors, full_bark, full_leaves)))
             chains.append(add_levels(gltf, blob, k, 0, skin.skin, n_joints, meshes))
         if progress:
             progress("glTF trees", k + 1, len(slices_))
@@ -230,22 +231,6 @@ def forest_gltf(
     return gltf
 
 
-def _bake(
-    forest: Forest, anchors: FoliageAnchors | None, bark: BarkMesh, leaves: LeavesMesh | None
-) -> Impostor:
-    """The tree's impostor from its full meshes (as the USD lod3's)."""
-    from forest.bark.tilesets import mean_colour
-    from forest.growth.foliage import leaf_texture
-    from forest.lod.impostor import bake_impostor
-
-    family = "broadleaf" if anchors is None else anchors.family
-    return bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
-
-
-def glb_bytes(gltf: gl.GLTF2) -> bytes:
-    return glb(gltf)
-
-
 def write_glb(
     forest: Forest,
     path: str | Path,
@@ -265,7 +250,7 @@ def write_glb(
     # one step: pygltflib encodes the whole document in one call
     if progress:
         progress("save", 0, 1)
-    data = glb_bytes(gltf)
+    data = glb(gltf)
     try:
         with replaced_when_written(out) as tmp:
             tmp.write_bytes(data)

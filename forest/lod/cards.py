@@ -76,8 +76,9 @@ def crown_cards(
     lo, hi = bounds
     mid = np.clip(mid, np.minimum(lo + reach, (lo + hi) / 2), np.maximum(hi - reach, (lo + hi) / 2))
     near = np.full(n, np.inf)
-    np.minimum.at(near, group, np.linalg.norm(centre - mid[group], axis=1))
-    nearest = np.flatnonzero(np.linalg.norm(centre - mid[group], axis=1) == near[group])
+    dist = np.linalg.norm(centre - mid[group], axis=1)
+    np.minimum.at(near, group, dist)
+    nearest = np.flatnonzero(dist == near[group])
     card_joint = np.zeros(n, np.int32)
     card_joint[group[nearest[::-1]]] = joint[nearest[::-1]]  # the first nearest wins
     tint = np.stack([np.bincount(group, colour[:, c], n) for c in range(3)], axis=1)

@@ -11,9 +11,10 @@
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -21,6 +22,10 @@ from numpy.typing import NDArray
 from forest.geometry.transforms import F64
 from forest.lod.select import BarkMesh, LeavesMesh
 from forest.lod.views import GL_VERSION, Views, draw_views
+
+if TYPE_CHECKING:
+    from forest.growth.foliage import FoliageAnchors
+    from forest.growth.generate import Forest
 
 G = TypeVar("G", bound=np.generic)
 FRAMES = 4  # atlas frames per side: 16 views of the upper hemisphere
@@ -97,6 +102,18 @@ def bake_impostor(
     )
 
 
+def bake_tree_impostor(
+    forest: Forest, anchors: FoliageAnchors | None, bark: BarkMesh, leaves: LeavesMesh | None
+) -> Impostor:
+    """A tree's impostor from its full meshes ``bark`` and ``leaves`` in its species' leaf
+    picture and bark colour: USD's lod3 and glTF's LOD3 alike."""
+    from forest.bark.tilesets import mean_colour
+    from forest.growth.foliage import leaf_texture
+
+    family = "broadleaf" if anchors is None else anchors.family
+    return bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
+
+
 def card_pair(imp: Impostor) -> tuple[F64, F64, NDArray[np.int32], F64]:
     """The two crossed cards, each cropped to its picture's opaque pixels: points (8, 3),
     normals (8, 3), quads (2, 4), vertex st (8, 2) into :attr:`Impostor.cards`."""
@@ -128,9 +145,11 @@ def card_pair(imp: Impostor) -> tuple[F64, F64, NDArray[np.int32], F64]:
     )
 
 
+@functools.cache
 def gl_missing() -> str | None:
     """Why no impostor can be baked here (no moderngl, no EGL: the render extra is not
-    installed), or None where it can."""
+    installed), or None where it can. Asked once per process: each try makes and drops a GL
+    context, and a write asks several times (the writer, the CLI's note)."""
     from forest.errors import ForestError
 
     try:

@@ -142,7 +142,7 @@ def hang_joints(
     """``(k,)`` the tree-local joint each spray of ``anchors`` (all of this tree) is bound to
     at a level keeping the instances ``kept``: its own hub's on a kept piece; on a dropped
     one, the joint the dropped branch hangs on (the terminal of the nearest kept ancestor,
-    where :func:`forest.usd.skinned.dcc_joints` with ``budget`` binds the branch's root)."""
+    where :func:`forest.growth.joints.dcc_joints` with ``budget`` binds the branch's root)."""
     of_bone = dcc_joints(forest, budget).of_bone
     parent = local_parents(forest, inst)
     on = anchors.instance.astype(np.intp) - inst.start

@@ -102,13 +102,9 @@ def write_tree_lods(
     too where ``options`` asks."""
     impostor = None
     if options.impostors is not None:
-        from forest.bark.tilesets import mean_colour
-        from forest.growth.foliage import leaf_texture
-        from forest.lod.impostor import bake_impostor
+        from forest.lod.impostor import bake_tree_impostor
 
-        family = "broadleaf" if anchors is None else anchors.family
-        imp = bake_impostor(bark, leaves, leaf_texture(family), mean_colour(forest.grammar.bark))
-        impostor = (imp, options.impostors)
+        impostor = (bake_tree_impostor(forest, anchors, bark, leaves), options.impostors)
     write_lod_variants(stage, root, skel, levels, bark_material, leaf_materials, impostor)
 
 

@@ -314,10 +314,10 @@ def write_skinned_trees(
         pts, nrm, quads, jidx, jw, st = tree_mesh(
             forest, inst, bones, to_tree, frames_of.still, weld=True, budget=joint_budget
         )
+        if bark_st is not None:
+            st = bark_st(st)  # what the material reads (a .usdz's atlas)
         mesh = define_mesh(stage, f"{path}/{BARK_MESH}", pts, nrm, quads, UsdGeom.Tokens.render)
-        indexed_st(
-            mesh.GetPrim(), st if bark_st is None else bark_st(st), UsdGeom.Tokens.faceVarying
-        )
+        indexed_st(mesh.GetPrim(), st, UsdGeom.Tokens.faceVarying)
         bind_skin(mesh.GetPrim(), skel, jidx, jw, MAX_INFLUENCES)
         UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(material)
         proxy = _proxy(stage, f"{path}/{PROXY_MESH}", pts, quads, skel, jidx, jw)
@@ -327,7 +327,7 @@ def write_skinned_trees(
             if anchors is None
             else leaves_mesh(forest, anchors, inst, bones, to_tree, frames_of.still, joint_budget)
         )
-        bark = BarkMesh(pts, nrm, quads, jidx, jw, st if bark_st is None else bark_st(st))
+        bark = BarkMesh(pts, nrm, quads, jidx, jw, st)
         leaf_mesh = None if leaves is None else LeavesMesh(*leaves)
         levels = None
         if lod is not None:
