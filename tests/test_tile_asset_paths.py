@@ -63,3 +63,19 @@ def test_tiles_resolve_beside_the_layer_from_another_working_directory(
     assert resolved and Path(str(resolved)) == scene_dir / "tiles" / "bark.1001.png"
     assert Path(str(resolved)).is_file()
     assert read_scene(scene).tile_folder == scene_dir / "tiles"
+
+
+def test_a_user_folder_named_like_a_texture_folder_is_still_read(
+    small_forest: Forest, tmp_path: Path
+) -> None:
+    """The writer flags its own copy of the shipped set (``forest:barkTilesShipped``), so a
+    tile folder of the user's whose name ends in ``.textures`` is read as given, and the
+    copy in ``<stem>.textures/`` is not (the renderer reads the shipped set itself)."""
+    mine = tmp_path / "mine.textures"
+    mine.mkdir()
+    shutil.copy(default_dir() / "bark.1001.png", mine / "bark.1001.png")
+    given = write_scene(small_forest, tmp_path / "given.usdc", tiles="mine.textures")
+    assert read_scene(given).tile_folder == mine
+    shipped = write_scene(small_forest, tmp_path / "own.usdc")
+    assert (tmp_path / "own.textures" / "bark.1001.png").is_file()
+    assert read_scene(shipped).tile_folder is None

@@ -79,6 +79,7 @@ Skeleton; ``lod3`` (when baked) the :data:`IMPOSTOR_MESH` card pair, its
 
 ``/World/Looks`` (:data:`LOOKS`): :data:`BARK_MATERIAL` (UsdPreviewSurface; its
 :data:`BARK_TILE_SET` string names the shipped tile set; with a tile folder its
+:data:`BARK_TILES_SHIPPED` bool says whether the folder is a copy of that set or the user's, and its
 :data:`BARK_TILES` UsdUVTexture reads ``inputs:file`` = the UDIM pattern), the leaves'
 :data:`LEAF_MATERIAL` (bound for all purposes) and :data:`LEAF_TINTED_MATERIAL` (bound for
 ``preview``, reading ``displayColor``).
@@ -209,6 +210,9 @@ LEAF_FAMILY = "forest:leafFamily"
 
 # -- materials ------------------------------------------------------------------------------
 BARK_TILE_SET = "forest:barkTileSet"
+# true where the bark texture is this writer's copy of that shipped set (the renderer reads the
+# set itself); false where it is a tile folder the user named (--tiles)
+BARK_TILES_SHIPPED = "forest:barkTilesShipped"
 
 # -- a skinned tree's assetInfo keys --------------------------------------------------------
 ASSET_SEED = "forest:seed"

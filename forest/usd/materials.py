@@ -21,6 +21,7 @@ from forest.usd.contract import (
     BARK_MATERIAL,
     BARK_TILE_SET,
     BARK_TILES,
+    BARK_TILES_SHIPPED,
     DISPLAY_COLOR_READER,
     LEAF_CUTOUT,
     LEAF_MATERIAL,
@@ -81,17 +82,24 @@ def st_texture(
 
 
 def bark_material(
-    stage: Usd.Stage, texture: str | None = None, bark: str = DEFAULT_SET
+    stage: Usd.Stage,
+    texture: str | None = None,
+    bark: str = DEFAULT_SET,
+    *,
+    shipped_copy: bool = False,
 ) -> UsdShade.Material:
     """UsdPreviewSurface bark. ``forest:barkTileSet`` names the shipped tile set ``bark``
     (``forest.bark.tilesets``), which the renderer uses when the scene names no tile folder.
     With ``texture`` (an asset path: the UDIM tiles ``.../bark.<UDIM>.png`` of
     :func:`tile_asset_path`, or a .usdz's atlas) the colour comes from it through ``st``;
     without, a flat colour, the mean of the set's tiles (also the texture's fallback), so a
-    DCC shows the species' colour."""
+    DCC shows the species' colour. ``shipped_copy``: ``texture`` is this writer's copy of
+    the set ``bark`` (``forest:barkTilesShipped``), not a folder the user named."""
     UsdGeom.Scope.Define(stage, LOOKS)
     mat = UsdShade.Material.Define(stage, BARK_MATERIAL)
     set_attr(mat.GetPrim(), BARK_TILE_SET, Sdf.ValueTypeNames.String, bark)
+    if texture is not None:
+        set_attr(mat.GetPrim(), BARK_TILES_SHIPPED, Sdf.ValueTypeNames.Bool, shipped_copy)
     colour = mean_colour(bark)
     pbr = UsdShade.Shader.Define(stage, f"{BARK_MATERIAL}/{SURFACE}")
     pbr.CreateIdAttr("UsdPreviewSurface")

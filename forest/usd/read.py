@@ -24,6 +24,7 @@ from forest.usd.contract import (
     BARK_MATERIAL,
     BARK_TILE_SET,
     BARK_TILES,
+    BARK_TILES_SHIPPED,
     BONE_FORMAT,
     BONE_FORMAT_VERSION,
     BONE_OFFSET,
@@ -451,17 +452,22 @@ def _bark_tile_set(stage: Usd.Stage) -> str:
 
 def _tile_folder(stage: Usd.Stage, path: Path) -> Path | None:
     """The tile folder the bark material names (relative to the scene), or None where it
-    names none or only a scene's own ``<stem>.textures/`` (by name: a scene may be renamed, as
-    a job's artifact is). That folder holds a copy of the shipped set the material's
-    ``forest:barkTileSet`` names, which the renderer reads itself, so a scene handed on
-    without its folder renders the same."""
+    names none or only the writer's copy of the shipped set the material's
+    ``forest:barkTileSet`` names (``forest:barkTilesShipped``), which the renderer reads
+    itself, so a scene handed on without its pictures renders the same. Scenes of 0.4.0
+    lack that flag: there a relative ``*.textures`` folder is taken for the copy."""
     prim = stage.GetPrimAtPath(BARK_TILES)
     attr = prim.GetAttribute("inputs:file") if prim else None
     asset = attr.Get() if attr else None
     if asset is None or not asset.path:
         return None
     folder = Path(asset.path).parent
-    if not folder.is_absolute() and folder.name.endswith(FOLDER_SUFFIX):
+    material = stage.GetPrimAtPath(BARK_MATERIAL)
+    shipped = material.GetAttribute(BARK_TILES_SHIPPED) if material else None
+    if shipped and shipped.HasAuthoredValue():
+        if shipped.Get():
+            return None
+    elif not folder.is_absolute() and folder.name.endswith(FOLDER_SUFFIX):
         return None
     return folder if folder.is_absolute() else path.parent / folder
 

@@ -206,7 +206,9 @@ def _write_scene(
             lod = replace(lod, impostors=impostor_files(out, tmp.parent))
         setup_stage(stage, forest, instanced=not package)
         vset, targets = representation_variants(stage, skinned, instanced=not package)
-        material = bark_material(stage, pictures.bark, forest.grammar.bark)
+        material = bark_material(
+            stage, pictures.bark, forest.grammar.bark, shipped_copy=pictures.shipped_bark
+        )
         if not package:
             _write_instanced(stage, forest, material, targets, anchors, pictures.leaf, progress)
         if skinned:

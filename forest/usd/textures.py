@@ -66,6 +66,7 @@ class SceneTextures:
     folder: Path | None = None
     sources: dict[str, Path | NDArray[np.uint8]] = field(default_factory=dict)
     family: Family | None = None
+    shipped_bark: bool = False  # ``bark`` is a copy of the shipped set, not the user's tiles
 
     def bark_st(self, st: F64) -> F64:
         """UDIM st ``(q, 4, 2)`` -> the st the bark mesh carries: inside each quad's tile by
@@ -164,6 +165,7 @@ def scene_textures(
             folder=folder,
             sources={ATLAS_FILE: make_atlas(slices)},
             family=leaf,
+            shipped_bark=given is None,
         )
     if not textures:
         return SceneTextures(bark=None if tiles is None else tile_asset_path(tiles))
@@ -181,4 +183,5 @@ def scene_textures(
         folder=folder if (sources or family is not None) else None,
         sources=sources,
         family=family,
+        shipped_bark=tiles is None,
     )
