@@ -19,9 +19,11 @@ from forest.lod.select import TARGETS, BarkMesh, LeavesMesh
 from forest.usd.contract import (
     BARK_MESH,
     IMPOSTOR_ATLAS,
+    IMPOSTOR_FRAMES,
     IMPOSTOR_MAPS,
     IMPOSTOR_MATERIAL,
     IMPOSTOR_MESH,
+    IMPOSTOR_SPHERE,
     LEAVES_MESH,
     LEAVES_PROXY_MESH,
     LOD,
@@ -235,6 +237,73 @@ def test_impostor_cards_show_the_tree(lod_scene: tuple[Forest, Path, Path]) -> N
         shown = draw_views(None, cards, card_picture, view, 256, colour, centre=c, radius=r)
         card = shown.albedo[0, ..., 3] > 0
         assert (tree ^ card).sum() <= 0.05 * tree.sum(), k
+
+
+def _hemi_octahedral_cell(direction: np.ndarray, frames: int) -> tuple[int, int]:
+    """The atlas cell (row, column) an engine's octahedral impostor shader reads for a view
+    from ``direction`` (y >= 0): the direction folded onto the octahedron |x|+|y|+|z| = 1,
+    then u = x + z along the columns and v = x - z along the rows, each from -1 to 1."""
+    x, _, z = direction / np.abs(direction).sum()
+    u, v = x + z, x - z
+    cell = np.clip(np.floor((np.array([v, u]) + 1.0) / 2.0 * frames), 0, frames - 1)
+    return int(cell[0]), int(cell[1])
+
+
+@pytest.mark.skipif(not BAKES, reason="no GL here: the impostor needs the render extra")
+def test_impostor_atlas_shows_lod0_from_every_side(lod_scene: tuple[Forest, Path, Path]) -> None:
+    """The written albedo atlas, read as an engine's octahedral impostor reads it (the frame
+    count and framing sphere from the mesh's attributes, the cell from the view direction),
+    matches LOD0 drawn afresh from each of the 12 directions around the tree that its outer
+    ring of frames was baked from (8 at least, by the issue): the silhouettes differ by at
+    most 5 % of LOD0's pixels. A transposed, flipped or shifted atlas would not."""
+    from forest.bark.images import read_pixels
+    from forest.bark.tilesets import mean_colour
+    from forest.growth.foliage import leaf_texture
+    from forest.lod.views import draw_views
+
+    forest, _, lod = lod_scene
+    stage = Usd.Stage.Open(str(lod))
+    root = stage.GetPrimAtPath(f"{TREES}/{tree_name(0)}")
+    root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(3))
+    prim = root.GetChild(IMPOSTOR_MESH)
+    frames = int(prim.GetAttribute(IMPOSTOR_FRAMES).Get())
+    *centre, radius = (float(x) for x in prim.GetAttribute(IMPOSTOR_SPHERE).Get())
+    asset = prim.GetAttribute(f"{IMPOSTOR_ATLAS}:albedo").Get()
+    atlas = read_pixels(lod.parent / asset.path)
+    px = atlas.shape[0] // frames
+    root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(0))
+
+    anchors = foliage_or_none(forest)
+    inst, bones = tree_slices(forest)[0]
+    still = joint_frames(forest).still
+    to_tree = invert_similarity(forest.tree_transforms[0])
+    bark = BarkMesh(*tree_mesh(forest, inst, bones, to_tree, still, weld=True))
+    made = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree, still)
+    leaves = None if made is None else LeavesMesh(*made)
+    family = "broadleaf" if anchors is None else anchors.family
+    # the outer ring of cell centres: max(|u|, |v|) = 1 - 1/frames, just above the horizon
+    c = (np.arange(frames) + 0.5) / frames * 2.0 - 1.0
+    ring = [(u, v) for v in c for u in c if max(abs(u), abs(v)) == c[-1]]
+    assert len(ring) >= 8
+    for u, v in ring:
+        x, z = (u + v) / 2.0, (u - v) / 2.0
+        d = np.array([x, 1.0 - abs(x) - abs(z), z])
+        d /= np.linalg.norm(d)
+        row, col = _hemi_octahedral_cell(d, frames)
+        frame = atlas[row * px : (row + 1) * px, col * px : (col + 1) * px, 3] > 0
+        drawn = draw_views(
+            bark,
+            leaves,
+            leaf_texture(family),
+            d[None],
+            px,
+            mean_colour(forest.grammar.bark),
+            centre=np.array(centre),
+            radius=radius,
+        )
+        tree = drawn.albedo[0, ..., 3] > 0
+        assert tree.sum() > 0.02 * px * px, (u, v)  # the view shows the tree
+        assert (tree ^ frame).sum() <= 0.05 * tree.sum(), (u, v, (tree ^ frame).sum(), tree.sum())
 
 
 def _card_centres(points: np.ndarray, mesh: UsdGeom.Mesh) -> np.ndarray:
