@@ -166,11 +166,15 @@ def forest_gltf(
             made = leaves_mesh(forest, anchors, inst, bones, to_tree, frames.still, joint_budget)
         full_leaves = None if made is None else LeavesMesh(*made)
         if not game:
-            prims = [skinned_primitive(blob, bark_quads(full_bark, n_slices, size), n_joints, bark)]
+            prims = [
+                skinned_primitive(blob, bark_quads(full_bark, n_slices, size), n_joints, bark)[0]
+            ]
             if full_leaves is not None and leaf_materials is not None:
                 colour = full_leaves.colour.astype(np.float64).mean(axis=0)
                 material = leaf_materials.tree_material(k, colour)
-                prims.append(skinned_primitive(blob, leaf_quads(full_leaves), n_joints, material))
+                prims.append(
+                    skinned_primitive(blob, leaf_quads(full_leaves), n_joints, material)[0]
+                )
             gltf.meshes.append(gl.Mesh(name=f"Tree_{k:05d}", primitives=prims))
             gltf.nodes.append(
                 gl.Node(name=f"Tree_{k:05d}_Mesh", mesh=len(gltf.meshes) - 1, skin=skin.skin)

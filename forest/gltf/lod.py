@@ -6,7 +6,8 @@ mesh on the tree's one skin, chained with the ``MSFT_lod`` extension.
   ``extensions.MSFT_lod.ids`` naming the other levels' nodes and
   ``extras.MSFT_screencoverage`` the screen fraction down to which each level shows.
 * ``Tree_<k>_LOD1``, ``_LOD2``: :func:`forest.lod.levels.tree_levels`' levels (fewer pieces,
-  fewer or crown cards), every kept bark vertex LOD0's with LOD0's joints and weights.
+  fewer or crown cards), every kept bark vertex LOD0's with LOD0's joints and weights: their
+  bark primitives read LOD0's bark accessors through index buffers of their own.
 * ``Tree_<k>_LOD3``: the impostor's crossed card pair (:mod:`forest.lod.impostor`, baked with
   the render extra's GL; left out where there is none), bound to the root joint.
 
@@ -27,7 +28,7 @@ from forest.bark.atlas import atlas_uv
 from forest.geometry.transforms import F64
 from forest.gltf.bark import png_bytes
 from forest.gltf.buffer import Blob
-from forest.gltf.primitive import SkinnedQuads, skinned_primitive
+from forest.gltf.primitive import SkinnedQuads, VertexSet, skinned_primitive
 from forest.lod.select import BarkMesh, LeavesMesh
 
 if TYPE_CHECKING:
@@ -138,13 +139,20 @@ def add_levels(
     its (quads, material) primitives, most detailed first) on ``skin``; LOD0's node joins
     the default scene. Returns the nodes."""
     nodes = []
+    # the bark of a lower level is some of the first level's vertices: their accessors are
+    # shared (a reader uploads them once; Blender keeps only the vertices a level draws)
+    shared: dict[int, VertexSet] = {}
     for level, prims in enumerate(levels, first):
-        gltf.meshes.append(
-            gl.Mesh(
-                name=lod_name(tree, level),
-                primitives=[skinned_primitive(blob, q, n_joints, m) for q, m in prims],
+        primitives = []
+        for n, (q, m) in enumerate(prims):
+            base = shared.get(m) if n == 0 else None
+            prim, vertices = skinned_primitive(
+                blob, q, n_joints, m, base=base, share=level == first and n == 0
             )
-        )
+            if vertices is not None:
+                shared.setdefault(m, vertices)
+            primitives.append(prim)
+        gltf.meshes.append(gl.Mesh(name=lod_name(tree, level), primitives=primitives))
         gltf.nodes.append(gl.Node(name=lod_name(tree, level), mesh=len(gltf.meshes) - 1, skin=skin))
         nodes.append(len(gltf.nodes) - 1)
         if level == 0:

@@ -59,10 +59,36 @@ def split_corners(
     return source[first].astype(np.intp), uv.reshape(-1, 2)[first], corner_vertex
 
 
-def skinned_primitive(blob: Blob, mesh: SkinnedQuads, n_joints: int, material: int) -> gl.Primitive:
+@dataclass(frozen=True, eq=False)
+class VertexSet:
+    """A primitive's vertex accessors and where each of its vertices is, by its values
+    (position, normal, UV, joints, weights as written): a lower level whose vertices are all
+    among them draws them with an index buffer of its own, and the file holds them once."""
+
+    attributes: gl.Attributes
+    rows: dict[bytes, int]
+
+
+def _vertex_rows(*columns: NDArray[np.generic]) -> list[bytes]:
+    """One byte string per vertex of its attribute values (float32 and int32 columns)."""
+    table = np.concatenate([np.asarray(c, np.float32).reshape(len(c), -1) for c in columns], 1)
+    return [row.tobytes() for row in np.ascontiguousarray(table)]
+
+
+def skinned_primitive(
+    blob: Blob,
+    mesh: SkinnedQuads,
+    n_joints: int,
+    material: int,
+    *,
+    base: VertexSet | None = None,
+    share: bool = False,
+) -> tuple[gl.Primitive, VertexSet | None]:
     """The mesh as an indexed triangle primitive (two per quad, in quad order) with
     POSITION, NORMAL, TEXCOORD_0, JOINTS_0 and WEIGHTS_0 (four influences, normalised;
-    unused ones name joint 0) for a skin of ``n_joints`` joints."""
+    unused ones name joint 0) for a skin of ``n_joints`` joints, and (``share``) its
+    :class:`VertexSet`. Where every vertex is one of ``base``'s, the primitive reads
+    ``base``'s accessors (and ``base`` is returned)."""
     src, uv, corner = split_corners(mesh.quads, mesh.uv)
     k = mesh.joints.shape[1]
     w = np.zeros((len(src), 4))
@@ -71,6 +97,19 @@ def skinned_primitive(blob: Blob, mesh: SkinnedQuads, n_joints: int, material: i
     j = np.zeros((len(src), 4), np.int64)
     j[:, :k] = np.where(w[:, :k] > 0, mesh.joints[src], 0)
     tris = corner.reshape(-1, 4)[:, QUAD_TRIS].ravel()
+    points, normals = mesh.points[src].astype(np.float32), mesh.normals[src].astype(np.float32)
+    rows = _vertex_rows(points, normals, uv, j, w) if (base is not None or share) else []
+    if base is not None:
+        found = [base.rows.get(r, -1) for r in rows]
+        if min(found, default=-1) >= 0:
+            where = np.array(found, np.int64)[tris]
+            index = where.astype(np.uint16 if len(base.rows) <= 65535 else np.uint32)
+            prim = gl.Primitive(
+                attributes=base.attributes,
+                indices=blob.accessor(index, gl.ELEMENT_ARRAY_BUFFER),
+                material=material,
+            )
+            return prim, base
     # core glTF reads UVs and weights as normalised integers too: UVs in 1/65535 steps (far
     # under a texel of any atlas) and rigid weights (all 0 or 1) as bytes, exactly
     uv_data: NDArray[np.float32] | NDArray[np.uint16] = uv
@@ -78,8 +117,8 @@ def skinned_primitive(blob: Blob, mesh: SkinnedQuads, n_joints: int, material: i
         uv_data = np.round(uv.astype(np.float64) * 65535).astype(np.uint16)
     rigid = bool(np.all((w == 0) | (w == 1)))
     attrs = gl.Attributes(
-        POSITION=blob.accessor(mesh.points[src].astype(np.float32), gl.ARRAY_BUFFER, bounds=True),
-        NORMAL=blob.accessor(mesh.normals[src].astype(np.float32), gl.ARRAY_BUFFER),
+        POSITION=blob.accessor(points, gl.ARRAY_BUFFER, bounds=True),
+        NORMAL=blob.accessor(normals, gl.ARRAY_BUFFER),
         TEXCOORD_0=blob.accessor(uv_data, gl.ARRAY_BUFFER, normalized=uv_data.dtype == np.uint16),
         JOINTS_0=blob.accessor(
             j.astype(np.uint8 if n_joints <= 256 else np.uint16), gl.ARRAY_BUFFER
@@ -92,8 +131,9 @@ def skinned_primitive(blob: Blob, mesh: SkinnedQuads, n_joints: int, material: i
     )
     # 65535 is the primitive restart value, no index of a uint16 buffer
     index = tris.astype(np.uint16 if len(src) <= 65535 else np.uint32)
-    return gl.Primitive(
+    prim = gl.Primitive(
         attributes=attrs,
         indices=blob.accessor(index, gl.ELEMENT_ARRAY_BUFFER),
         material=material,
     )
+    return prim, VertexSet(attrs, {r: i for i, r in enumerate(rows)}) if share else None
