@@ -13,6 +13,13 @@ settings, none ever made in the store: revoking the last key closes the API, it 
 it) the API is open, every caller is the tenant ``local``, and only loopback clients are
 answered (403 for the rest): the embedded default for one machine, which says so at start.
 
+A state-changing ``/v1`` request's key is checked from its headers by :class:`KeyFirst`,
+before any of its body is read. Wrong keys are counted per client address
+(``FOREST_AUTH_FAILURE_LIMIT``, the ``limits`` library): past the limit an address gets 429
+with ``Retry-After``, without a store lookup, for any key not known already (bootstrap keys
+and store keys found a moment ago still pass). ``/metrics`` (every tenant's job counts) needs
+an admin key, or nothing while the API is open (:func:`admin_or_open`).
+
 State-changing requests (POST, PUT, PATCH, DELETE) are rate limited per key with the
 ``limits`` library (moving window; ``FOREST_RATE_LIMIT``, storage ``FOREST_RATE_LIMIT_STORAGE``,
 ``memory://`` or a shared ``redis://`` for several API replicas), answered 429 with
@@ -29,7 +36,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Annotated
+from typing import Annotated, Protocol
 
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import APIKeyHeader
@@ -44,9 +51,6 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from farm.keys import KeyStore, check_tenant, digest
 from service.errors import database_unavailable, problem
 from service.settings import ServiceSettings
-
-if TYPE_CHECKING:
-    from service.deps import Services
 
 OPEN_TENANT = "local"
 WRITES = frozenset({"POST", "PUT", "PATCH", "DELETE"})
@@ -204,6 +208,14 @@ class AuthThrottle:
     def failed(self, address: str) -> None:
         for item in self.items:
             self.limiter.hit(item, "auth", address)
+
+
+class Services(Protocol):
+    """What the gate needs of :class:`service.deps.Services`."""
+
+    keys: Keys
+    auth_throttle: AuthThrottle
+    rate_limit: RateLimit
 
 
 def _loopback_when_open(services: Services, client: str | None) -> None:
