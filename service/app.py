@@ -17,11 +17,13 @@ from farm.store import JobStore
 from forest import __version__
 from service.deps import Services
 from service.errors import install_handlers
+from service.hosts import AllowedHosts
 from service.limits import BodyLimitMiddleware
+from service.methods import AllowedMethods
 from service.metrics import Metrics, MetricsMiddleware
 from service.openapi import document_shared_responses
 from service.routes import forests, health, jobs, presets, renders, trees, web
-from service.security import Keys, RateLimit, SameSiteWrites
+from service.security import AuthThrottle, KeyFirst, Keys, RateLimit, SameSiteWrites
 from service.settings import ServiceSettings
 
 log = logging.getLogger(__name__)
@@ -39,6 +41,7 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
         metrics,
         Keys(settings, KeyStore(settings.db_url)),
         RateLimit(settings),
+        AuthThrottle(settings),
     )
 
     @asynccontextmanager
@@ -84,11 +87,16 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
         app.include_router(module.router)
     web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
     document_shared_responses(app)
+    # the last added runs first: the cheap refusals (host, origin, method, key) come before
+    # any body is read
     app.add_middleware(
         BodyLimitMiddleware, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s
     )
+    app.add_middleware(KeyFirst, services=services)
+    app.add_middleware(AllowedMethods, routes=app.router.routes)
     allowed = frozenset(o.strip() for o in settings.allowed_origins.split(",") if o.strip())
     app.add_middleware(SameSiteWrites, allowed=allowed)
+    app.add_middleware(AllowedHosts, allowed=settings.allowed_hosts, is_open=services.keys.open)
     app.add_middleware(MetricsMiddleware, metrics=metrics)
     return app
 

@@ -11,7 +11,7 @@ from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
 from farm.store import JobStore
 from service.metrics import Metrics
-from service.security import Keys, RateLimit
+from service.security import AuthThrottle, Keys, RateLimit
 from service.settings import ServiceSettings
 
 
@@ -24,6 +24,7 @@ class Services:
     metrics: Metrics
     keys: Keys
     rate_limit: RateLimit
+    auth_throttle: AuthThrottle
 
 
 def get_services(request: Request) -> Services:

@@ -6,7 +6,8 @@ from __future__ import annotations
 import logging
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from http import HTTPStatus
 from typing import Any
 
 from fastapi import FastAPI, Request
@@ -119,3 +120,15 @@ def install_handlers(app: FastAPI) -> None:
     app.add_exception_handler(RequestValidationError, validation_error)
     # OperationalError, InterfaceError and the rest of the DBAPI's errors: the server is away
     app.add_exception_handler(DBAPIError, database_unavailable)
+
+
+def problem(status: int, detail: str, headers: Mapping[str, str] | None = None) -> JSONResponse:
+    """An error answered by middleware, before any route (so no exception handler runs): an
+    RFC 9457 problem with a string ``detail``."""
+    body = {"type": "about:blank", "title": HTTPStatus(status).phrase, "status": status}
+    return JSONResponse(
+        body | {"detail": detail},
+        status_code=status,
+        headers=headers,
+        media_type="application/problem+json",
+    )

@@ -13,6 +13,13 @@ settings, none ever made in the store: revoking the last key closes the API, it 
 it) the API is open, every caller is the tenant ``local``, and only loopback clients are
 answered (403 for the rest): the embedded default for one machine, which says so at start.
 
+A state-changing ``/v1`` request's key is checked from its headers by :class:`KeyFirst`,
+before any of its body is read. Wrong keys are counted per client address
+(``FOREST_AUTH_FAILURE_LIMIT``, the ``limits`` library): past the limit an address gets 429
+with ``Retry-After``, without a store lookup, for any key not known already (bootstrap keys
+and store keys found a moment ago still pass). ``/metrics`` (every tenant's job counts) needs
+an admin key, or nothing while the API is open (:func:`admin_or_open`).
+
 State-changing requests (POST, PUT, PATCH, DELETE) are rate limited per key with the
 ``limits`` library (moving window; ``FOREST_RATE_LIMIT``, storage ``FOREST_RATE_LIMIT_STORAGE``,
 ``memory://`` or a shared ``redis://`` for several API replicas), answered 429 with
@@ -25,21 +32,24 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import json
 import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Annotated
+from typing import Annotated, Protocol
 
 from fastapi import Depends, HTTPException, Request
 from fastapi.security import APIKeyHeader
 from limits import RateLimitItem, parse_many
 from limits.storage import storage_from_string
 from limits.strategies import MovingWindowRateLimiter
+from sqlalchemy.exc import DBAPIError
+from starlette.concurrency import run_in_threadpool
+from starlette.datastructures import Headers
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from farm.keys import KeyStore, check_tenant, digest
+from service.errors import database_unavailable, problem
 from service.settings import ServiceSettings
 
 OPEN_TENANT = "local"
@@ -112,12 +122,9 @@ class Keys:
             self._open = (now + self.ttl, is_open)
         return is_open
 
-    def caller(self, key: str | None) -> Caller | None:
-        """The key's caller; ``Caller(local)`` when the API is open; None: no such live key."""
-        if self.open():
-            return Caller(OPEN_TENANT)
-        if not key:
-            return None
+    def known(self, key: str) -> Caller | None:
+        """The caller of a key known without the store: a bootstrap key, or a store key found
+        within ``api_key_cache_s``."""
         d = digest(key)
         found = None
         for known, who in self.bootstrap.items():  # every digest compared: constant time
@@ -125,18 +132,35 @@ class Keys:
                 found = who
         if found is not None:
             return found
-        now = self.clock()
         cached = self._found.get(d)
-        if cached is not None and now < cached[0]:
+        if cached is not None and self.clock() < cached[0]:
             return cached[1]
+        return None
+
+    def lookup(self, key: str) -> Caller | None:
+        """The caller of a live key in the store (then trusted for ``api_key_cache_s``)."""
+        d = digest(key)
         # an unknown key is looked up every time (not cached), so a new key works at once
         live = self.store.lookup(key)
         if live is None:
             self._found.pop(d, None)
             return None
         who = Caller(live.tenant, live.admin)
-        self._found[d] = (now + self.ttl, who)
+        self._found[d] = (self.clock() + self.ttl, who)
         return who
+
+    def caller(self, key: str | None) -> Caller | None:
+        """The key's caller; ``Caller(local)`` when the API is open; None: no such live key."""
+        if self.open():
+            return Caller(OPEN_TENANT)
+        if not key:
+            return None
+        return self.known(key) or self.lookup(key)
+
+
+def _retry_after(limiter: MovingWindowRateLimiter, item: RateLimitItem, *who: str) -> str:
+    reset = limiter.get_window_stats(item, *who).reset_time
+    return str(max(1, math.ceil(reset - time.time())))
 
 
 class RateLimit:
@@ -152,20 +176,51 @@ class RateLimit:
         """Raise 429 (with Retry-After) when ``who`` is over a limit."""
         for item in self.items:
             if not self.limiter.hit(item, who):
-                reset = self.limiter.get_window_stats(item, who).reset_time
-                wait = max(1, math.ceil(reset - time.time()))
+                wait = _retry_after(self.limiter, item, who)
                 raise HTTPException(
                     429,
                     f"rate limit {item} exceeded; retry in {wait} s",
-                    headers={"Retry-After": str(wait)},
+                    headers={"Retry-After": wait},
                 )
 
 
-def _loopback_when_open(request: Request) -> None:
+class AuthThrottle:
+    """Per-client-address limit of wrong keys (``auth_failure_limit``): guessing keys costs a
+    window's wait, and a throttled address costs no store lookup."""
+
+    def __init__(self, settings: ServiceSettings) -> None:
+        self.items: list[RateLimitItem] = (
+            parse_many(settings.auth_failure_limit) if settings.auth_failure_limit else []
+        )
+        self.limiter = MovingWindowRateLimiter(storage_from_string(settings.rate_limit_storage))
+
+    def check(self, address: str) -> None:
+        """Raise 429 (with Retry-After) while ``address`` has used up its wrong keys."""
+        for item in self.items:
+            if not self.limiter.test(item, "auth", address):
+                wait = _retry_after(self.limiter, item, "auth", address)
+                raise HTTPException(
+                    429,
+                    f"too many wrong API keys from this address; retry in {wait} s",
+                    headers={"Retry-After": wait},
+                )
+
+    def failed(self, address: str) -> None:
+        for item in self.items:
+            self.limiter.hit(item, "auth", address)
+
+
+class Services(Protocol):
+    """What the gate needs of :class:`service.deps.Services`."""
+
+    keys: Keys
+    auth_throttle: AuthThrottle
+    rate_limit: RateLimit
+
+
+def _loopback_when_open(services: Services, client: str | None) -> None:
     """403 for a client off loopback while the API is open (no key anywhere)."""
-    if request.app.state.services.keys.open() and not is_loopback(
-        request.client.host if request.client else None
-    ):
+    if services.keys.open() and not is_loopback(client):
         raise HTTPException(
             403,
             "this server has no API keys and answers loopback clients only; "
@@ -176,24 +231,46 @@ def _loopback_when_open(request: Request) -> None:
 def public(request: Request) -> None:
     """A route anyone may read, key or not (the presets); an open server still answers
     loopback clients only."""
-    _loopback_when_open(request)
+    _loopback_when_open(request.app.state.services, _client(request.scope))
 
 
-def caller(request: Request, key: Annotated[str | None, Depends(api_key_header)] = None) -> Caller:
-    """The caller (401 without a live key, 403 off loopback when the API is open, 429 over the
-    rate limit)."""
-    services = request.app.state.services
-    who: Caller | None = services.keys.caller(key)
+def _client(scope: Scope) -> str | None:
+    client = scope.get("client")
+    return client[0] if client else None
+
+
+def identify(services: Services, key: str | None, client: str | None, method: str) -> Caller:
+    """The caller of a request's key (401 without a live key, 429 for an address that sent
+    too many wrong ones, 403 off loopback when the API is open, 429 over the rate limit)."""
+    keys = services.keys
+    who = Caller(OPEN_TENANT) if keys.open() else keys.known(key) if key else None
+    if who is None and key:
+        address = client or "unknown"
+        services.auth_throttle.check(address)  # before the lookup: a throttled guess is free
+        who = keys.lookup(key)
+        if who is None:
+            services.auth_throttle.failed(address)
     if who is None:
         raise HTTPException(
             401, "a valid X-API-Key header is required", headers={"WWW-Authenticate": "ApiKey"}
         )
-    _loopback_when_open(request)
-    if request.method in WRITES:
+    _loopback_when_open(services, client)
+    if method in WRITES:
         # per key (a tenant's keys are limited apart); the open server limits its one caller
         who_key = hashlib.sha256((key or OPEN_TENANT).encode()).hexdigest()[:32]
         services.rate_limit.hit(who_key)
     return who
+
+
+CALLER_SCOPE = "forest.caller"  # the caller found by KeyFirst, so the route does not look again
+
+
+def caller(request: Request, key: Annotated[str | None, Depends(api_key_header)] = None) -> Caller:
+    """The caller of the request (see :func:`identify`)."""
+    found: Caller | None = request.scope.get(CALLER_SCOPE)
+    if found is not None:
+        return found
+    return identify(request.app.state.services, key, _client(request.scope), request.method)
 
 
 def caller_tenant(who: Annotated[Caller, Depends(caller)]) -> str:
@@ -203,6 +280,41 @@ def caller_tenant(who: Annotated[Caller, Depends(caller)]) -> str:
 
 CallerDep = Annotated[Caller, Depends(caller)]
 Tenant = Annotated[str, Depends(caller_tenant)]
+
+
+def admin_or_open(request: Request, who: CallerDep) -> None:
+    """An admin key's caller, or anyone on loopback while the API is open (no key anywhere):
+    what every tenant shares (the farm's metrics)."""
+    if not who.admin and not request.app.state.services.keys.open():
+        raise HTTPException(403, "an admin key is required")
+
+
+class KeyFirst:
+    """Check the key of a state-changing ``/v1`` request from its headers, before any of its
+    body is read: a client without a live key cannot hold a connection and its buffers by
+    trickling a body (up to ``body_timeout_s``). The caller it finds goes on to the route."""
+
+    def __init__(self, app: ASGIApp, services: Services) -> None:
+        self.app, self.services = app, services
+
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
+        if (
+            scope["type"] == "http"
+            and scope["method"] in WRITES
+            and scope["path"].startswith("/v1/")
+        ):
+            key = Headers(scope=scope).get("x-api-key")
+            try:
+                scope[CALLER_SCOPE] = await run_in_threadpool(
+                    identify, self.services, key, _client(scope), scope["method"]
+                )
+            except HTTPException as exc:
+                await problem(exc.status_code, str(exc.detail), exc.headers)(scope, receive, send)
+                return
+            except DBAPIError as exc:
+                await (await database_unavailable(Request(scope), exc))(scope, receive, send)
+                return
+        await self.app(scope, receive, send)
 
 
 class SameSiteWrites:
@@ -222,19 +334,7 @@ class SameSiteWrites:
                 bool(origin) and origin not in self.allowed and (origin.split("://", 1)[-1] != host)
             )
             if foreign or (fetch_site == "cross-site" and origin not in self.allowed):
-                body = json.dumps(
-                    {"detail": "cross-site requests that change state are refused"}
-                ).encode()
-                await send(
-                    {
-                        "type": "http.response.start",
-                        "status": 403,
-                        "headers": [
-                            (b"content-type", b"application/json"),
-                            (b"content-length", str(len(body)).encode()),
-                        ],
-                    }
-                )
-                await send({"type": "http.response.body", "body": body})
+                refused = problem(403, "cross-site requests that change state are refused")
+                await refused(scope, receive, send)
                 return
         await self.app(scope, receive, send)

@@ -1,5 +1,5 @@
 """Settings of the HTTP API: the farm's (job store, broker, artifacts, leases) plus request caps,
-keys, rate limits and origins, read from ``FOREST_*`` environment variables."""
+keys, rate limits, hosts and origins, read from ``FOREST_*`` environment variables."""
 
 from __future__ import annotations
 
@@ -42,6 +42,15 @@ class ServiceSettings(FarmSettings):
     """Per-key limit of state-changing requests (``limits`` notation; empty: none)."""
     rate_limit_storage: str = "memory://"
     """Where the rate-limit counters live (``redis://...`` to share them between replicas)."""
+    auth_failure_limit: str = "20/minute"
+    """Wrong keys a client address may send (``limits`` notation; empty: no limit); past it:
+    429 with ``Retry-After`` and no store lookup until the window frees. Keys the server
+    knows already (bootstrap keys, store keys it found a moment ago) still pass."""
+    allowed_hosts: str = ""
+    """Host names (comma separated; ``*.example.com`` for subdomains, ``*`` for any; any port)
+    a request's ``Host`` may name, else 400: a web page that rebinds its DNS name to this
+    server cannot reach it. Empty: ``localhost``, ``127.0.0.1`` and ``[::1]`` while the API is
+    open (no key anywhere), any host once it has keys (a key is what guards it then)."""
     allowed_origins: str = ""
     """Browser origins (comma separated) allowed to send state-changing requests; none by
     default, so no web page can submit jobs or uploads cross-site."""

@@ -36,6 +36,9 @@ def small_forest() -> Forest:
         ("../shared/tiles", "../shared/tiles/bark.<UDIM>.png"),
         (".", "./bark.<UDIM>.png"),
         ("/abs/tiles", "/abs/tiles/bark.<UDIM>.png"),
+        # URLs are for an asset resolver: kept whole, never "./http://..." (issue 26.9)
+        ("http://cdn.example/tiles", "http://cdn.example/tiles/bark.<UDIM>.png"),
+        ("s3+https://b/t/", "s3+https://b/t/bark.<UDIM>.png"),
     ],
 )
 def test_tile_asset_path_is_anchored(tiles: str, expected: str) -> None:

@@ -6,6 +6,7 @@ scene carries and where: :mod:`forest.usd.textures`."""
 from __future__ import annotations
 
 import posixpath
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -42,13 +43,22 @@ def tile_udim_st(tile_indices: NDArray[np.integer]) -> F64:
     return QUAD_ST[None] + offset[:, None]
 
 
+_URL = re.compile(r"[A-Za-z][A-Za-z0-9+.-]*://")  # RFC 3986 scheme, then an authority
+
+
 def tile_asset_path(tiles: str) -> str:
     """The UDIM asset path of the tile folder ``tiles`` (given relative to the scene):
     ``./tiles/bark.<UDIM>.png``. The ``./`` anchors it to the layer, which USD resolves
     against the layer's folder, where a bare ``tiles/...`` is a search path that Blender's
-    importer resolves against the working directory. Absolute and ``../`` paths are kept."""
+    importer resolves against the working directory. Absolute and ``../`` paths and URLs
+    (``scheme://...``, resolved by an asset resolver, not against the layer) are kept."""
     folder = tiles.rstrip("/") or "/"
-    if not (posixpath.isabs(folder) or folder in (".", "..") or folder.startswith(("./", "../"))):
+    if not (
+        posixpath.isabs(folder)
+        or folder in (".", "..")
+        or folder.startswith(("./", "../"))
+        or _URL.match(folder)
+    ):
         folder = f"./{folder}"
     return posixpath.join(folder, UDIM_PATTERN)
 

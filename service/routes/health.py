@@ -1,15 +1,17 @@
 """``/healthz`` (the process answers), ``/readyz`` (database and broker reachable),
-``/metrics`` (Prometheus text)."""
+``/metrics`` (Prometheus text: every tenant's job counts, so an admin key's, or anyone's on
+loopback while the API is open)."""
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from fastapi import APIRouter, Depends
 from fastapi.responses import JSONResponse, Response
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 from sqlalchemy import text
 
 from schemas.jobs import Health
 from service.deps import ServicesDep
+from service.security import admin_or_open
 
 router = APIRouter(tags=["health"])
 
@@ -41,7 +43,11 @@ def readyz(services: ServicesDep) -> JSONResponse:
 @router.get(
     "/metrics",
     response_class=Response,
-    responses={200: {"content": {"text/plain": {"schema": {"type": "string"}}}}},
+    responses={
+        200: {"content": {"text/plain": {"schema": {"type": "string"}}}},
+        403: {"description": "Not an admin key"},
+    },
+    dependencies=[Depends(admin_or_open)],
 )
 def metrics(services: ServicesDep) -> Response:
     data = generate_latest(services.metrics.registry)

@@ -124,7 +124,7 @@ def _call(
 
     async def run() -> list[httpx.Response]:
         transport = httpx.ASGITransport(app=app, client=(client, 1234))
-        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
             out = []
             for method, path, key in requests:
                 headers = {"X-API-Key": key} if key else {}
@@ -137,7 +137,7 @@ def _call(
 def _post(app: FastAPI, path: str, body: object, keys: list[str]) -> list[httpx.Response]:
     async def run() -> list[httpx.Response]:
         transport = httpx.ASGITransport(app=app, client=("127.0.0.1", 1234))
-        async with httpx.AsyncClient(transport=transport, base_url="http://t") as c:
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as c:
             return [await c.post(path, json=body, headers={"X-API-Key": k}) for k in keys]
 
     return asyncio.run(run())

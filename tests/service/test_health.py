@@ -21,7 +21,7 @@ def test_readyz_is_503_when_the_broker_is_unreachable(tmp_path: Path, broker: st
 
     async def probe() -> tuple[httpx.Response, httpx.Response]:
         transport = httpx.ASGITransport(app=app)
-        async with httpx.AsyncClient(transport=transport, base_url="http://t") as client:
+        async with httpx.AsyncClient(transport=transport, base_url="http://127.0.0.1") as client:
             return await client.get("/readyz"), await client.get("/healthz")
 
     ready, health = asyncio.run(probe())

@@ -122,7 +122,7 @@ def exchange(server: Server, pieces: list[bytes], gap_s: float) -> bytes:
 
 
 HEAD = (
-    b"POST /v1/forests HTTP/1.1\r\nHost: t\r\nContent-Type: application/json\r\n"
+    b"POST /v1/forests HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
     b"Content-Length: 400\r\n\r\n"
 )
 

@@ -38,7 +38,7 @@ SENTINEL = "__non_finite__"
 
 @pytest.fixture(scope="module")
 def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
-    env = SMALL_CAPS | {"FOREST_API_KEYS": "key-fuzz=fuzz"}
+    env = SMALL_CAPS | {"FOREST_API_KEYS": "key-fuzz=fuzz,key-ops=ops:admin"}
     s = Server(tmp_path_factory.mktemp("openapi"), env, workers=0).start()
     try:
         yield s
@@ -74,7 +74,7 @@ def test_openapi_contract(server: Server, tmp_path: Path) -> None:
     assert server.get("/healthz").status_code == 200
     # signed in: calls reached the routes behind the key check (a 422 or 404 comes after it),
     # not only its 401
-    text = server.get("/metrics").text
+    text = server.get("/metrics", headers={"X-API-Key": "key-ops"}).text  # every tenant's
     for route, status in (("/v1/forests", "422"), ("/v1/jobs/{job_id}", "404")):
         assert f'route="{route}",status="{status}"' in text, (route, status)
 
