@@ -85,7 +85,10 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
     document_shared_responses(app)
     app.add_middleware(
-        BodyLimitMiddleware, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s
+        BodyLimitMiddleware,
+        max_bytes=settings.max_body_bytes,
+        timeout_s=settings.body_timeout_s,
+        max_json_bytes=settings.max_json_body_bytes,
     )
     allowed = frozenset(o.strip() for o in settings.allowed_origins.split(",") if o.strip())
     app.add_middleware(SameSiteWrites, allowed=allowed)

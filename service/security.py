@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import hashlib
 import hmac
-import json
 import math
 import time
 from collections.abc import Callable
@@ -40,6 +39,7 @@ from limits.strategies import MovingWindowRateLimiter
 from starlette.types import ASGIApp, Receive, Scope, Send
 
 from farm.keys import KeyStore, check_tenant, digest
+from service.errors import PROBLEM_JSON, problem_bytes
 from service.settings import ServiceSettings
 
 OPEN_TENANT = "local"
@@ -222,15 +222,13 @@ class SameSiteWrites:
                 bool(origin) and origin not in self.allowed and (origin.split("://", 1)[-1] != host)
             )
             if foreign or (fetch_site == "cross-site" and origin not in self.allowed):
-                body = json.dumps(
-                    {"detail": "cross-site requests that change state are refused"}
-                ).encode()
+                body = problem_bytes(403, "cross-site requests that change state are refused")
                 await send(
                     {
                         "type": "http.response.start",
                         "status": 403,
                         "headers": [
-                            (b"content-type", b"application/json"),
+                            (b"content-type", PROBLEM_JSON.encode()),
                             (b"content-length", str(len(body)).encode()),
                         ],
                     }
