@@ -64,9 +64,10 @@ def _bad_text(text: str) -> str | None:
 
 
 def unfit(value: Any, path: str = "") -> tuple[str, str] | None:
-    """The path (``grammar.rules.A[0].weight``; ``""``: the body) and fault of the first value no job can hold,
-    in a JSON value: a NaN or infinite float (JSON parsers accept ``NaN``, ``Infinity`` and
-    ``1e400``), or a string (a key too) with a NUL or a lone surrogate; or None."""
+    """The path (``grammar.rules.A[0].weight``; ``""``: the body) and fault of the first value
+    in a JSON value that no job can hold: a NaN or infinite float (JSON parsers accept ``NaN``,
+    ``Infinity`` and ``1e400``), or a string (a key too) with a NUL or a lone surrogate; or
+    None."""
     if isinstance(value, float):
         return None if math.isfinite(value) else (path, NON_FINITE)
     if isinstance(value, str):

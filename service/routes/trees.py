@@ -68,7 +68,8 @@ def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Resp
 
 def attachment(name: str) -> str:
     """``Content-Disposition`` of a download named ``name`` (any Unicode, from a grammar's
-    name): RFC 6266 ``filename*`` (RFC 5987 UTF-8, percent-encoded) and an ASCII ``filename``
-    for clients that do not read it. A header is Latin-1: ``a名`` there was a 500."""
+    name): an ASCII ``filename``, and where that is not ``name`` the RFC 6266 ``filename*``
+    (RFC 5987: UTF-8, percent-encoded). A header is Latin-1: ``a名`` there was a 500."""
     fallback = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in name)
-    return f"attachment; filename=\"{fallback}\"; filename*=UTF-8''{quote(name, safe='')}"
+    header = f'attachment; filename="{fallback}"'
+    return header if fallback == name else f"{header}; filename*=UTF-8''{quote(name, safe='')}"

@@ -135,7 +135,7 @@ def spoil_numbers(op: Any, client: httpx.Client, sent: dict[str, int]) -> None:
         # the 422 body itself serialises, and names the spoiled field (not some other fault
         # of the generated body)
         field = json.dumps([k for k in path if isinstance(k, str)][-1])[1:-1]
-        said = json.dumps([[d["loc"], d["msg"]] for d in r.json()["detail"]])
+        said = json.dumps([[d["loc"], d["msg"]] for d in r.json()["errors"]])
         assert field in said, (op.path, path, token, text[:2000], said)
         sent[op.path] = sent.get(op.path, 0) + 1
 
@@ -186,4 +186,4 @@ def test_non_finite_form_numbers_are_422(server: Server) -> None:
                 timeout=30,
             )
             assert r.status_code == 422, (path, name, token, r.text)
-            assert r.json()["detail"][0]["loc"] == ["body", name], r.text
+            assert r.json()["errors"][0]["loc"] == ["body", name], r.text
