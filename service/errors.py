@@ -37,6 +37,7 @@ MAX_ERRORS = 20
 """Validation errors listed in one answer; the rest are counted (``errors_left_out``)."""
 INPUT_CAP = 256
 """About this many characters of an invalid input are echoed back; a longer one is not."""
+SEPARATORS = (",", ":")  # as Starlette's JSONResponse writes
 _PART = re.compile(r"\[(\d+)\]|\.?([^.\[\]]+)")
 
 
@@ -66,15 +67,19 @@ def problem_body(status: int, detail: str, **extra: Any) -> dict[str, Any]:
 
 def problem_bytes(status: int, detail: str, **extra: Any) -> bytes:
     """The encoded problem, for ASGI middleware that answers before the app."""
-    body = _wire(problem_body(status, detail, **extra))
-    return json.dumps(body, ensure_ascii=False, allow_nan=False).encode("utf-8")
+    return _encode(problem_body(status, detail, **extra))
+
+
+def _encode(content: Any) -> bytes:
+    text = json.dumps(_wire(content), ensure_ascii=False, allow_nan=False, separators=SEPARATORS)
+    return text.encode()
 
 
 class ProblemResponse(JSONResponse):
     media_type = PROBLEM_JSON
 
     def render(self, content: Any) -> bytes:
-        return json.dumps(_wire(content), ensure_ascii=False, allow_nan=False).encode("utf-8")
+        return _encode(content)
 
 
 def problem(
@@ -177,10 +182,10 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     raw = exc.errors()
     errors = [_clean_error(e) for e in suggest_fields(request.url.path, raw[:MAX_ERRORS])]
-    for err in errors:
+    for i, err in enumerate(errors):
         pointer = _pointer(err.get("loc", ()))
-        if pointer is not None:
-            err["pointer"] = pointer
+        head = {"loc": err.get("loc", []), **({"pointer": pointer} if pointer else {})}
+        errors[i] = head | err  # where first, then what
     first = errors[0] if errors else {"loc": ["body"], "msg": "invalid request"}
     detail = f"{_where(first.get('loc', ()))}: {first.get('msg', '')}"
     if len(raw) > 1:

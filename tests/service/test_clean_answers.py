@@ -158,7 +158,7 @@ def test_a_large_invalid_body_is_refused_before_parsing(plain: Server) -> None:
     body = problem(r, 413)
     assert len(r.content) < 1000, len(r.content)
     assert body["errors"][0]["type"] == "too_large"
-    # just under the JSON cap (256 KiB): parsed, 422, and nothing of it echoed
+    # under the JSON cap (1 MiB): parsed, 422, and nothing of it echoed
     seeds = json.dumps({"preset": "oak", "seed": [1] * 80_000}).encode()
     thread = threading.Thread(target=probe)
     thread.start()
