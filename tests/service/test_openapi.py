@@ -1,10 +1,11 @@
 """schemathesis over the published OpenAPI, signed in with an API key, on the embedded backend
 and on PostgreSQL + Redis: no 5xx (PostgreSQL refuses a NUL that SQLite takes), responses match
 their schemas (every error a problem), content types and status codes are documented (a
-bounded number of examples, fixed seed). JSON cannot carry NaN or Infinity, so schemathesis never sends them: a second
-pass takes the bodies it generates for each JSON operation and writes ``NaN``, ``Infinity``,
-``-Infinity`` or ``1e400`` (Python's JSON reads all four) into one of their numbers: each is
-422 naming that field, never 5xx; so is each number field of the multipart upload form."""
+bounded number of examples, fixed seed). JSON cannot carry NaN or Infinity, so schemathesis
+never sends them: a second pass takes the bodies it generates for each JSON operation and
+writes ``NaN``, ``Infinity``, ``-Infinity`` or ``1e400`` (Python's JSON reads all four) into
+one of their numbers: each is 422 naming that field, never 5xx; so is each number field of the
+multipart upload form."""
 
 from __future__ import annotations
 
