@@ -14,7 +14,7 @@ from typing import Annotated, Any, Literal
 from pydantic import Field, GetCoreSchemaHandler, model_validator
 from pydantic_core import core_schema
 
-from schemas.base import StrictModel
+from schemas.base import FieldValueError, StrictModel
 from schemas.grammar import Grammar
 from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
 
@@ -45,36 +45,65 @@ SceneFormat = Literal["usda", "usdc", "usdz", "glb"]
 """USD, or glTF 2.0 binary (skinned trees, wind animation, textures inside) for game engines."""
 
 Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
+JOB_ID_PATTERN = r"^[0-9A-Za-z_-]{1,64}$"
+"""What a job id can be (the store makes 32 hex digits): anything else is no such job, found
+without asking the store (PostgreSQL refuses a NUL in text: that was answered 503)."""
+JobId = Annotated[str, Field(min_length=1, max_length=64, pattern=JOB_ID_PATTERN)]
 
 
-def non_finite(value: Any, path: str = "") -> str | None:
-    """The path (``grammar.rules.A[0].weight``) of the first NaN or infinite float in a JSON
-    value, or None. JSON parsers accept ``NaN``, ``Infinity`` and ``1e400`` (inf)."""
+def _bad_text(text: str) -> str | None:
+    """Why ``text`` cannot be stored or answered: a NUL (PostgreSQL's text refuses it) or a
+    lone surrogate (JSON's ``"\\ud800"``, which no UTF-8 encoder writes); None when fine."""
+    if "\x00" in text:
+        return "must not contain NUL (U+0000)"
+    try:
+        text.encode("utf-8")
+    except UnicodeEncodeError:
+        return "must be valid Unicode (no lone surrogate code points)"
+    return None
+
+
+def unfit(value: Any, path: str = "") -> tuple[str, str] | None:
+    """The path (``grammar.rules.A[0].weight``; ``""``: the body) and fault of the first value
+    in a JSON value that no job can hold: a NaN or infinite float (JSON parsers accept ``NaN``,
+    ``Infinity`` and ``1e400``), or a string (a key too) with a NUL or a lone surrogate; or
+    None."""
     if isinstance(value, float):
-        return None if math.isfinite(value) else path or "body"
+        return None if math.isfinite(value) else (path, NON_FINITE)
+    if isinstance(value, str):
+        bad = _bad_text(value)
+        return None if bad is None else (path, bad)
     if isinstance(value, dict):
         for k, v in value.items():
-            found = non_finite(v, f"{path}.{k}" if path else str(k))
+            where = f"{path}.{k}" if path else str(k)
+            bad = _bad_text(str(k))
+            if bad is not None:
+                return path, f"a key {bad}"
+            found = unfit(v, where)
             if found is not None:
                 return found
     elif isinstance(value, list | tuple):
         for i, v in enumerate(value):
-            found = non_finite(v, f"{path}[{i}]")
+            found = unfit(v, f"{path}[{i}]")
             if found is not None:
                 return found
     return None
 
 
+NON_FINITE = "must be a finite number (not NaN or infinite)"
+
+
 class FiniteModel(StrictModel):
-    """A request: every float in it, however deep, is finite (checked before field parsing,
-    so a NaN in a field without bounds cannot reach the library)."""
+    """A request: every float in it, however deep, is finite, and every string one that a job
+    store and a UTF-8 answer can hold (checked before field parsing, so neither a NaN in a field
+    without bounds nor a NUL in a name can reach the library or the store)."""
 
     @model_validator(mode="before")
     @classmethod
     def _finite(cls, data: Any) -> Any:
-        found = non_finite(data)
+        found = unfit(data)
         if found is not None:
-            raise ValueError(f"{found}: must be a finite number (not NaN or infinite)")
+            raise FieldValueError(*found)
         return data
 
 
@@ -132,7 +161,7 @@ class ForestRequest(TreeRequest):
 class RenderRequest(FiniteModel):
     """A render job of a finished forest job's scene (the camera frames the forest itself)."""
 
-    forest_job: Annotated[str, Field(min_length=1, max_length=64)]
+    forest_job: JobId
     """Id of a completed forest job whose scene is rendered."""
     width: Annotated[int, Field(ge=1, le=8192)] = 640
     height: Annotated[int, Field(ge=1, le=8192)] = 480

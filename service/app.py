@@ -90,7 +90,10 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     # the last added runs first: the cheap refusals (host, origin, method, key) come before
     # any body is read
     app.add_middleware(
-        BodyLimitMiddleware, max_bytes=settings.max_body_bytes, timeout_s=settings.body_timeout_s
+        BodyLimitMiddleware,
+        max_bytes=settings.max_body_bytes,
+        timeout_s=settings.body_timeout_s,
+        max_json_bytes=settings.max_json_body_bytes,
     )
     app.add_middleware(KeyFirst, services=services)
     app.add_middleware(AllowedMethods, routes=app.router.routes)

@@ -16,7 +16,6 @@ several processes, the timeouts from ``FOREST_*``). Several processes share one 
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import shutil
 import tempfile
@@ -25,15 +24,15 @@ from typing import Any
 
 from uvicorn.protocols.http.h11_impl import H11Protocol
 
-TIMEOUT_BODY = json.dumps(
-    {
-        "detail": [
-            {"loc": ["header"], "msg": "request headers not received in time", "type": "timeout"}
-        ]
-    }
-).encode()
+from service.errors import problem_bytes
+
+TIMEOUT_BODY = problem_bytes(
+    408,
+    "request headers not received in time",
+    errors=[{"loc": ["header"], "msg": "request headers not received in time", "type": "timeout"}],
+)
 TIMEOUT_RESPONSE = (
-    b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/json\r\n"
+    b"HTTP/1.1 408 Request Timeout\r\ncontent-type: application/problem+json\r\n"
     b"content-length: %d\r\nconnection: close\r\n\r\n%s" % (len(TIMEOUT_BODY), TIMEOUT_BODY)
 )
 

@@ -10,6 +10,10 @@ from farm.settings import FarmSettings
 
 class ServiceSettings(FarmSettings):
     max_body_bytes: int = Field(4 << 20, gt=0)
+    """The largest request body: an upload (a multipart form)."""
+    max_json_body_bytes: int = Field(1 << 20, gt=0)
+    """The largest body that is not a form (a JSON request, parsed and validated whole): 413
+    before it is parsed. A grammar is about 10 KB."""
     body_timeout_s: float = Field(60.0, gt=0)
     """A request body must arrive within this long of its first read (a client trickling an
     upload ties up a connection and its buffers): else 408 and the connection is closed."""

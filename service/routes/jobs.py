@@ -2,15 +2,16 @@
 
 from __future__ import annotations
 
+import re
 from typing import Annotated
 
-from fastapi import APIRouter, HTTPException, Query
+from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from fastapi.responses import FileResponse
 
 from farm import tiles
 from farm.reaper import delete_artifacts
 from farm.store import FINISHED
-from schemas.jobs import Job, JobKind, JobPage, JobState
+from schemas.jobs import JOB_ID_PATTERN, Job, JobKind, JobPage, JobState
 from service.deps import ServicesDep
 from service.security import CallerDep
 from service.views import ERRORS, job_model
@@ -27,6 +28,19 @@ ARTIFACT_TYPES = {
     ".webm": "video/webm",
     ".gif": "image/gif",
 }
+
+_JOB_ID = re.compile(JOB_ID_PATTERN)
+
+
+def job_id(job_id: Annotated[str, Path(description="A job's `id`")]) -> str:
+    """The path's job id; one no job can have (a NUL, a control character, too long) is 404
+    here, before the store is asked (PostgreSQL refuses a NUL: that was answered 503)."""
+    if not _JOB_ID.fullmatch(job_id):
+        raise HTTPException(404, "no such job")
+    return job_id
+
+
+JobIdDep = Annotated[str, Depends(job_id)]
 
 
 @router.get("", response_model=JobPage)
@@ -45,7 +59,7 @@ def list_jobs(
 
 
 @router.get("/{job_id}", response_model=Job, responses=ERRORS)
-def get_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
+def get_job(services: ServicesDep, caller: CallerDep, job_id: JobIdDep) -> Job:
     row = services.store.get(job_id, caller.scope)
     if row is None:
         raise HTTPException(404, "no such job")
@@ -53,7 +67,7 @@ def get_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
 
 
 @router.delete("/{job_id}", response_model=Job, responses=ERRORS)
-def cancel_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
+def cancel_job(services: ServicesDep, caller: CallerDep, job_id: JobIdDep) -> Job:
     """Cancel: a queued job is canceled at once; a running one's process is killed at the
     worker's next heartbeat (within seconds)."""
     row = tiles.cancel(services.store, job_id, caller.scope)
@@ -63,7 +77,7 @@ def cancel_job(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
 
 
 @router.delete("/{job_id}/artifacts", response_model=Job, responses=ERRORS)
-def delete_job_artifacts(job_id: str, services: ServicesDep, caller: CallerDep) -> Job:
+def delete_job_artifacts(services: ServicesDep, caller: CallerDep, job_id: JobIdDep) -> Job:
     """Delete a finished job's artifacts (its files; the job stays and says when). A queued or
     running job's are refused (409): cancel it first. Deleting again changes nothing."""
     row = services.store.get(job_id, caller.scope)
@@ -91,7 +105,9 @@ def delete_job_artifacts(job_id: str, services: ServicesDep, caller: CallerDep) 
         **ERRORS,
     },
 )
-def get_artifact(job_id: str, name: str, services: ServicesDep, caller: CallerDep) -> FileResponse:
+def get_artifact(
+    services: ServicesDep, caller: CallerDep, job_id: JobIdDep, name: str
+) -> FileResponse:
     row = services.store.get(job_id, caller.scope)
     if row is None or name not in (row.artifacts or []):
         raise HTTPException(404, "no such artifact")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 from typing import Any, get_args
+from urllib.parse import quote
 
 from fastapi import APIRouter
 from fastapi.responses import Response
@@ -58,9 +59,17 @@ def create_tree(req: TreeRequest, services: ServicesDep, tenant: Tenant) -> Resp
         except ForestError as exc:
             raise forest_error(exc) from None
         data = path.read_bytes()
-    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
     return Response(
         data,
         media_type=MEDIA_TYPES[req.format],
-        headers={"Content-Disposition": f'attachment; filename="{safe}"'},
+        headers={"Content-Disposition": attachment(name)},
     )
+
+
+def attachment(name: str) -> str:
+    """``Content-Disposition`` of a download named ``name`` (any Unicode, from a grammar's
+    name): an ASCII ``filename``, and where that is not ``name`` the RFC 6266 ``filename*``
+    (RFC 5987: UTF-8, percent-encoded). A header is Latin-1: ``a名`` there was a 500."""
+    fallback = "".join(c if c.isascii() and (c.isalnum() or c in "-_.") else "_" for c in name)
+    header = f'attachment; filename="{fallback}"'
+    return header if fallback == name else f"{header}; filename*=UTF-8''{quote(name, safe='')}"

@@ -31,7 +31,7 @@ def post(settings: ServiceSettings, path: str, body: dict[str, Any]) -> httpx.Re
 
 def refused(r: httpx.Response, loc: list[str], cap: str) -> str:
     assert r.status_code == 422, r.text
-    detail = r.json()["detail"][0]
+    detail = r.json()["errors"][0]
     assert detail["loc"] == ["body", *loc], detail
     assert f"({cap})" in detail["msg"], detail
     return str(detail["msg"])

@@ -140,8 +140,8 @@ def test_list_filters_and_pages(server: Server) -> None:
 
 
 def loc(r: object) -> list[object]:
-    detail = r.json()["detail"]  # type: ignore[attr-defined]
-    return list(detail[0]["loc"])
+    errors = r.json()["errors"]  # type: ignore[attr-defined]
+    return list(errors[0]["loc"])
 
 
 GRAMMAR_OF_ONE = {"axiom": "A", "rules": {"A": [{"piece": "I", "successors": [None]}]}}
@@ -152,8 +152,8 @@ def test_client_errors_name_the_field(server: Server) -> None:
     assert (r.status_code, loc(r)) == (422, ["body", "preset"])
     for body in ({}, {"preset": "almond", "grammar": GRAMMAR_OF_ONE}):
         r = server.post("/v1/trees", body)
-        assert (r.status_code, r.json()["detail"]) == (422, [{
-            "loc": ["body", "preset"], "type": "value_error",
+        assert (r.status_code, r.json()["errors"]) == (422, [{
+            "loc": ["body", "preset"], "pointer": "#/preset", "type": "value_error",
             "msg": "give exactly one of preset (a name) or grammar (an object)",
         }]), r.text  # fmt: skip
     bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/hazel.json").read_text())

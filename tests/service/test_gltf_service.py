@@ -52,10 +52,10 @@ def test_forest_job_as_glb_and_no_render_of_it(server: Server, tmp_path: Path) -
     assert scene.content == reference(tmp_path, ForestRequest.model_validate(body))
     r = server.post("/v1/renders", {"forest_job": job["id"], "width": 32, "height": 32})
     assert r.status_code == 422, r.text
-    assert r.json()["detail"][0]["loc"][-1] == "forest_job"
+    assert r.json()["errors"][0]["loc"][-1] == "forest_job"
 
 
 def test_unknown_format_names_the_field(server: Server) -> None:
     r = server.post("/v1/trees", {"preset": "almond", "format": "gltf"})
     assert r.status_code == 422
-    assert r.json()["detail"][0]["loc"] == ["body", "format"]
+    assert r.json()["errors"][0]["loc"] == ["body", "format"]

@@ -130,7 +130,7 @@ def test_texture_climbing_out_of_a_package_fails_once(server: Server, tmp_path: 
 
 def test_non_usd_upload_is_422(server: Server) -> None:
     r = upload(server, "x.usdc", b"\x7fELF not a scene")
-    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "scene"]
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "scene"]
 
 
 def forest_scene(server: Server) -> str:
@@ -182,7 +182,7 @@ def test_tenants_are_apart(server: Server) -> None:
     assert job_id not in listed
     assert job_id in {j["id"] for j in server.get("/v1/jobs", headers=B).json()["items"]}
     r = server.post("/v1/renders", {"forest_job": job["id"]})  # alpha cannot render beta's
-    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "forest_job"]
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "forest_job"]
 
 
 def test_rate_limit_429(server: Server) -> None:

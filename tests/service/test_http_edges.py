@@ -84,7 +84,7 @@ def test_chunked_body_over_the_cap_is_413(server: Server) -> None:
             timeout=30,
         )
         assert r.status_code == 413, (path, r.text)
-        assert r.json()["detail"][0] == {
+        assert r.json()["errors"][0] == {
             "loc": ["body"],
             "msg": f"body over {MAX_BODY} bytes",
             "type": "too_large",

@@ -1,15 +1,18 @@
-"""schemathesis over the published OpenAPI, signed in with an API key: no 5xx, responses match
-their schemas, content types and status codes are documented (a bounded number of examples,
-fixed seed). JSON cannot carry NaN or Infinity, so schemathesis never sends them: a second
-pass takes the bodies it generates for each JSON operation and writes ``NaN``, ``Infinity``,
-``-Infinity`` or ``1e400`` (Python's JSON reads all four) into one of their numbers: each is
-422 naming that field, never 5xx; so is each number field of the multipart upload form."""
+"""schemathesis over the published OpenAPI, signed in with an API key, on the embedded backend
+and on PostgreSQL + Redis: no 5xx (PostgreSQL refuses a NUL that SQLite takes), responses match
+their schemas (every error a problem), content types and status codes are documented (a
+bounded number of examples, fixed seed). JSON cannot carry NaN or Infinity, so schemathesis
+never sends them: a second pass takes the bodies it generates for each JSON operation and
+writes ``NaN``, ``Infinity``, ``-Infinity`` or ``1e400`` (Python's JSON reads all four) into
+one of their numbers: each is 422 naming that field, never 5xx; so is each number field of the
+multipart upload form."""
 
 from __future__ import annotations
 
 import json
 import subprocess
 import sys
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,7 +22,15 @@ import pytest
 import schemathesis
 from hypothesis import HealthCheck, Phase, given, settings
 from hypothesis import strategies as st
-from service_harness import Server
+from service_harness import (
+    PG,
+    REDIS,
+    REDIS_URL,
+    Server,
+    delete_redis_keys,
+    pg_database,
+    require_server,
+)
 
 pytestmark = pytest.mark.slow  # schemathesis against a running server
 
@@ -46,7 +57,37 @@ def server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
         s.stop()
 
 
+@pytest.fixture(scope="module")
+def pg_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
+    """The same server on PostgreSQL + Redis (a database and keys of its own)."""
+    require_server("PostgreSQL", PG)
+    require_server("Redis", REDIS)
+    tag = uuid.uuid4().hex[:12]
+    prefix = f"forest-test-{tag}."
+    with pg_database(tag) as db_url:
+        env = SMALL_CAPS | {
+            "FOREST_API_KEYS": "key-fuzz=fuzz",
+            "FOREST_DATABASE_URL": db_url,
+            "FOREST_BROKER_URL": REDIS_URL,
+            "FOREST_QUEUE_PREFIX": prefix,
+        }
+        s = Server(tmp_path_factory.mktemp("openapi-pg"), env, workers=0).start()
+        try:
+            yield s
+        finally:
+            s.stop()
+            delete_redis_keys(prefix)
+
+
 def test_openapi_contract(server: Server, tmp_path: Path) -> None:
+    contract(server, tmp_path)
+
+
+def test_openapi_contract_on_postgresql(pg_server: Server, tmp_path: Path) -> None:
+    contract(pg_server, tmp_path)
+
+
+def contract(server: Server, tmp_path: Path) -> None:
     st_bin = Path(sys.executable).with_name("schemathesis")
     proc = subprocess.run(
         [
@@ -135,7 +176,7 @@ def spoil_numbers(op: Any, client: httpx.Client, sent: dict[str, int]) -> None:
         # the 422 body itself serialises, and names the spoiled field (not some other fault
         # of the generated body)
         field = json.dumps([k for k in path if isinstance(k, str)][-1])[1:-1]
-        said = json.dumps([[d["loc"], d["msg"]] for d in r.json()["detail"]])
+        said = json.dumps([[d["loc"], d["msg"]] for d in r.json()["errors"]])
         assert field in said, (op.path, path, token, text[:2000], said)
         sent[op.path] = sent.get(op.path, 0) + 1
 
@@ -186,4 +227,4 @@ def test_non_finite_form_numbers_are_422(server: Server) -> None:
                 timeout=30,
             )
             assert r.status_code == 422, (path, name, token, r.text)
-            assert r.json()["detail"][0]["loc"] == ["body", name], r.text
+            assert r.json()["errors"][0]["loc"] == ["body", name], r.text

@@ -129,7 +129,7 @@ def test_delete_artifacts_on_request(server: Server) -> None:
     assert server.get(f"/v1/jobs/{job_id}").json() == job
     # a render of it is refused: its scene is gone
     r = server.post("/v1/renders", {"forest_job": job_id})
-    assert r.status_code == 422 and r.json()["detail"][0]["loc"] == ["body", "forest_job"]
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"] == ["body", "forest_job"]
 
 
 def test_delete_artifacts_of_a_running_job_is_409(tmp_path: Path) -> None:

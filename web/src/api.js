@@ -12,14 +12,16 @@ export function setApiKey(key) {
 }
 
 export class ApiError extends Error {
-  constructor(status, detail) {
+  constructor(status, detail, errors) {
     super(typeof detail === "string" ? detail : `HTTP ${status}`);
     this.status = status;
     this.detail = detail;
+    this.errors = errors;
   }
 }
 
-/** fetch(path) with the key; rejects with ApiError (status, the body's `detail`) on non-2xx. */
+/** fetch(path) with the key; rejects with ApiError on non-2xx: the status and the problem
+ * body's (RFC 9457) `detail`, and a 422's `errors` (each field's `loc` and `msg`). */
 export async function api(path, { method = "GET", body, as = "json" } = {}) {
   const headers = {};
   const key = apiKey();
@@ -32,12 +34,15 @@ export async function api(path, { method = "GET", body, as = "json" } = {}) {
   });
   if (!res.ok) {
     let detail = `HTTP ${res.status}`;
+    let errors;
     try {
-      detail = (await res.json()).detail ?? detail;
+      const problem = await res.json();
+      detail = problem.detail ?? detail;
+      errors = problem.errors;
     } catch {
       // not JSON: keep the status line
     }
-    throw new ApiError(res.status, detail);
+    throw new ApiError(res.status, detail, errors);
   }
   if (as === "json") return res.json();
   if (as === "blob") return res.blob();

@@ -171,13 +171,13 @@ function clearErrors() {
 
 /** The server's answer to a bad request, each message on the field its `loc` names. */
 function showServerErrors(err) {
-  if (!(err instanceof ApiError) || !Array.isArray(err.detail)) {
+  if (!(err instanceof ApiError) || !Array.isArray(err.errors)) {
     $("#err-general").textContent = err.message;
     keyOutcome(err);
     return;
   }
   const byField = {};
-  for (const d of err.detail) {
+  for (const d of err.errors) {
     const loc = d.loc || [];
     const field = FIELDS.includes(loc[1]) ? loc[1] : "general";
     const path = locPath(loc);
