@@ -15,15 +15,17 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Engine, func, select, update
+from sqlalchemy import Engine, delete, func, select, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
 from farm.db import JobRow, engine_for, utcnow
+from farm.error_text import capped
 from schemas.jobs import JobState
 
 FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
 UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
+IN_BATCH = 500  # ids per IN list: far below every driver's bound-parameter limit
 
 
 class IdempotencyConflict(Exception):
@@ -168,21 +170,25 @@ class JobStore:
         :func:`farm.tiles.cancel`."""
         now = utcnow()
         with self.session() as s, s.begin():
-            s.execute(
-                update(JobRow)
-                .where(JobRow.id.in_(ids), JobRow.state == JobState.QUEUED)
-                .values(
-                    state=JobState.CANCELED,
-                    cancel_requested=True,
-                    finished_at=now,
-                    stage=JobState.CANCELED,
+            # in batches: a tiled forest's tens of thousands of tiles in one IN list pass
+            # PostgreSQL's 65,535 bound parameters (and SQLite's 32,766), and the cancel failed
+            for i in range(0, len(ids), IN_BATCH):
+                batch = ids[i : i + IN_BATCH]
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id.in_(batch), JobRow.state == JobState.QUEUED)
+                    .values(
+                        state=JobState.CANCELED,
+                        cancel_requested=True,
+                        finished_at=now,
+                        stage=JobState.CANCELED,
+                    )
                 )
-            )
-            s.execute(
-                update(JobRow)
-                .where(JobRow.id.in_(ids), JobRow.state == JobState.ACTIVE)
-                .values(cancel_requested=True)
-            )
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id.in_(batch), JobRow.state == JobState.ACTIVE)
+                    .values(cancel_requested=True)
+                )
 
     def abandon(self, job_id: str, error: str) -> JobRow | None:
         """A job that never reached the broker is failed with ``error`` and its idempotency
@@ -196,13 +202,26 @@ class JobStore:
                 .values(
                     state=JobState.FAILED,
                     stage=JobState.FAILED,
-                    error=error,
+                    error=capped(error),
                     finished_at=utcnow(),
                     idempotency_key=None,
                 )
                 .execution_options(synchronize_session=False)
             )
         return self.get(job_id) if res.rowcount == 1 else None  # type: ignore[attr-defined]
+
+    def discard(self, job_id: str) -> bool:
+        """Delete a job that was never sent (queued, no attempt): its input could not be
+        stored, so there is no job to tell of, and its idempotency key is free again. False
+        if it is not such a job."""
+        with self.session() as s, s.begin():
+            res = s.execute(
+                delete(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == JobState.QUEUED, JobRow.attempts == 0)
+                .execution_options(synchronize_session=False)
+            )
+        deleted: int = res.rowcount  # type: ignore[attr-defined]
+        return deleted == 1
 
     def artifacts_deleted(self, job_id: str) -> JobRow | None:
         """Record that a finished job's artifacts were deleted (its folder is gone): it lists
@@ -405,7 +424,10 @@ class JobStore:
             return self._update_held(s, claim, values)
 
     def _update_held(self, s: Session, claim: Claim, values: dict[str, Any]) -> bool:
-        """Update the job only while ``claim`` still holds its lease; whether it did."""
+        """Update the job only while ``claim`` still holds its lease; whether it did. An
+        error is stored capped (:mod:`farm.error_text`)."""
+        if "error" in values:
+            values = values | {"error": capped(values["error"])}
         res = s.execute(
             update(JobRow)
             .where(*self._held(claim))
@@ -432,11 +454,11 @@ class JobStore:
         ids = list(job_ids)
         found: set[str] = set()
         with self.session() as s:
-            for i in range(0, len(ids), 500):  # bounded IN lists
+            for i in range(0, len(ids), IN_BATCH):  # bounded IN lists
                 found.update(
                     s.scalars(
                         select(JobRow.id).where(
-                            JobRow.id.in_(ids[i : i + 500]),
+                            JobRow.id.in_(ids[i : i + IN_BATCH]),
                             JobRow.state.in_(UNFINISHED),
                         )
                     )

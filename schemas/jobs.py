@@ -281,3 +281,5 @@ class PresetList(StrictModel):
 class Health(StrictModel):
     status: Literal["ok", "unavailable"]
     checks: dict[str, str] = {}
+    data_free_bytes: int | None = None
+    """Free bytes on the data volume (the artifacts folder's file system); ``/readyz`` only."""

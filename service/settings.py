@@ -33,6 +33,9 @@ class ServiceSettings(FarmSettings):
     max_frames: int = Field(480, gt=0)
     max_image_size: int = Field(4096, gt=0)
     max_render_frames: int = Field(240, gt=0)
+    min_free_mb: int = Field(64, ge=0)
+    """``/readyz`` answers 503 while the data volume (the artifacts folder's file system) has
+    less than this free (MiB; 0: never): a full volume fails every job that writes."""
 
     api_keys: str = ""
     """Bootstrap keys besides the job store's (``forest keys create``): ``key=tenant`` or

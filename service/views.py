@@ -12,7 +12,9 @@ from fastapi.responses import JSONResponse
 from kombu.exceptions import OperationalError as KombuOperationalError
 from sqlalchemy.exc import DBAPIError
 
+from farm import volume
 from farm.db import JobRow
+from farm.error_text import capped
 from farm.store import IdempotencyConflict
 from schemas.jobs import Artifact, Job
 from service.deps import Services
@@ -26,6 +28,9 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"description": "No such job or artifact"},
     409: {"description": "Idempotency-Key reused with a different request"},
     413: {"description": "Request body too large"},
+}
+UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = ERRORS | {
+    507: {"description": "The data volume is full: the upload was not stored, no job made"},
 }
 
 
@@ -53,7 +58,7 @@ def job_model(row: JobRow, services: Services) -> Job:
         max_attempts=row.max_attempts,
         cancel_requested=row.cancel_requested,
         worker=row.lease_owner,
-        error=row.error,
+        error=capped(row.error),  # rows stored before errors were capped
         params=row.params,
         created_at=row.created_at.replace(tzinfo=UTC),
         started_at=_utc(row.started_at),
@@ -63,6 +68,16 @@ def job_model(row: JobRow, services: Services) -> Job:
         artifacts_deleted_at=_utc(row.artifacts_deleted_at),
         result=row.result,
     )
+
+
+def _store_inputs(services: Services, job_id: str, inputs: dict[str, bytes]) -> None:
+    for name, data in inputs.items():
+        scratch = services.artifacts.scratch(job_id)
+        try:
+            (scratch / name).write_bytes(data)
+            services.artifacts.publish(job_id, scratch / name, name)
+        finally:
+            shutil.rmtree(scratch, ignore_errors=True)
 
 
 def submit(
@@ -81,14 +96,16 @@ def submit(
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
-    if created:
-        for name, data in (inputs or {}).items():
-            scratch = services.artifacts.scratch(row.id)
-            try:
-                (scratch / name).write_bytes(data)
-                services.artifacts.publish(row.id, scratch / name, name)
-            finally:
-                shutil.rmtree(scratch, ignore_errors=True)
+    if created and inputs:
+        try:
+            _store_inputs(services, row.id, inputs)
+        except Exception as exc:
+            # no job without its input: it would only fail (or be sent by the reaper to fail)
+            services.store.discard(row.id)
+            services.artifacts.remove(row.id)
+            if volume.is_full(exc):
+                raise HTTPException(507, volume.FULL) from None
+            raise
         try:
             services.dispatcher.send(row.id, kind)
         except (KombuOperationalError, OSError, DBAPIError) as exc:

@@ -14,7 +14,7 @@ from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.security import CallerDep, Tenant
 from service.settings import ServiceSettings
-from service.views import ERRORS, submit
+from service.views import ERRORS, UPLOAD_ERRORS, submit
 
 router = APIRouter(prefix="/v1/renders", tags=["renders"])
 
@@ -57,7 +57,7 @@ def create_render(
 USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
 
 
-@router.post("/upload", status_code=202, response_model=Job, responses=ERRORS)
+@router.post("/upload", status_code=202, response_model=Job, responses=UPLOAD_ERRORS)
 def upload_render(
     services: ServicesDep,
     tenant: Tenant,

@@ -182,4 +182,5 @@ def test_client_errors_name_the_field(server: Server) -> None:
     assert (r.status_code, loc(r)) == (422, ["body", "frames"])
     assert server.get("/healthz").json() == {"status": "ok", "checks": {}}
     ready = server.get("/readyz").json()
-    assert ready["checks"] == {"database": "ok", "broker": "ok"}
+    assert ready["checks"] == {"database": "ok", "broker": "ok", "data_volume": "ok"}
+    assert ready["data_free_bytes"] > 0

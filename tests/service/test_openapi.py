@@ -66,7 +66,7 @@ def pg_server(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     prefix = f"forest-test-{tag}."
     with pg_database(tag) as db_url:
         env = SMALL_CAPS | {
-            "FOREST_API_KEYS": "key-fuzz=fuzz",
+            "FOREST_API_KEYS": "key-fuzz=fuzz,key-ops=ops:admin",
             "FOREST_DATABASE_URL": db_url,
             "FOREST_BROKER_URL": REDIS_URL,
             "FOREST_QUEUE_PREFIX": prefix,

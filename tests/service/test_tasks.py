@@ -7,6 +7,7 @@ recorder. (Kinds are module functions: the child imports them by name.)"""
 
 from __future__ import annotations
 
+import errno
 import os
 import threading
 import time
@@ -119,6 +120,51 @@ def test_completes_once_and_publishes(store: JobStore, tmp_path: Path) -> None:
     assert not list((tmp_path / "artifacts").glob(".*"))  # no scratch left behind
     job = store.get(row.id)
     assert job is not None and job.artifacts == ["scene.usda"] and job.result == {"ok": True}
+
+
+def no_room(ctx: JobContext) -> Outcome:
+    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(ctx.scratch / "scene.usdc"))
+
+
+def no_room_in_pxr(ctx: JobContext) -> Outcome:
+    line = "\n\tError in 'Write' at line 78: 'Error occurred writing file: No space left on device'"
+    raise RuntimeError(line * 5000)  # as pxr's Tf.ErrorException reads
+
+
+def write_two(ctx: JobContext) -> Outcome:
+    files = {name: ctx.scratch / name for name in ("a.usda", "b.usda")}
+    for path in files.values():
+        path.write_text("#usda 1.0\n")
+    return Outcome(files, {})
+
+
+@pytest.mark.parametrize("kind", [no_room, no_room_in_pxr])
+def test_no_room_fails_at_once(store: JobStore, kind: object) -> None:
+    row, _ = store.create("forest", {}, max_attempts=2)
+    assert execute(row.id, {"forest": kind}) == "failed"  # type: ignore[dict-item]
+    job = store.get(row.id)
+    assert job is not None and (job.error, job.attempts) == ("data volume full", 1)
+
+
+def test_no_room_to_publish_leaves_no_file(
+    store: JobStore, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    artifacts = tasks.runtime().artifacts
+    publish = artifacts.publish
+
+    def publish_a_only(job_id: str, src: Path, name: str) -> Path:
+        if name == "b.usda":
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return publish(job_id, src, name)
+
+    monkeypatch.setattr(artifacts, "publish", publish_a_only)
+    row, _ = store.create("forest", {}, max_attempts=2)
+    assert execute(row.id, {"forest": write_two}) == "failed"
+    job = store.get(row.id)
+    assert job is not None and (job.error, job.attempts) == ("data volume full", 1)
+    root = tmp_path / "artifacts"
+    assert not list(root.glob(f"{row.id}/*")), "no half set of artifacts"
+    assert not list(root.glob(".*")), "no scratch left behind"
 
 
 def test_reader_crash_is_a_permanent_failure(store: JobStore) -> None:

@@ -7,7 +7,8 @@ child's GIL, not the parent's), kills the child when cancel is asked or the leas
 reads how the child ended:
 
 - a message ``ok`` (artifact files in the scratch folder + result), ``bad`` (the input cannot
-  work: a permanent failure) or ``error`` (anything else: retried);
+  work, or the data volume is full: a permanent failure) or ``error`` (anything else:
+  retried);
 - no message and a signal: a crash (SIGSEGV in the USD reader on a crafted file), a CPU limit
   (SIGXCPU) or the kernel's OOM killer: permanent failures of the job, not a lost worker.
 
@@ -120,8 +121,6 @@ def _child_main(
     conn: Connection,
 ) -> None:
     """Runs in the child: limits, then ``target(report, *args)``; one message to the parent."""
-    from forest.errors import ForestError
-
     _die_with_parent()
     _set_limits(limits)
 
@@ -132,15 +131,25 @@ def _child_main(
     try:
         files, result = target(report, *args)
         msg: tuple[Any, ...] = ("ok", files, result)
-    except ForestError as exc:  # bad input: retrying cannot help
-        msg = ("bad", scrub_paths(str(exc)))
-    except MemoryError:
-        mib = (limits.memory_bytes or 0) >> 20
-        msg = ("bad", f"the job ran out of memory (its limit is {mib} MiB)")
     except Exception as exc:
-        msg = ("error", scrub_paths(f"{type(exc).__name__}: {exc}"))
+        msg = failure(exc, limits)
     conn.send(msg)
     conn.close()
+
+
+def failure(exc: Exception, limits: Limits) -> tuple[str, str]:
+    """The child's message of a failed attempt: ``bad`` (permanent) or ``error`` (retried)."""
+    if isinstance(exc, MemoryError):  # first: importing takes memory
+        mib = (limits.memory_bytes or 0) >> 20
+        return ("bad", f"the job ran out of memory (its limit is {mib} MiB)")
+    from farm import volume
+    from forest.errors import ForestError
+
+    if volume.is_full(exc):  # before ForestError: a failed write is an OutputError too
+        return ("bad", volume.FULL)  # a retry finds no more room
+    if isinstance(exc, ForestError):  # bad input: retrying cannot help
+        return ("bad", scrub_paths(str(exc)))
+    return ("error", scrub_paths(f"{type(exc).__name__}: {exc}"))
 
 
 def crash_message(exitcode: int, stage: str, limits: Limits) -> str:

@@ -7,7 +7,8 @@ records its progress, and reads the cancel flag), kills the child on cancel, and
 or a resource limit of the child (a permanent failure of that job) from a lost worker (the
 reaper re-enqueues the job after the lease and another worker runs it from the start). Outputs
 are written into a scratch folder and renamed into the artifact store, so a half-written file
-never shows. A tiled forest job runs no kind: it joins its tiles (:mod:`farm.tiles`).
+never shows. A tiled forest job runs no kind: it joins its tiles (:mod:`farm.tiles`). A write
+that finds the data volume full fails the job at once (:mod:`farm.volume`): no retry.
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from farm import tiles
+from farm import tiles, volume
 from farm.artifacts import ArtifactStore
 from farm.dispatch import TASK_NAME, Dispatcher, make_celery
 from farm.settings import FarmSettings, get_settings
@@ -104,13 +105,20 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
             return tiles.join(rt.store, rt.dispatcher, rt.artifacts, claim)
         except Exception as exc:  # the store or broker is away: back to the queue, retried
             log.exception("tiled forest job %s", job_id)
+            if volume.is_full(exc):
+                return fail_full(rt, claim)
             return retry_or_fail(rt, claim, scrub_paths(f"{type(exc).__name__}: {exc}"))
     kind = (kinds or KINDS).get(claim.kind)
     if kind is None:
         error = f"kind: no worker code for job kind {claim.kind!r}"
         rt.store.finish(claim, JobState.FAILED, error=error)
         return JobState.FAILED
-    scratch = rt.artifacts.scratch(job_id)
+    try:
+        scratch = rt.artifacts.scratch(job_id)
+    except OSError as exc:
+        if volume.is_full(exc):
+            return fail_full(rt, claim)
+        raise
 
     def heartbeat(progress: float, stage: str) -> bool | None:
         try:
@@ -139,8 +147,14 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
             if not all(under(scratch, p) for p in files.values()):
                 raise RuntimeError("a job's file lies outside its scratch folder")
             owner = tiles.artifact_owner(claim)
-            for name, path in files.items():
-                rt.artifacts.publish(owner, path, name)
+            published: list[Path] = []
+            try:
+                for name, path in files.items():
+                    published.append(rt.artifacts.publish(owner, path, name))
+            except Exception:  # none of an attempt's files without all of them
+                for done_path in published:
+                    done_path.unlink(missing_ok=True)
+                raise
             done = rt.store.finish(
                 claim, JobState.COMPLETED, artifacts=sorted(files), result=end.result
             )
@@ -157,11 +171,21 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
         error = end.message
     except Exception as exc:  # the worker's own side (publish, store): retried
         log.exception("job %s attempt %d", job_id, claim.attempt)
+        if volume.is_full(exc):
+            return fail_full(rt, claim)
         error = scrub_paths(f"{type(exc).__name__}: {exc}")
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     log.error("job %s attempt %d: %s", job_id, claim.attempt, error)
     return retry_or_fail(rt, claim, error)
+
+
+def fail_full(rt: Runtime, claim: Claim) -> str:
+    """The data volume had no room for the job's files: failed now (a retry finds none
+    either, and each would fill it again)."""
+    log.error("job %s attempt %d: %s", claim.job_id, claim.attempt, volume.FULL)
+    rt.store.finish(claim, JobState.FAILED, error=volume.FULL)
+    return JobState.FAILED
 
 
 def retry_or_fail(rt: Runtime, claim: Claim, error: str) -> str:
