@@ -156,9 +156,15 @@ def join(
     done = summary.get(JobState.COMPLETED, (0, 0.0))[0]
     if done < n:
         progress = done + sum(p for st, (_, p) in summary.items() if st != JobState.COMPLETED)
-        store.park(claim, 0.95 * progress / n, f"tiles {done}/{n}")
-        dispatcher.send(job_id, claim.kind, countdown=TILE_POLL_S)
-        return "waiting"
+        if store.park(claim, 0.95 * progress / n, f"tiles {done}/{n}"):
+            dispatcher.send(job_id, claim.kind, countdown=TILE_POLL_S)
+            return "waiting"
+        if store.heartbeat(claim, settings.lease_s) is None:
+            return "lost"
+        # canceled while it looked: end it here (a parked job asked to cancel is never claimed)
+        store.cancel_family(job_id, children_only=True)
+        store.finish(claim, JobState.CANCELED, error="canceled on request")
+        return JobState.CANCELED
     # the root layer lists the tiles in grid order (rows of z, then x), whatever order ran
     states = sorted(store.child_results(job_id), key=lambda pr: tuple(pr[0]["tile"])[::-1])
     req = ForestRequest.model_validate(params)
