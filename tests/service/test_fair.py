@@ -226,3 +226,21 @@ def test_window_takes_turns_and_priority(
     assert pump(store, dispatcher, settings) == 1
     assert (len(sent(store, low)), len(sent(store, high))) == (0, 4)
     assert pump(store, dispatcher, settings) == 0  # alice at her 4
+
+
+def test_set_up_heartbeats_and_stops_on_cancel(
+    farm: tuple[JobStore, Dispatcher, FarmSettings],
+) -> None:
+    store, _, _ = farm
+    params = {"preset": "almond", "trees": 4, "area": [100.0, 100.0], "tile_size": 1.0}
+    row, _ = store.create("forest", params, 3)
+    claim = store.claim(row.id, "w", 60)
+    assert claim is not None
+    before = store.get(row.id)
+    assert before is not None and before.heartbeat_at is not None
+    store.cancel_family(row.id)  # asked while it writes its 10,000 rows
+    assert tiles.set_up(store, claim, 60) == JobState.CANCELED
+    after = store.get(row.id)
+    assert after is not None and after.state == JobState.CANCELED
+    assert after.heartbeat_at is not None and after.heartbeat_at > before.heartbeat_at
+    assert store.count_children(row.id) == 0  # the batch written before it looked: deleted
