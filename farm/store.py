@@ -328,7 +328,9 @@ class JobStore:
         ]  # fmt: skip
         if rows:
             with self.session() as s, s.begin():
-                s.execute(insert(JobRow.__table__), rows)  # Core: no ORM bookkeeping per row
+                s.execute(
+                    insert(JobRow.metadata.tables["jobs"]), rows
+                )  # Core: no ORM bookkeeping per row
 
     def child_summary(self, parent: str) -> dict[str, tuple[int, float]]:
         """State -> (how many, summed progress) of the jobs ``parent`` made (one query)."""
