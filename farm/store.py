@@ -304,6 +304,17 @@ class JobStore:
         with self.session() as s:
             return int(s.scalar(select(func.count()).where(JobRow.parent == parent)) or 0)
 
+    def set_tiles(self, job_id: str, tiles: int) -> None:
+        """Record how many tiles a job makes where its estimate did not (a job made without
+        the API's estimate): the fair window looks for jobs with tiles."""
+        with self.session() as s, s.begin():
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.tiles == 0)
+                .values(tiles=tiles)
+                .execution_options(synchronize_session=False)
+            )
+
     def add_children(
         self, parent: Claim, kind: str, children: Sequence[tuple[str, dict[str, Any]]]
     ) -> None:

@@ -107,6 +107,7 @@ def set_up(store: JobStore, claim: Claim, lease_s: float) -> str | None:
     if made >= n_tiles(claim.params):
         return None
     cells = tile_job_ids(job_id, claim.params)
+    store.set_tiles(job_id, len(cells))
     for start in range(made, len(cells), BATCH):
         batch = cells[start : start + BATCH]
         store.add_children(
