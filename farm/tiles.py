@@ -9,7 +9,7 @@ first stopped. A tile row holds only its forest job and cell (the worker reads t
 the forest job) and is written held: the fair window (:mod:`farm.fair`) sends tiles as workers
 free up. The forest job does not wait in a worker: each delivery looks at its tiles (counts
 by state, one query) and, unless they are all done, goes back to the queue to look again in
-:data:`TILE_POLL_S` (as Celery's chord_unlock polls a group). What a tile job runs (generate its
+:func:`poll_s` (as Celery's chord_unlock polls a group). What a tile job runs (generate its
 trees, write its file) is the worker's; where the tiles lie is the library's plan
 (:mod:`forest.growth.tiling`, :mod:`forest.usd.tiled`).
 """
@@ -31,8 +31,15 @@ from farm.store import Claim, JobStore
 from schemas.jobs import ForestRequest, JobState
 from schemas.tiles import tile_grid
 
-TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles
+TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles (at least)
+MAX_POLL_S = 10.0
 BATCH = 2000  # tile rows per insert (and per heartbeat of the forest job while it writes them)
+
+
+def poll_s(tiles: int) -> float:
+    """How long a tiled forest job waits between looks: longer for more tiles (a look counts
+    them all; the window refills on each tile's end without it)."""
+    return min(MAX_POLL_S, TILE_POLL_S * max(1.0, tiles / 2000))
 
 
 def tile_job_id(parent: str, i: int, j: int) -> str:
@@ -99,11 +106,12 @@ def with_request(store: JobStore, claim: Claim) -> Claim | None:
     return dataclasses.replace(claim, params={**dict(parent.params or {}), **claim.params})
 
 
-def set_up(store: JobStore, claim: Claim, lease_s: float) -> str | None:
-    """Write the tile rows not written yet (held, in batches, heartbeating the forest job's
-    lease between them); None when done, else what happened (canceled, lost)."""
+def set_up(store: JobStore, claim: Claim, lease_s: float, made: int | None = None) -> str | None:
+    """Write the tile rows not written yet (``made`` of them are: counted if not given; held,
+    in batches, heartbeating the forest job's lease between them); None when done, else what
+    happened (canceled, lost)."""
     job_id = claim.job_id
-    made = store.count_children(job_id)
+    made = store.count_children(job_id) if made is None else made
     if made >= n_tiles(claim.params):
         return None
     cells = tile_job_ids(job_id, claim.params)
@@ -134,17 +142,20 @@ def join(
     """One delivery of a tiled forest job: write its tile rows (the first delivery), let the
     fair window send what it may, then look at the tiles: all completed, write the root layer
     and complete; a tile failed (after its own retries) or canceled, end so; else record their
-    mean progress and come back in :data:`TILE_POLL_S`. Answers what happened; a store or
+    mean progress and come back in :func:`poll_s`. Answers what happened; a store or
     broker error is raised (the caller retries the delivery)."""
     from forest.usd.tiled import TileEntry, write_root
 
     job_id, params = claim.job_id, claim.params
-    ended = set_up(store, claim, settings.lease_s)
-    if ended is not None:
-        return ended
+    n = n_tiles(params)
+    summary = store.child_summary(job_id)
+    made = sum(count for count, _ in summary.values())
+    if made < n:
+        ended = set_up(store, claim, settings.lease_s, made)
+        if ended is not None:
+            return ended
     pump(store, dispatcher, settings)
     summary = store.child_summary(job_id)
-    n = n_tiles(params)
     failed = store.failed_child(job_id) if JobState.FAILED in summary else None
     if failed is not None:
         store.cancel_family(job_id, children_only=True)  # the other tiles stop
@@ -158,7 +169,7 @@ def join(
     if done < n:
         progress = done + sum(p for st, (_, p) in summary.items() if st != JobState.COMPLETED)
         if store.park(claim, 0.95 * progress / n, f"tiles {done}/{n}"):
-            dispatcher.send(job_id, claim.kind, countdown=TILE_POLL_S)
+            dispatcher.send(job_id, claim.kind, countdown=poll_s(n))
             return "waiting"
         if store.heartbeat(claim, settings.lease_s) is None:
             return "lost"
