@@ -109,6 +109,8 @@ def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
 
 
 def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> str:
+    """Run a claimed job: a tile with its forest job's request, a tiled forest's join, or
+    its kind in a supervised child."""
     s, job_id = rt.settings, claim.job_id
     if claim.kind == TILE_KIND:
         full = tiles.with_request(rt.store, claim)
