@@ -8,7 +8,8 @@ and not finished), each time from the tenant with the fewest tiles in flight, no
 It runs whenever a tile ends (in the worker that ran it) and at each poll of a tiled forest job
 (:mod:`farm.tiles`), so capacity refills as it frees. The broker therefore never holds more than
 the window: another tenant's job, sent at once, waits behind at most about one tile. The state
-is the job table's; the broker stays Celery's (a plain send per tile).
+is the job table's (one pump at a time holds a lock of the database while it counts and takes);
+the broker stays Celery's (a plain send per tile).
 """
 
 from __future__ import annotations
@@ -25,42 +26,43 @@ TILE_KIND = "forest_tile"
 
 
 def pump(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> int:
-    """Send held tiles while the window has room; how many were sent. Concurrent pumps (every
-    worker runs one) never send a tile twice (:meth:`JobStore.take_held`); they may overshoot
-    the window by a tile or so, never by a backlog."""
-    backlog = store.backlog()
-    if not backlog:
-        return 0
-    flying = store.in_flight([b.id for b in backlog])
-    tenants: Counter[str] = Counter()
-    for b in backlog:
-        tenants[b.tenant] += flying.get(b.id, 0)
-    total = sum(tenants.values())
-    drained: set[str] = set()
-    sent = 0
-    while total < settings.max_tiles_in_flight:
-        ready = [
-            b
-            for b in backlog
-            if b.id not in drained and tenants[b.tenant] < settings.max_tenant_tiles_in_flight
-        ]
-        if not ready:
-            break
-        # the tenant with least in flight; then its most urgent, oldest job
-        job = min(ready, key=lambda b: (tenants[b.tenant], -b.priority, b.created_at, b.id))
-        tile = store.take_held(job.id)
-        if tile is None:
-            drained.add(job.id)
-            continue
+    """Send held tiles while the window has room; how many were sent. One pump at a time
+    counts and takes (:meth:`JobStore.exclusive`), so concurrent pumps (every worker runs
+    one) neither send a tile twice nor overshoot the window; the messages go out after."""
+    taken: list[str] = []
+    with store.exclusive() as s:
+        backlog = store.backlog(s)
+        flying = store.in_flight([b.id for b in backlog], s)
+        tenants: Counter[str] = Counter()
+        for b in backlog:
+            tenants[b.tenant] += flying.get(b.id, 0)
+        total = sum(tenants.values())
+        drained: set[str] = set()
+        while total < settings.max_tiles_in_flight:
+            ready = [
+                b
+                for b in backlog
+                if b.id not in drained and tenants[b.tenant] < settings.max_tenant_tiles_in_flight
+            ]
+            if not ready:
+                break
+            # the tenant with least in flight; then its most urgent, oldest job
+            job = min(ready, key=lambda b: (tenants[b.tenant], -b.priority, b.created_at, b.id))
+            tile = store.take_held(s, job.id)
+            if tile is None:
+                drained.add(job.id)
+                continue
+            taken.append(tile)
+            tenants[job.tenant] += 1
+            total += 1
+    for k, tile in enumerate(taken):
         try:
             dispatcher.send(tile, TILE_KIND)
         except Exception:
-            store.hold_again(tile)  # the next pump tries again
+            for unsent in taken[k:]:
+                store.hold_again(unsent)  # the next pump tries again
             raise
-        tenants[job.tenant] += 1
-        total += 1
-        sent += 1
-    return sent
+    return len(taken)
 
 
 def pump_quietly(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> None:

@@ -7,15 +7,16 @@ once. The reaper hands expired leases back to the queue.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import uuid
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Engine, delete, func, insert, select, update
+from sqlalchemy import Engine, delete, func, insert, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -24,6 +25,7 @@ from schemas.jobs import JobState
 
 FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
 UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
+WINDOW_LOCK = 7318450022  # the fair window's advisory lock (beside the migrations' 7318450021)
 HELD = "waiting for a turn"
 """The stage of a tile that is queued but not sent yet (:mod:`farm.fair`)."""
 
@@ -373,63 +375,69 @@ class JobStore:
 
     # -- the fair window (farm.fair) ---------------------------------------------------------
 
-    def backlog(self) -> list[Backlog]:
+    @contextlib.contextmanager
+    def exclusive(self) -> Iterator[Session]:
+        """A transaction that one process at a time holds (the fair window counts, then
+        takes: two at once would both see room and overshoot): a transaction-scoped advisory
+        lock on PostgreSQL, the write lock from the start (``BEGIN IMMEDIATE``) on SQLite."""
+        with self.session() as s, s.begin():
+            if self.engine.dialect.name == "postgresql":
+                s.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": WINDOW_LOCK})
+            elif self.engine.dialect.name == "sqlite":
+                s.execute(text("BEGIN IMMEDIATE"))
+            yield s
+
+    @staticmethod
+    def backlog(s: Session) -> list[Backlog]:
         """Unfinished tiled jobs (which may hold tiles not sent yet)."""
-        with self.session() as s:
-            got = s.execute(
-                select(JobRow.id, JobRow.tenant, JobRow.priority, JobRow.created_at).where(
-                    JobRow.kind == "forest",
-                    JobRow.tiles > 0,
-                    JobRow.state.in_(UNFINISHED),
-                    JobRow.cancel_requested.is_(False),
-                )
-            ).all()
+        got = s.execute(
+            select(JobRow.id, JobRow.tenant, JobRow.priority, JobRow.created_at).where(
+                JobRow.kind == "forest",
+                JobRow.tiles > 0,
+                JobRow.state.in_(UNFINISHED),
+                JobRow.cancel_requested.is_(False),
+            )
+        ).all()
         return [Backlog(*r) for r in got]
 
-    def in_flight(self, parents: Sequence[str]) -> dict[str, int]:
+    def in_flight(self, parents: Sequence[str], s: Session | None = None) -> dict[str, int]:
         """Per job of ``parents``: its children sent to the broker and not finished."""
         if not parents:
             return {}
         sent = (JobRow.state == JobState.ACTIVE) | (
             (JobRow.state == JobState.QUEUED) & JobRow.enqueued_at.is_not(None)
         )
-        with self.session() as s:
-            got = s.execute(
-                select(JobRow.parent, func.count())
-                .where(JobRow.parent.in_(list(parents)), sent)
-                .group_by(JobRow.parent)
-            ).all()
+        q = (
+            select(JobRow.parent, func.count())
+            .where(JobRow.parent.in_(list(parents)), sent)
+            .group_by(JobRow.parent)
+        )
+        with contextlib.nullcontext(s) if s is not None else self.session() as ss:
+            got = ss.execute(q).all()
         return {str(p): int(n) for p, n in got}
 
-    def take_held(self, parent: str) -> str | None:
-        """Mark one held child of ``parent`` sent (the caller sends it); its id, or None when
-        none is held. Two windows never take the same child: the update is conditional."""
-        for _ in range(5):
-            with self.session() as s, s.begin():
-                held = s.scalar(
-                    select(JobRow.id)
-                    .where(
-                        JobRow.parent == parent,
-                        JobRow.state == JobState.QUEUED,
-                        JobRow.enqueued_at.is_(None),
-                    )
-                    .limit(1)
-                )
-                if held is None:
-                    return None
-                res = s.execute(
-                    update(JobRow)
-                    .where(
-                        JobRow.id == held,
-                        JobRow.state == JobState.QUEUED,
-                        JobRow.enqueued_at.is_(None),
-                    )
-                    .values(enqueued_at=utcnow(), stage=JobState.QUEUED)
-                    .execution_options(synchronize_session=False)
-                )
-                if res.rowcount == 1:  # type: ignore[attr-defined]
-                    return str(held)
-        return None
+    @staticmethod
+    def take_held(s: Session, parent: str) -> str | None:
+        """Mark one held child of ``parent`` sent (the caller sends it once ``s`` commits);
+        its id, or None when none is held."""
+        held = s.scalar(
+            select(JobRow.id)
+            .where(
+                JobRow.parent == parent,
+                JobRow.state == JobState.QUEUED,
+                JobRow.enqueued_at.is_(None),
+            )
+            .limit(1)
+        )
+        if held is None:
+            return None
+        s.execute(
+            update(JobRow)
+            .where(JobRow.id == held)
+            .values(enqueued_at=utcnow(), stage=JobState.QUEUED)
+            .execution_options(synchronize_session=False)
+        )
+        return str(held)
 
     def hold_again(self, job_id: str) -> None:
         """A child whose message could not be sent goes back to held."""

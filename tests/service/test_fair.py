@@ -13,6 +13,7 @@ PostgreSQL + RabbitMQ, PostgreSQL + Redis):
 
 from __future__ import annotations
 
+import contextlib
 import time
 from collections.abc import Iterator
 from datetime import datetime
@@ -38,10 +39,16 @@ B = {"X-API-Key": "key-b"}
 SMALL = {"preset": "almond", "trees": 1, "area": [5.0, 5.0], "seed": 1}
 
 
-def store_of(server: Server) -> JobStore:
-    """The server's own job store, read directly (positions and row counts)."""
+@contextlib.contextmanager
+def store_of(server: Server) -> Iterator[JobStore]:
+    """The server's own job store, read directly (positions and row counts); its connections
+    closed after (the test's database is dropped at the end of the module)."""
     url = server.env.get("FOREST_DATABASE_URL")
-    return JobStore(url or f"sqlite:///{(server.data / 'jobs.sqlite').resolve()}")
+    store = JobStore(url or f"sqlite:///{(server.data / 'jobs.sqlite').resolve()}")
+    try:
+        yield store
+    finally:
+        store.engine.dispose()
 
 
 def total(server: Server, query: str, headers: dict[str, str]) -> int:
@@ -80,10 +87,9 @@ def test_another_tenant_waits_about_one_tile(backend: dict[str, str], make_serve
     server.headers = B
     job = server.wait(small, timeout=180)  # a hang guard, not a timing
     assert job["state"] == "completed", job
-    store = store_of(server)
-    row = store.get(small)
-    assert row is not None and row.started_at is not None
-    with store.session() as s:
+    with store_of(server) as store, store.session() as s:
+        row = store.get(small)
+        assert row is not None and row.started_at is not None
         jumped = s.scalar(
             select(func.count()).where(
                 JobRow.parent == big,
@@ -115,8 +121,8 @@ def test_100k_tiles_are_written_and_cancel_at_once(
     job_id = r.json()["id"]
     job = wait_stage(server, job_id, "tiles", A)
     assert job["state"] in ("queued", "active"), job
-    store = store_of(server)
-    assert store.count_children(job_id) == 100_000
+    with store_of(server) as store:
+        assert store.count_children(job_id) == 100_000
     # a tile row holds its forest job and cell, not the request (100,000 copies of it)
     tile = server.get(f"/v1/jobs/{tiles.tile_job_id(job_id, 399, 249)}", headers=A).json()
     assert tile["params"] == {"parent": job_id, "tile": [399, 249]}, tile
@@ -128,7 +134,8 @@ def test_100k_tiles_are_written_and_cancel_at_once(
     # every tile is done with by the time DELETE answers (no message revoked one by one):
     # those never sent are gone, the few in flight canceled
     assert total(server, "kind=forest_tile&state=queued", A) == 0
-    assert store.count_children(job_id) <= 10
+    with store_of(server) as store:
+        assert store.count_children(job_id) <= 10
     assert took < 60, f"cancel of 100,000 tiles took {took:.1f} s"  # a hang guard
     server.headers = A
     assert server.wait(job_id, timeout=60)["state"] == "canceled"
