@@ -1,7 +1,7 @@
 """A tiled forest job (issue 12.1) through a real ``forest serve`` on the embedded backend:
 the job fans out into one ``forest_tile`` job per tile (sent a few at a time by the fair
-window, farm.fair), its progress aggregates theirs, it completes with a root layer whose payloads are the tiles' files (the
-library's own bytes), and cancel stops every tile."""
+window, farm.fair), its progress aggregates theirs, it completes with a root layer whose
+payloads are the tiles' files (the library's own bytes), and cancel stops every tile."""
 
 from __future__ import annotations
 
