@@ -10,10 +10,12 @@ from typing import Any
 
 from sqlalchemy import (
     JSON,
+    BigInteger,
     Boolean,
     DateTime,
     Engine,
     Float,
+    Index,
     Integer,
     String,
     Text,
@@ -62,6 +64,19 @@ class JobRow(Base):
     finished_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True, index=True)
     artifacts_deleted_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
     """When the job's artifacts were deleted (on request or past ``artifact_ttl_s``)."""
+    parent: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    """The job that made this one (a tile's forest job); a tile with no ``enqueued_at`` is
+    held back by the fair window (:mod:`farm.fair`), not lost."""
+    priority: Mapped[int] = mapped_column(Integer, default=5, server_default="5")
+    """0-9, higher first among a tenant's held work."""
+    cost: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")
+    """Estimated piece-frames (pieces x max(frames, 1)): what the tenant's cost quota sums."""
+    tiles: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    """Tile jobs this job makes (0: not tiled): what the tenant's tile quota sums."""
+    estimate: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
+    """The cost estimate made before it was queued (:class:`schemas.jobs.JobCost`)."""
+
+    __table_args__ = (Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),)
 
 
 class ApiKeyRow(Base):

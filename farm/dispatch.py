@@ -74,15 +74,6 @@ class Dispatcher:
         queue = self.settings.queue(KIND_QUEUES[kind])
         self.app.send_task(TASK_NAME, args=[job_id], queue=queue, countdown=countdown)
 
-    def send_group(self, job_ids: list[str], kind: str) -> None:
-        """Send ``forest.run_job`` for each job as one Celery group (a tiled forest's
-        tiles): any free worker takes the next tile."""
-        from celery import group
-
-        queue = self.settings.queue(KIND_QUEUES[kind])
-        sigs = [self.app.signature(TASK_NAME, args=[j], queue=queue) for j in job_ids]
-        group(sigs).apply_async()
-
     def ping(self) -> None:
         """Raise unless the broker answers."""
         with self.app.connection_for_write() as conn:

@@ -7,15 +7,16 @@ once. The reaper hands expired leases back to the queue.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import uuid
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Engine, delete, func, select, update
+from sqlalchemy import Engine, delete, func, insert, select, text, update
 from sqlalchemy.exc import IntegrityError
 from sqlalchemy.orm import Session
 
@@ -26,6 +27,9 @@ from schemas.jobs import JobState
 FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
 UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
 IN_BATCH = 500  # ids per IN list: far below every driver's bound-parameter limit
+WINDOW_LOCK = 7318450022  # the fair window's advisory lock (beside the migrations' 7318450021)
+HELD = "waiting for a turn"
+"""The stage of a tile that is queued but not sent yet (:mod:`farm.fair`)."""
 
 
 class IdempotencyConflict(Exception):
@@ -41,14 +45,13 @@ def scoped_key(tenant: str, key: str) -> str:
     return hashlib.sha256(f"{tenant}\0{key}".encode()).hexdigest()
 
 
-class ChildState(NamedTuple):
-    """Where a job made by another job (a tile of a tiled forest) stands."""
+class Backlog(NamedTuple):
+    """An unfinished tiled forest job, as the fair window sees it."""
 
     id: str
-    state: str
-    progress: float
-    error: str | None
-    result: dict[str, Any] | None
+    tenant: str
+    priority: int
+    created_at: datetime
 
 
 def request_hash(kind: str, params: dict[str, Any]) -> str:
@@ -89,9 +92,12 @@ class JobStore:
         max_attempts: int,
         key: str | None = None,
         tenant: str = "local",
+        priority: int = 5,
+        estimate: dict[str, Any] | None = None,
     ) -> tuple[JobRow, bool]:
         """Insert a queued job of ``tenant``; with an idempotency key the tenant already used
-        for the same request, answer that job instead (``created`` False)."""
+        for the same request, answer that job instead (``created`` False). ``estimate``
+        (:class:`schemas.jobs.JobCost`) is what the tenant's quotas sum while it is unfinished."""
         digest = request_hash(kind, params)
         stored = scoped_key(tenant, key) if key is not None else None
         if key is not None and stored is not None:
@@ -117,6 +123,10 @@ class JobStore:
             artifacts=[],
             created_at=now,
             enqueued_at=now,  # sent right after; if that fails, the reaper resends it later
+            priority=priority,
+            cost=int((estimate or {}).get("units", 0)),
+            tiles=int((estimate or {}).get("tiles", 0)),
+            estimate=estimate,
         )
         try:
             with self.session() as s, s.begin():
@@ -133,6 +143,20 @@ class JobStore:
     def by_key(self, key: str) -> JobRow | None:
         with self.session() as s:
             return s.scalars(select(JobRow).where(JobRow.idempotency_key == key)).first()
+
+    def tenant_load(self, tenant: str) -> tuple[int, int]:
+        """The estimated cost (piece-frames) and tiles of the tenant's queued and running jobs
+        (a tiled forest's tiles count through their forest job)."""
+        with self.session() as s:
+            cost, tiles = s.execute(
+                select(
+                    func.coalesce(func.sum(JobRow.cost), 0),
+                    func.coalesce(func.sum(JobRow.tiles), 0),
+                ).where(
+                    JobRow.tenant == tenant, JobRow.state.in_(UNFINISHED), JobRow.parent.is_(None)
+                )
+            ).one()
+        return int(cost), int(tiles)
 
     def get(self, job_id: str, tenant: str | None = None) -> JobRow | None:
         """The job; with ``tenant``, only if it is that tenant's (another's is None)."""
@@ -164,30 +188,44 @@ class JobStore:
             ).all()
         return rows, total
 
-    def cancel_jobs(self, ids: list[str]) -> None:
-        """Cancel these jobs: queued ones at once; active ones get the flag their worker reads
-        (and kill the job's process). A job and the jobs it made go together:
-        :func:`farm.tiles.cancel`."""
+    def cancel_family(self, job_id: str, children_only: bool = False) -> None:
+        """Cancel a job and the jobs it made (a tiled forest's tiles, found by ``parent``: a
+        few indexed statements whatever their number, no id list). Children never sent (held
+        by the fair window) are deleted: no worker saw them, and deleting 100,000 rows is a
+        tenth of a second where rewriting them (every index of each) took seconds. Queued
+        jobs are canceled at once; active ones get the flag their worker reads (and kill the
+        job's process)."""
         now = utcnow()
+        whom = [JobRow.parent == job_id]
+        if not children_only:
+            whom.append(JobRow.id == job_id)
         with self.session() as s, s.begin():
-            # in batches: a tiled forest's tens of thousands of tiles in one IN list pass
-            # PostgreSQL's 65,535 bound parameters (and SQLite's 32,766), and the cancel failed
-            for i in range(0, len(ids), IN_BATCH):
-                batch = ids[i : i + IN_BATCH]
+            s.execute(
+                delete(JobRow)
+                .where(
+                    JobRow.parent == job_id,
+                    JobRow.state == JobState.QUEUED,
+                    JobRow.enqueued_at.is_(None),
+                )
+                .execution_options(synchronize_session=False)
+            )
+            for who in whom:  # separate indexed updates, not one OR that may scan the table
                 s.execute(
                     update(JobRow)
-                    .where(JobRow.id.in_(batch), JobRow.state == JobState.QUEUED)
+                    .where(who, JobRow.state == JobState.QUEUED)
                     .values(
                         state=JobState.CANCELED,
                         cancel_requested=True,
                         finished_at=now,
                         stage=JobState.CANCELED,
                     )
+                    .execution_options(synchronize_session=False)
                 )
                 s.execute(
                     update(JobRow)
-                    .where(JobRow.id.in_(batch), JobRow.state == JobState.ACTIVE)
+                    .where(who, JobRow.state == JobState.ACTIVE)
                     .values(cancel_requested=True)
+                    .execution_options(synchronize_session=False)
                 )
 
     def abandon(self, job_id: str, error: str) -> JobRow | None:
@@ -278,57 +316,176 @@ class JobStore:
 
     # -- jobs that make jobs (a tiled forest's tiles: farm.tiles) ----------------------------
 
-    def create_children(
-        self, parent: Claim, kind: str, children: list[tuple[str, dict[str, Any]]]
-    ) -> list[str]:
-        """Insert the jobs ``(id, params)`` of ``kind`` that ``parent`` makes, those not yet
-        there (the parent's tenant and attempt cap); their ids."""
-        ids = [t for t, _ in children]
+    def count_children(self, parent: str) -> int:
+        """How many jobs ``parent`` made so far."""
         with self.session() as s:
-            have = set(s.scalars(select(JobRow.id).where(JobRow.id.in_(ids))).all())
-            tenant = s.scalar(select(JobRow.tenant).where(JobRow.id == parent.job_id))
-        now = utcnow()
-        rows = [
-            JobRow(
-                id=t, kind=kind, tenant=tenant or "local", state=JobState.QUEUED, params=p,
-                attempts=0, max_attempts=parent.max_attempts, progress=0.0,
-                stage=JobState.QUEUED, cancel_requested=False, request_hash=request_hash(kind, p),
-                artifacts=[], created_at=now, enqueued_at=now,
+            return int(s.scalar(select(func.count()).where(JobRow.parent == parent)) or 0)
+
+    def set_tiles(self, job_id: str, tiles: int) -> None:
+        """Record how many tiles a job makes where its estimate did not (a job made without
+        the API's estimate): the fair window looks for jobs with tiles."""
+        with self.session() as s, s.begin():
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.tiles == 0)
+                .values(tiles=tiles)
+                .execution_options(synchronize_session=False)
             )
+
+    def add_children(
+        self, parent: Claim, kind: str, children: Sequence[tuple[str, dict[str, Any]]]
+    ) -> None:
+        """Insert the jobs ``(id, params)`` of ``kind`` that ``parent`` makes, held: queued
+        but not sent (no ``enqueued_at``) until the fair window sends them
+        (:func:`farm.fair.pump`). One statement per call: callers pass a bounded batch
+        (SQLAlchemy pages an executemany at 1,000 rows, within PostgreSQL's 65,535 and
+        SQLite's 32,766 parameters)."""
+        with self.session() as s:
+            tenant, priority = s.execute(
+                select(JobRow.tenant, JobRow.priority).where(JobRow.id == parent.job_id)
+            ).one()
+        now = utcnow()
+        rows: list[dict[str, Any]] = [
+            {
+                "id": t, "kind": kind, "tenant": tenant, "state": JobState.QUEUED, "params": p,
+                "attempts": 0, "max_attempts": parent.max_attempts, "progress": 0.0,
+                "stage": HELD, "cancel_requested": False, "artifacts": [], "created_at": now,
+                "enqueued_at": None, "parent": parent.job_id, "priority": priority,
+            }
             for t, p in children
-            if t not in have
         ]  # fmt: skip
         if rows:
             with self.session() as s, s.begin():
-                s.add_all(rows)
-        return [r.id for r in rows]
+                s.execute(
+                    insert(JobRow.metadata.tables["jobs"]), rows
+                )  # Core: no ORM bookkeeping per row
 
-    def child_states(self, ids: list[str]) -> list[ChildState]:
-        """The jobs' states in the order of ``ids`` (one query)."""
+    def child_summary(self, parent: str) -> dict[str, tuple[int, float]]:
+        """State -> (how many, summed progress) of the jobs ``parent`` made (one query)."""
         with self.session() as s:
             got = s.execute(
-                select(JobRow.id, JobRow.state, JobRow.progress, JobRow.error, JobRow.result).where(
-                    JobRow.id.in_(ids)
-                )
+                select(JobRow.state, func.count(), func.coalesce(func.sum(JobRow.progress), 0.0))
+                .where(JobRow.parent == parent)
+                .group_by(JobRow.state)
             ).all()
-        by_id = {r[0]: ChildState(*r) for r in got}
-        return [by_id.get(t) or ChildState(t, "missing", 0.0, None, None) for t in ids]
+        return {st: (int(n), float(p)) for st, n, p in got}
+
+    def failed_child(self, parent: str) -> tuple[dict[str, Any], str | None] | None:
+        """The params and error of one failed job that ``parent`` made, if any."""
+        with self.session() as s:
+            row = s.execute(
+                select(JobRow.params, JobRow.error)
+                .where(JobRow.parent == parent, JobRow.state == JobState.FAILED)
+                .limit(1)
+            ).first()
+        return None if row is None else (dict(row[0]), row[1])
+
+    def child_results(self, parent: str) -> list[tuple[dict[str, Any], dict[str, Any] | None]]:
+        """``(params, result)`` of every job ``parent`` made (a finished forest's join)."""
+        with self.session() as s:
+            got = s.execute(
+                select(JobRow.params, JobRow.result).where(JobRow.parent == parent)
+            ).all()
+        return [(dict(p), r) for p, r in got]
+
+    # -- the fair window (farm.fair) ---------------------------------------------------------
+
+    @contextlib.contextmanager
+    def exclusive(self) -> Iterator[Session]:
+        """A transaction that one process at a time holds (the fair window counts, then
+        takes: two at once would both see room and overshoot): a transaction-scoped advisory
+        lock on PostgreSQL, the write lock from the start (``BEGIN IMMEDIATE``) on SQLite."""
+        with self.session() as s, s.begin():
+            if self.engine.dialect.name == "postgresql":
+                s.execute(text("SELECT pg_advisory_xact_lock(:key)"), {"key": WINDOW_LOCK})
+            elif self.engine.dialect.name == "sqlite":
+                s.execute(text("BEGIN IMMEDIATE"))
+            yield s
+
+    @staticmethod
+    def backlog(s: Session) -> list[Backlog]:
+        """Unfinished tiled jobs (which may hold tiles not sent yet)."""
+        got = s.execute(
+            select(JobRow.id, JobRow.tenant, JobRow.priority, JobRow.created_at).where(
+                JobRow.kind == "forest",
+                JobRow.tiles > 0,
+                JobRow.state.in_(UNFINISHED),
+                JobRow.cancel_requested.is_(False),
+            )
+        ).all()
+        return [Backlog(*r) for r in got]
+
+    def in_flight(self, parents: Sequence[str], s: Session | None = None) -> dict[str, int]:
+        """Per job of ``parents``: its children sent to the broker and not finished."""
+        if not parents:
+            return {}
+        sent = (JobRow.state == JobState.ACTIVE) | (
+            (JobRow.state == JobState.QUEUED) & JobRow.enqueued_at.is_not(None)
+        )
+        q = (
+            select(JobRow.parent, func.count())
+            .where(JobRow.parent.in_(list(parents)), sent)
+            .group_by(JobRow.parent)
+        )
+        with contextlib.nullcontext(s) if s is not None else self.session() as ss:
+            got = ss.execute(q).all()
+        return {str(p): int(n) for p, n in got}
+
+    @staticmethod
+    def take_held(s: Session, parent: str) -> str | None:
+        """Mark one held child of ``parent`` sent (the caller sends it once ``s`` commits);
+        its id, or None when none is held."""
+        held = s.scalar(
+            select(JobRow.id)
+            .where(
+                JobRow.parent == parent,
+                JobRow.state == JobState.QUEUED,
+                JobRow.enqueued_at.is_(None),
+            )
+            .limit(1)
+        )
+        if held is None:
+            return None
+        s.execute(
+            update(JobRow)
+            .where(JobRow.id == held)
+            .values(enqueued_at=utcnow(), stage=JobState.QUEUED)
+            .execution_options(synchronize_session=False)
+        )
+        return str(held)
+
+    def hold_again(self, job_id: str) -> None:
+        """A child whose message could not be sent goes back to held."""
+        with self.session() as s, s.begin():
+            s.execute(
+                update(JobRow)
+                .where(JobRow.id == job_id, JobRow.state == JobState.QUEUED)
+                .values(enqueued_at=None, stage=HELD)
+                .execution_options(synchronize_session=False)
+            )
 
     def park(self, claim: Claim, progress: float, stage: str) -> bool:
         """Back to the queue while the jobs it made run (a poll, not an attempt: the attempt
-        count is given back); False if the lease was lost."""
-        return self._finish(
-            claim,
-            {
-                "state": JobState.QUEUED,
-                "stage": stage[:64],
-                "progress": max(0.0, min(1.0, progress)),
-                "lease_owner": None,
-                "lease_expires": None,
-                "attempts": claim.attempt - 1,
-                "enqueued_at": utcnow(),
-            },
-        )
+        count is given back); False if the lease was lost or cancel was asked (a parked job
+        asked to cancel would never be claimed again: the caller ends it)."""
+        with self.session() as s, s.begin():
+            res = s.execute(
+                update(JobRow)
+                .where(*self._held(claim), JobRow.cancel_requested.is_(False))
+                .values(
+                    **{
+                        "state": JobState.QUEUED,
+                        "stage": stage[:64],
+                        "progress": max(0.0, min(1.0, progress)),
+                        "lease_owner": None,
+                        "lease_expires": None,
+                        "attempts": claim.attempt - 1,
+                        "enqueued_at": utcnow(),
+                    }
+                )
+                .execution_options(synchronize_session=False)
+            )
+        return res.rowcount == 1  # type: ignore[attr-defined, no-any-return]
 
     # -- worker side ------------------------------------------------------------------------
 
@@ -479,7 +636,12 @@ class JobStore:
             lost = s.scalars(
                 select(JobRow).where(
                     JobRow.state == JobState.QUEUED,
-                    (JobRow.enqueued_at.is_(None) & (JobRow.created_at < stale))
+                    # a child with no enqueued_at is held by the fair window, not lost
+                    (
+                        JobRow.enqueued_at.is_(None)
+                        & JobRow.parent.is_(None)
+                        & (JobRow.created_at < stale)
+                    )
                     | (JobRow.enqueued_at < stale),
                 )
             ).all()

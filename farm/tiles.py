@@ -2,16 +2,21 @@
 tile of its grid and, once every tile completed, writes the root layer that holds the tiles'
 files as payloads.
 
-The tile jobs' ids derive from the forest job's id and the tile, so a second delivery of the
-forest job finds the tiles it made and makes none twice. The forest job does not wait in a
-worker: each delivery looks at its tiles and, unless they are all done, goes back to the
-queue to look again in :data:`TILE_POLL_S` (as Celery's chord_unlock polls a group). What a
-tile job runs (generate its trees, write its file) is the worker's; where the tiles lie is
-the library's plan (:mod:`forest.growth.tiling`, :mod:`forest.usd.tiled`).
+The tile jobs' ids derive from the forest job's id and the tile, and their rows are written in
+order, in batches of :data:`BATCH` (within every database's parameter limit; the forest job's
+lease is heartbeated between batches), so a second delivery of the forest job goes on where the
+first stopped. A tile row holds only its forest job and cell (the worker reads the request from
+the forest job) and is written held: the fair window (:mod:`farm.fair`) sends tiles as workers
+free up. The forest job does not wait in a worker: each delivery looks at its tiles (counts
+by state, one query) and, unless they are all done, goes back to the queue to look again in
+:func:`poll_s` (as Celery's chord_unlock polls a group). What a tile job runs (generate its
+trees, write its file) is the worker's; where the tiles lie is the library's plan
+(:mod:`forest.growth.tiling`, :mod:`forest.usd.tiled`).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import math
 import shutil
@@ -20,12 +25,21 @@ from typing import Any
 from farm.artifacts import ArtifactStore
 from farm.db import JobRow
 from farm.dispatch import Dispatcher
+from farm.fair import TILE_KIND, pump
+from farm.settings import FarmSettings
 from farm.store import Claim, JobStore
 from schemas.jobs import ForestRequest, JobState
 from schemas.tiles import tile_grid
 
-TILE_KIND = "forest_tile"
-TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles
+TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles (at least)
+MAX_POLL_S = 10.0
+BATCH = 2000  # tile rows per insert (and per heartbeat of the forest job while it writes them)
+
+
+def poll_s(tiles: int) -> float:
+    """How long a tiled forest job waits between looks: longer for more tiles (a look counts
+    them all; the window refills on each tile's end without it)."""
+    return min(MAX_POLL_S, TILE_POLL_S * max(1.0, tiles / 2000))
 
 
 def tile_job_id(parent: str, i: int, j: int) -> str:
@@ -40,6 +54,12 @@ def tile_job_ids(parent: str, params: dict[str, Any]) -> list[tuple[int, int, st
         return []
     nx, nz = tile_grid(tuple(params["area"]), float(size))
     return [(i, j, tile_job_id(parent, i, j)) for j in range(nz) for i in range(nx)]
+
+
+def n_tiles(params: dict[str, Any]) -> int:
+    """How many tiles a forest job's ``params`` make (0: not tiled)."""
+    size = params.get("tile_size")
+    return math.prod(tile_grid(tuple(params["area"]), float(size))) if size else 0
 
 
 def tile_count(req: ForestRequest) -> int:
@@ -66,49 +86,101 @@ def artifact_owner(claim: Claim) -> str:
 
 
 def cancel(store: JobStore, job_id: str, tenant: str | None = None) -> JobRow | None:
-    """Cancel a job, and a tiled forest's tiles with it (:meth:`JobStore.cancel_jobs`); the
-    job after, or None if there is no such job (of ``tenant``)."""
+    """Cancel a job, and a tiled forest's tiles with it (:meth:`JobStore.cancel_family`: by
+    ``parent``, a few statements whatever the tile count; no broker message is revoked, a
+    canceled tile's message is skipped when it arrives); the job after, or None if there is
+    no such job (of ``tenant``)."""
     row = store.get(job_id, tenant)
     if row is None:
         return None
-    tiles = [t for _, _, t in tile_job_ids(job_id, dict(row.params or {}))]
-    store.cancel_jobs([job_id, *tiles])
+    store.cancel_family(job_id)
     return store.get(job_id)
 
 
-def join(store: JobStore, dispatcher: Dispatcher, artifacts: ArtifactStore, claim: Claim) -> str:
-    """One delivery of a tiled forest job: create its tile jobs and send them as one Celery
-    group (the first delivery), then look at them: all completed, write the root layer and
-    complete; a tile failed (after its own retries) or canceled, end so; else record their
-    mean progress and come back in :data:`TILE_POLL_S`. Answers what happened; a store or
+def with_request(store: JobStore, claim: Claim) -> Claim | None:
+    """A tile's claim with its forest job's request under its own params (a tile row holds
+    only its forest job and cell); None if the forest job is gone."""
+    parent = store.get(str(claim.params.get("parent", "")))
+    if parent is None:
+        return None
+    return dataclasses.replace(claim, params={**dict(parent.params or {}), **claim.params})
+
+
+def set_up(store: JobStore, claim: Claim, lease_s: float, made: int | None = None) -> str | None:
+    """Write the tile rows not written yet (``made`` of them are: counted if not given; held,
+    in batches, heartbeating the forest job's lease between them); None when done, else what
+    happened (canceled, lost)."""
+    job_id = claim.job_id
+    made = store.count_children(job_id) if made is None else made
+    if made >= n_tiles(claim.params):
+        return None
+    cells = tile_job_ids(job_id, claim.params)
+    store.set_tiles(job_id, len(cells))
+    for start in range(made, len(cells), BATCH):
+        batch = cells[start : start + BATCH]
+        store.add_children(
+            claim, TILE_KIND, [(t, {"parent": job_id, "tile": [i, j]}) for i, j, t in batch]
+        )
+        stage = f"writing tiles {start + len(batch)}/{len(cells)}"
+        beat = store.heartbeat(claim, lease_s, 0.0, stage)
+        if beat is None:
+            return "lost"
+        if beat:  # canceled while writing: the rows written so far go with it
+            store.cancel_family(job_id, children_only=True)
+            store.finish(claim, JobState.CANCELED, error="canceled on request")
+            return JobState.CANCELED
+    return None
+
+
+def join(
+    store: JobStore,
+    dispatcher: Dispatcher,
+    artifacts: ArtifactStore,
+    claim: Claim,
+    settings: FarmSettings,
+) -> str:
+    """One delivery of a tiled forest job: write its tile rows (the first delivery), let the
+    fair window send what it may, then look at the tiles: all completed, write the root layer
+    and complete; a tile failed (after its own retries) or canceled, end so; else record their
+    mean progress and come back in :func:`poll_s`. Answers what happened; a store or
     broker error is raised (the caller retries the delivery)."""
     from forest.usd.tiled import TileEntry, write_root
 
     job_id, params = claim.job_id, claim.params
-    tiles = tile_job_ids(job_id, params)
-    specs = [(t, {**params, "parent": job_id, "tile": [i, j]}) for i, j, t in tiles]  # TileJob
-    new = store.create_children(claim, TILE_KIND, specs)
-    if new:
-        dispatcher.send_group(new, TILE_KIND)
-    states = store.child_states([t for _, _, t in tiles])
-    failed = [(k, st) for k, st in enumerate(states) if st.state == JobState.FAILED]
-    if failed:
-        k, st = failed[0]
-        cancel(store, job_id)  # the other tiles stop
-        i, j, _ = tiles[k]
-        store.finish(claim, JobState.FAILED, error=f"tile {i}_{j}: {st.error}")
+    n = n_tiles(params)
+    summary = store.child_summary(job_id)
+    made = sum(count for count, _ in summary.values())
+    if made < n:
+        ended = set_up(store, claim, settings.lease_s, made)
+        if ended is not None:
+            return ended
+    pump(store, dispatcher, settings)
+    summary = store.child_summary(job_id)
+    failed = store.failed_child(job_id) if JobState.FAILED in summary else None
+    if failed is not None:
+        store.cancel_family(job_id, children_only=True)  # the other tiles stop
+        i, j = failed[0].get("tile", ["?", "?"])
+        store.finish(claim, JobState.FAILED, error=f"tile {i}_{j}: {failed[1]}")
         return JobState.FAILED
-    if any(st.state == JobState.CANCELED for st in states):
+    if JobState.CANCELED in summary:
         store.finish(claim, JobState.CANCELED, error="canceled on request")
         return JobState.CANCELED
-    done = sum(st.state == JobState.COMPLETED for st in states)
-    if done < len(states):
-        progress = sum(1.0 if st.state == JobState.COMPLETED else st.progress for st in states)
-        store.park(claim, 0.95 * progress / len(states), f"tiles {done}/{len(states)}")
-        dispatcher.send(job_id, claim.kind, countdown=TILE_POLL_S)
-        return "waiting"
+    done = summary.get(JobState.COMPLETED, (0, 0.0))[0]
+    if done < n:
+        progress = done + sum(p for st, (_, p) in summary.items() if st != JobState.COMPLETED)
+        if store.park(claim, 0.95 * progress / n, f"tiles {done}/{n}"):
+            dispatcher.send(job_id, claim.kind, countdown=poll_s(n))
+            return "waiting"
+        if store.heartbeat(claim, settings.lease_s) is None:
+            return "lost"
+        # canceled while it looked: end it here (a parked job asked to cancel is never claimed)
+        store.cancel_family(job_id, children_only=True)
+        store.finish(claim, JobState.CANCELED, error="canceled on request")
+        return JobState.CANCELED
+    # the root layer lists the tiles in grid order (rows of z, then x), whatever order ran
+    states = sorted(store.child_results(job_id), key=lambda pr: tuple(pr[0]["tile"])[::-1])
     req = ForestRequest.model_validate(params)
-    entries = [TileEntry.from_json((st.result or {})["tile"]) for st in states]
+    entries = [TileEntry.from_json((r or {})["tile"]) for _, r in states]
     name = f"scene.{req.format}"
     scratch = artifacts.scratch(job_id)
     try:
@@ -122,11 +194,11 @@ def join(store: JobStore, dispatcher: Dispatcher, artifacts: ArtifactStore, clai
         shutil.rmtree(scratch, ignore_errors=True)
     result = {
         "trees": req.trees,
-        "pieces": sum(int((st.result or {}).get("pieces", 0)) for st in states),
+        "pieces": sum(int((r or {}).get("pieces", 0)) for _, r in states),
         "frames": req.frames,
         "scene": name,
         "tiles": len(states),
     }
-    names = sorted([name] + [tile_artifact(i, j) for i, j, _ in tiles])
+    names = sorted([name] + [tile_artifact(*p["tile"]) for p, _ in states])
     ok = store.finish(claim, JobState.COMPLETED, artifacts=names, result=result)
     return JobState.COMPLETED if ok else "lost"

@@ -31,6 +31,12 @@ class ServiceSettings(FarmSettings):
     max_scene_bytes: int = Field(2 << 30, gt=0)
     """Estimated bytes of one scene file (a tiled forest: of each tile); over it: 422."""
     max_frames: int = Field(480, gt=0)
+    tenant_max_cost: int = Field(2_000_000_000, gt=0)
+    """Estimated piece-frames (expected pieces x max(frames, 1), ``service.quotas``) of one
+    tenant's queued and running jobs together: a job past it is refused with 429 (422 if it
+    is over on its own). The default is a few hours of one machine's two workers."""
+    tenant_max_tiles: int = Field(100_000, gt=0)
+    """Tiles of one tenant's queued and running tiled forests together (429/422 as above)."""
     max_image_size: int = Field(4096, gt=0)
     max_render_frames: int = Field(240, gt=0)
     min_free_mb: int = Field(64, ge=0)

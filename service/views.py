@@ -15,10 +15,11 @@ from sqlalchemy.exc import DBAPIError
 from farm import volume
 from farm.db import JobRow
 from farm.error_text import capped
-from farm.store import IdempotencyConflict
-from schemas.jobs import Artifact, Job
+from farm.store import IdempotencyConflict, scoped_key
+from schemas.jobs import Artifact, Job, JobCost
 from service.deps import Services
 from service.errors import RETRY_AFTER_S
+from service.quotas import over_quota
 
 log = logging.getLogger(__name__)
 BROKER_UNAVAILABLE = "the broker is unavailable; the job was not submitted; retry later"
@@ -28,6 +29,7 @@ ERRORS: dict[int | str, dict[str, Any]] = {
     404: {"description": "No such job or artifact"},
     409: {"description": "Idempotency-Key reused with a different request"},
     413: {"description": "Request body too large"},
+    429: {"description": "A tenant quota (named in the detail) or the key's rate limit"},
 }
 UPLOAD_ERRORS: dict[int | str, dict[str, Any]] = ERRORS | {
     507: {"description": "The data volume is full: the upload was not stored, no job made"},
@@ -67,6 +69,8 @@ def job_model(row: JobRow, services: Services) -> Job:
         artifacts=arts,
         artifacts_deleted_at=_utc(row.artifacts_deleted_at),
         result=row.result,
+        priority=row.priority,
+        cost=JobCost.model_validate(row.estimate) if row.estimate else None,
     )
 
 
@@ -87,12 +91,29 @@ def submit(
     key: str | None,
     tenant: str,
     inputs: dict[str, bytes] | None = None,
+    cost: JobCost | None = None,
+    field: list[str | int] | None = None,
 ) -> JSONResponse:
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it, answer
-    202 + the job."""
+    202 + the job. A new job must fit the tenant's quotas with its ``cost``
+    (:mod:`service.quotas`; ``field``: the request field a 422 names)."""
+    cost = cost or JobCost(pieces=0, frames=0, tiles=0, scene_bytes=0, units=0)
+    known = key is not None and services.store.by_key(scoped_key(tenant, key)) is not None
+    if not known:  # a repeat of an accepted request answers its job, quota or not
+        refused = over_quota(
+            services.settings, cost, services.store.tenant_load(tenant), field or []
+        )
+        if refused is not None:
+            raise refused
     try:
         row, created = services.store.create(
-            kind, params, services.settings.max_attempts, key, tenant
+            kind,
+            params,
+            services.settings.max_attempts,
+            key,
+            tenant,
+            priority=int(params.get("priority", 5)),
+            estimate=cost.model_dump(),
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None

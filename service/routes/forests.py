@@ -12,6 +12,7 @@ from schemas.jobs import ForestRequest, Job
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.inputs import check_cost, resolve_grammar
+from service.quotas import forest_job_cost
 from service.security import Tenant
 from service.views import ERRORS, submit
 
@@ -35,4 +36,6 @@ def create_forest(
     check_cost(
         req, s, cg.expected_pieces * per_tile, per_tile, " per tile" if req.tile_size else ""
     )
-    return submit(services, "forest", req.model_dump(mode="json"), idempotency_key, tenant)
+    cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)
+    params = req.model_dump(mode="json")
+    return submit(services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"])

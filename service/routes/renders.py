@@ -12,6 +12,7 @@ from fastapi.responses import JSONResponse
 from schemas.jobs import Job, JobState, RenderRequest
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
+from service.quotas import job_cost
 from service.security import CallerDep, Tenant
 from service.settings import ServiceSettings
 from service.views import ERRORS, UPLOAD_ERRORS, submit
@@ -51,7 +52,9 @@ def create_render(
             ["forest_job"], "the forest job wrote glTF (.glb); the renderer reads USD formats"
         )
     params = req.model_dump(mode="json") | {"scene": scene}  # schemas.jobs.RenderJob
-    return submit(services, "render", params, idempotency_key, tenant)
+    # the estimate: the forest's pieces drawn once per frame
+    cost = job_cost(int((row.result or {}).get("pieces", 0)), req.frames)
+    return submit(services, "render", params, idempotency_key, tenant, cost=cost, field=["frames"])
 
 
 USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}

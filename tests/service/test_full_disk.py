@@ -155,7 +155,7 @@ def test_stored_errors_are_capped_and_folded(store_server: tuple[Server, JobStor
         error = PXR_LINES * 6000 if n % 2 else "x" * (1 << 20)
         if n == 0:  # queued again (with its error), then canceled: no worker runs it
             assert store.retry(claim, error)
-            store.cancel_jobs([row.id])
+            store.cancel_family(row.id)
         else:
             assert store.finish(claim, JobState.FAILED, error=error)
         ids.append(row.id)

@@ -25,6 +25,7 @@ from typing import Any
 from farm import tiles, volume
 from farm.artifacts import ArtifactStore
 from farm.dispatch import TASK_NAME, Dispatcher, make_celery
+from farm.fair import TILE_KIND, pump_quietly
 from farm.settings import FarmSettings, get_settings
 from farm.store import Claim, JobStore
 from schemas.jobs import JobState
@@ -94,15 +95,33 @@ def run_attempt(
 
 
 def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
-    """Run one delivery of a job; answers what happened (for logs and tests)."""
+    """Run one delivery of a job; answers what happened (for logs and tests). A tile that
+    ends frees a place in the fair window: the next tile is sent (:mod:`farm.fair`)."""
     rt = runtime()
-    s = rt.settings
-    claim = rt.store.claim(job_id, OWNER, s.lease_s)
+    claim = rt.store.claim(job_id, OWNER, rt.settings.lease_s)
     if claim is None:
         return "skipped"  # finished, canceled, or leased by a live worker
+    if claim.kind != TILE_KIND:
+        return run_claim(rt, claim, kinds)
+    try:
+        return run_claim(rt, claim, kinds)
+    finally:
+        pump_quietly(rt.store, rt.dispatcher, rt.settings)
+
+
+def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> str:
+    """Run a claimed job: a tile with its forest job's request, a tiled forest's join, or
+    its kind in a supervised child."""
+    s, job_id = rt.settings, claim.job_id
+    if claim.kind == TILE_KIND:
+        full = tiles.with_request(rt.store, claim)
+        if full is None:
+            rt.store.finish(claim, JobState.FAILED, error="its forest job is gone")
+            return JobState.FAILED
+        claim = full
     if tiles.is_tiled(claim.kind, claim.params):
         try:
-            return tiles.join(rt.store, rt.dispatcher, rt.artifacts, claim)
+            return tiles.join(rt.store, rt.dispatcher, rt.artifacts, claim, s)
         except Exception as exc:  # the store or broker is away: back to the queue, retried
             log.exception("tiled forest job %s", job_id)
             if volume.is_full(exc):
