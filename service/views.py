@@ -117,16 +117,17 @@ def submit(
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
-    if created and inputs:
-        try:
-            _store_inputs(services, row.id, inputs)
-        except Exception as exc:
-            # no job without its input: it would only fail (or be sent by the reaper to fail)
-            services.store.discard(row.id)
-            services.artifacts.remove(row.id)
-            if volume.is_full(exc):
-                raise HTTPException(507, volume.FULL) from None
-            raise
+    if created:
+        if inputs:
+            try:
+                _store_inputs(services, row.id, inputs)
+            except Exception as exc:
+                # no job without its input: it would only fail (or be sent by the reaper to fail)
+                services.store.discard(row.id)
+                services.artifacts.remove(row.id)
+                if volume.is_full(exc):
+                    raise HTTPException(507, volume.FULL) from None
+                raise
         try:
             services.dispatcher.send(row.id, kind)
         except (KombuOperationalError, OSError, DBAPIError) as exc:
