@@ -75,6 +75,19 @@ def submit(
 ) -> JSONResponse:
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it, answer
     202 + the job."""
+    return accepted(enqueue(services, kind, params, key, tenant, inputs), services)
+
+
+def enqueue(
+    services: Services,
+    kind: str,
+    params: dict[str, Any],
+    key: str | None,
+    tenant: str,
+    inputs: dict[str, bytes] | None = None,
+) -> JobRow:
+    """Insert (or find, by idempotency key) the job, store its input files, enqueue it: the
+    job's row (503 if the broker is away and the job was not sent)."""
     try:
         row, created = services.store.create(
             kind, params, services.settings.max_attempts, key, tenant
@@ -102,6 +115,11 @@ def submit(
                     503, BROKER_UNAVAILABLE, headers={"Retry-After": str(RETRY_AFTER_S)}
                 ) from None
             row = services.store.get(row.id) or row  # a worker has it: the message went out
+    return row
+
+
+def accepted(row: JobRow, services: Services) -> JSONResponse:
+    """202 + the job (as ``GET /v1/jobs/{id}`` answers it) + its Location."""
     job = job_model(row, services)
     return JSONResponse(
         job.model_dump(mode="json"),
