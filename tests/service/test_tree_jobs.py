@@ -120,3 +120,53 @@ def test_concurrent_medium_trees_queue_on_the_workers(server: Server, tmp_path: 
     assert files[0].content == reference_scene(tmp_path, MEDIUM | {"seed": 0}, "tree")
     risen = (status_kib(pid, "VmHWM") - peak_before) * 1024
     assert risen < 100 * MIB, f"API peak RSS rose {risen / MIB:.0f} MiB over 4 medium trees"
+
+
+# seconds of work (~1 GB if made in one process): never done within the waits below
+SLOW = {"preset": "oak", "frames": 48, "segments": 4, "format": "usdz"}
+
+
+def test_not_done_in_time_answers_the_job(server: Server) -> None:
+    r = server.post("/v1/trees", SLOW | {"seed": 1}, headers={"Prefer": "wait=0.2"})
+    assert r.status_code == 202, r.text
+    assert r.json()["kind"] == "tree" and r.json()["state"] in ("queued", "active")
+    assert r.headers["location"] == f"/v1/jobs/{r.json()['id']}"
+    # canceled: the test needs no more of it (a queued one at once, a running one is killed)
+    gone = httpx.delete(f"{server.url}{r.headers['location']}", headers=server.headers, timeout=30)
+    assert gone.status_code == 200, gone.text
+    assert server.wait(r.json()["id"])["state"] == "canceled"
+
+
+def test_a_client_that_hangs_up_cancels_its_tree(server: Server) -> None:
+    body = SLOW | {"seed": 2}
+    with pytest.raises(httpx.ReadTimeout):
+        httpx.post(f"{server.url}/v1/trees", json=body, timeout=httpx.Timeout(30, read=0.5))
+    job: dict[str, object] = {}
+    for _ in range(300):  # the request may still be on its way in: look until its job shows
+        jobs = server.get("/v1/jobs?kind=tree&limit=200").json()["items"]
+        job = next(
+            (j for j in jobs if j["params"]["frames"] == 48 and j["params"]["seed"] == 2), {}
+        )
+        if job:
+            break
+        time.sleep(0.1)
+    assert job, "no job for the request"
+    assert server.wait(str(job["id"]))["state"] == "canceled"
+
+
+@pytest.mark.parametrize(
+    ("prefer", "wait_s"),
+    [
+        (None, 30.0),
+        ("respond-async", 0.0),
+        ("wait=5", 5.0),
+        ('wait="2.5", handling=lenient', 2.5),
+        ("wait=90", 30.0),  # never longer than the server's
+        ("wait=soon", 30.0),  # unreadable: ignored
+        ("handling=strict; x=1, RESPOND-ASYNC", 0.0),
+    ],
+)
+def test_prefer_header(prefer: str | None, wait_s: float) -> None:
+    from service.routes.trees import wait_preference
+
+    assert wait_preference(prefer, 30.0) == wait_s
