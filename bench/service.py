@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
+from typing import NamedTuple
 
 import httpx
 import numpy as np
@@ -29,10 +30,24 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+class Served(NamedTuple):
+    url: str
+    pid: int
+    """The API's process (``forest serve`` with one API process runs the API itself)."""
+
+
+def rss_mib(pid: int) -> float:
+    """Resident memory of a process now (``VmRSS``), MiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    raise RuntimeError(f"no VmRSS for process {pid}")
+
+
 @contextmanager
 def embedded_server(
     data: Path, workers: int, backends: dict[str, str] | None = None
-) -> Iterator[str]:
+) -> Iterator[Served]:
     """``forest serve`` with ``workers`` job workers; ``backends`` holds FOREST_DATABASE_URL
     and FOREST_BROKER_URL when not the embedded ones."""
     port = _free_port()
@@ -61,7 +76,7 @@ def embedded_server(
                 pass
             time.sleep(0.2)
         time.sleep(1.0 if workers else 0.0)  # workers connect to the broker
-        yield url
+        yield Served(url, proc.pid)
     finally:
         proc.send_signal(signal.SIGTERM)
         try:
@@ -157,20 +172,25 @@ def run_service_bench(
             f"POST /v1/trees (preset {preset}, usdc), {requests} requests per level, "
             "embedded server"
         )
-        echo(f"{'clients':>8} {'p50 ms':>9} {'p99 ms':>9} {'req/s':>8}")
-        with embedded_server(Path(tmp) / "api", 0) as url:
+        # each tree is a job on the workers (the API waits for it): as many as the job runs'
+        echo(f"{'clients':>8} {'p50 ms':>9} {'p99 ms':>9} {'req/s':>8} {'API MiB':>8}")
+        with embedded_server(Path(tmp) / "api", max(workers)) as api:
             for c in concurrency:
-                r = tree_latency(url, {"preset": preset, "format": "usdc"}, c, max(requests, c))
-                echo(f"{c:>8} {r['p50_ms']:>9.1f} {r['p99_ms']:>9.1f} {r['rps']:>8.1f}")
+                tree: dict[str, object] = {"preset": preset, "format": "usdc"}
+                r = tree_latency(api.url, tree, c, max(requests, c))
+                echo(
+                    f"{c:>8} {r['p50_ms']:>9.1f} {r['p99_ms']:>9.1f} {r['rps']:>8.1f} "
+                    f"{rss_mib(api.pid):>8.0f}"
+                )
         echo(
             f"forest jobs: {jobs} jobs x {trees} trees (preset {preset}), "
             f"job store {store}, broker {broker}"
         )
         echo(f"{'workers':>8} {'seconds':>9} {'jobs/s':>8} {'trees/s':>9}")
         for w in workers:
-            with embedded_server(Path(tmp) / f"jobs{w}", w, backends) as url:
+            with embedded_server(Path(tmp) / f"jobs{w}", w, backends) as served:
                 body: dict[str, object] = {"preset": preset, "trees": trees, "format": "usdc"}
-                r = job_throughput(url, body, jobs)
+                r = job_throughput(served.url, body, jobs)
                 echo(
                     f"{w:>8} {r['seconds']:>9.2f} {r['jobs_per_s']:>8.2f} {r['trees_per_s']:>9.1f}"
                 )

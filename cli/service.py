@@ -30,8 +30,8 @@ SERVICE_MODULES = ("fastapi", "uvicorn", "sqlalchemy", "alembic", "celery")
     type=click.IntRange(1, 64),
     default=1,
     show_default=True,
-    help="API processes sharing the port: synchronous requests (POST /v1/trees) run "
-    "side by side; /metrics sums all of them.",
+    help="API processes sharing the port: requests are answered side by side (trees are "
+    "made by the job workers); /metrics sums all of them.",
 )
 @input_errors
 def serve(data_dir: Path, host: str, port: int, workers: int, api_workers: int) -> None:

@@ -15,7 +15,12 @@ from kombu import Exchange, Queue
 from farm.settings import FarmSettings
 
 TASK_NAME = "forest.run_job"
-KIND_QUEUES: dict[str, str] = {"forest": "default", "render": "gpu", "forest_tile": "default"}
+KIND_QUEUES: dict[str, str] = {
+    "forest": "default",
+    "render": "gpu",
+    "forest_tile": "default",
+    "tree": "default",
+}
 QUEUES = ("default", "gpu")
 SQLA_POLL_S = 0.1
 

@@ -37,8 +37,9 @@ class JobState(StrEnum):
         return core_schema.no_info_after_validator_function(cls, literal)
 
 
-JobKind = Literal["forest", "render", "forest_tile"]
-"""``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job."""
+JobKind = Literal["forest", "render", "forest_tile", "tree"]
+"""``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job; ``tree``:
+the job of a ``POST /v1/trees`` (the tree is made by a worker, not by the API process)."""
 MAX_UNTILED_TREES = 200_000
 UsdFormat = Literal["usda", "usdc", "usdz"]
 SceneFormat = Literal["usda", "usdc", "usdz", "glb"]

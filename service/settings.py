@@ -26,8 +26,11 @@ class ServiceSettings(FarmSettings):
     max_tree_pieces: int = Field(100_000, gt=0)
     max_forest_memory_mb: int = Field(4096, gt=0)
     """Estimated peak memory (MiB, ``forest.cost``) of generating and writing one forest (one
-    tile of a tiled one), or a tree answered in the API process; over it: 422 before any work.
-    Keep it under ``job_memory_mb``, which also counts address space that is never touched."""
+    tile of a tiled one) or one ``POST /v1/trees`` tree; over it: 422 before any work. Keep it
+    under ``job_memory_mb``, which also counts address space that is never touched."""
+    tree_wait_s: float = Field(30.0, ge=0)
+    """``POST /v1/trees`` makes its tree as a job on the workers and waits this long for it:
+    done in time, 200 with the file; else 202 with the job (0: always 202 at once)."""
     max_scene_bytes: int = Field(2 << 30, gt=0)
     """Estimated bytes of one scene file (a tiled forest: of each tile); over it: 422."""
     max_frames: int = Field(480, gt=0)

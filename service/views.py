@@ -97,6 +97,22 @@ def submit(
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it, answer
     202 + the job. A new job must fit the tenant's quotas with its ``cost``
     (:mod:`service.quotas`; ``field``: the request field a 422 names)."""
+    row = enqueue(services, kind, params, key, tenant, inputs, cost=cost, field=field)
+    return accepted(row, services)
+
+
+def enqueue(
+    services: Services,
+    kind: str,
+    params: dict[str, Any],
+    key: str | None,
+    tenant: str,
+    inputs: dict[str, bytes] | None = None,
+    cost: JobCost | None = None,
+    field: list[str | int] | None = None,
+) -> JobRow:
+    """Insert (or find, by idempotency key) the job, store its input files, enqueue it: the
+    job's row (429/422 over a quota, 503 if the broker is away and the job was not sent)."""
     cost = cost or JobCost(pieces=0, frames=0, tiles=0, scene_bytes=0, units=0)
     known = key is not None and services.store.by_key(scoped_key(tenant, key)) is not None
     if not known:  # a repeat of an accepted request answers its job, quota or not
@@ -141,6 +157,11 @@ def submit(
                     503, BROKER_UNAVAILABLE, headers={"Retry-After": str(RETRY_AFTER_S)}
                 ) from None
             row = services.store.get(row.id) or row  # a worker has it: the message went out
+    return row
+
+
+def accepted(row: JobRow, services: Services) -> JSONResponse:
+    """202 + the job (as ``GET /v1/jobs/{id}`` answers it) + its Location."""
     job = job_model(row, services)
     return JSONResponse(
         job.model_dump(mode="json"),

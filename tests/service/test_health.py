@@ -40,6 +40,7 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
         "forest\tqueue default",
         "render\tqueue gpu",
         "forest_tile\tqueue default",
+        "tree\tqueue default",
     ]
     bad = runner.invoke(main, ["worker", "-Q", "default,cpu"])
     assert bad.exit_code == 2

@@ -51,7 +51,8 @@ def seen(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Any]]:
     _require_browser()
     tmp = tmp_path_factory.mktemp("web")
     keys = ",".join(f"{k}={t}" for k, t in KEYS.items())
-    server = Server(tmp / "data", {"FOREST_API_KEYS": keys}).start()
+    # every POST /v1/trees answers 202 with its job: the page follows it to the file
+    server = Server(tmp / "data", {"FOREST_API_KEYS": keys, "FOREST_TREE_WAIT_S": "0"}).start()
     try:
         server.headers = {"X-API-Key": "key-beta"}
         other = server.post("/v1/forests", {"preset": "oak", "trees": 1})

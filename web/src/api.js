@@ -20,8 +20,24 @@ export class ApiError extends Error {
   }
 }
 
+const FINISHED = ["completed", "failed", "canceled"];
+
+/** A file asked for (POST /v1/trees) came back 202 with the job that makes it: poll the job
+ *  until it ends, then fetch its file (its one artifact). */
+async function fileOfJob(job, as) {
+  while (!FINISHED.includes(job.state)) {
+    await new Promise((resolve) => setTimeout(resolve, 1000));
+    job = await api(`/v1/jobs/${job.id}`);
+  }
+  if (job.state !== "completed" || !job.artifacts.length) {
+    throw new ApiError(422, job.error || `the job was ${job.state}`);
+  }
+  return api(job.artifacts[0].url, { as });
+}
+
 /** fetch(path) with the key; rejects with ApiError on non-2xx: the status and the problem
- * body's (RFC 9457) `detail`, and a 422's `errors` (each field's `loc` and `msg`). */
+ * body's (RFC 9457) `detail`, and a 422's `errors` (each field's `loc` and `msg`). A file
+ * asked for (`as` other than json) that comes back 202 (a job) is followed to its file. */
 export async function api(path, { method = "GET", body, as = "json" } = {}) {
   const headers = {};
   const key = apiKey();
@@ -44,6 +60,7 @@ export async function api(path, { method = "GET", body, as = "json" } = {}) {
     }
     throw new ApiError(res.status, detail, errors);
   }
+  if (res.status === 202 && as !== "json") return fileOfJob(await res.json(), as);
   if (as === "json") return res.json();
   if (as === "blob") return res.blob();
   return res.arrayBuffer();

@@ -9,5 +9,11 @@ from worker.jobs.context import TaskKind
 from worker.jobs.forest import run_forest
 from worker.jobs.render import run_render
 from worker.jobs.tile import run_tile
+from worker.jobs.tree import run_tree
 
-KINDS: dict[str, TaskKind] = {"forest": run_forest, "render": run_render, "forest_tile": run_tile}
+KINDS: dict[str, TaskKind] = {
+    "forest": run_forest,
+    "render": run_render,
+    "forest_tile": run_tile,
+    "tree": run_tree,
+}
