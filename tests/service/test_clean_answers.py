@@ -10,6 +10,7 @@ from __future__ import annotations
 import json
 import threading
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
 
@@ -129,9 +130,15 @@ def test_nul_or_lone_surrogate_in_any_field_is_422_naming_it(server: Server) -> 
     assert server.get("/v1/jobs").json()["total"] == 0
 
 
-def test_a_grammar_named_in_any_script_downloads(plain: Server) -> None:
-    g = grammar(plain, "hazel") | {"name": 'a名 "x";y'}
-    r = plain.post("/v1/trees", {"grammar": g, "format": "usda"})
+def test_a_grammar_named_in_any_script_downloads(tmp_path: Path) -> None:
+    # a tree is a job: this server has a worker to make it
+    s = Server(tmp_path / "data", ENV, workers=1).start()
+    s.headers = dict(KEY)
+    try:
+        g = grammar(s, "hazel") | {"name": 'a名 "x";y'}
+        r = s.post("/v1/trees", {"grammar": g, "format": "usda"})
+    finally:
+        s.stop()
     assert r.status_code == 200, r.text[:2000]
     cd = r.headers["content-disposition"]
     assert cd.startswith('attachment; filename="a___x__y-0.usda"; '), cd
