@@ -180,19 +180,24 @@ def write_instancer(
         quats = Vt.QuatfArray.FromNumpy(rotations)
         set_attr(prim, JOINT_ROTATIONS, Sdf.ValueTypeNames.QuatfArray, quats, code)
         t, q, s = fit_posed(moments, g.piece, forest.bones.offset, np.swapaxes(palette, -1, -2))
+        positions = Vt.Vec3fArray.FromNumpy(t.astype(np.float32))
+        orientations = Vt.QuathArray.FromNumpy(q.astype(np.float16))
+        scales = Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
+        extent = _posed_extent(boxes, t, q, s)
+        # the first sample is also the default, so tools that read no time see the pose; a
+        # still forest's only sample is the default itself: each value is authored once
+        codes = [code]
+        if i == 0 and not code.IsDefault():
+            codes.insert(0, Usd.TimeCode.Default())
         with Usd.EditContext(stage, targets[POSED]):
-            # the first sample is also the default, so tools that read no time see the pose
-            for c in (Usd.TimeCode.Default(), code) if i == 0 else (code,):
-                inst.CreatePositionsAttr().Set(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)), c)
-                inst.CreateOrientationsAttr().Set(Vt.QuathArray.FromNumpy(q.astype(np.float16)), c)
-                inst.CreateScalesAttr().Set(
-                    Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32)),
-                    c,
-                )
-                inst.CreateExtentAttr().Set(_posed_extent(boxes, t, q, s), c)
+            for c in codes:
+                inst.CreatePositionsAttr().Set(positions, c)
+                inst.CreateOrientationsAttr().Set(orientations, c)
+                inst.CreateScalesAttr().Set(scales, c)
+                inst.CreateExtentAttr().Set(extent, c)
         if on_palette is not None:
             on_palette(time, palette)
-        del palette, rotations, quats, t, q, s
+        del palette, rotations, quats, t, q, s, positions, orientations, scales, extent
         if progress:
             progress("palette", i + 1, len(times))
     return inst
