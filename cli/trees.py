@@ -237,9 +237,18 @@ def generate(
             "or write .usdc",
             path="skinned",
         )
+    compiled = None
+    if glb:  # the writer's vertex cap, estimated before any expansion
+        from forest.caps import check_glb_vertices
+        from forest.growth.compile import compile_grammar
+
+        compiled = compile_grammar(g)
+        check_glb_vertices(compiled, trees, segments)
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
-        forest = generate_forest(g, seed, options, manifest=manifest, progress=grow)
+        forest = generate_forest(
+            g, seed, options, manifest=manifest, progress=grow, compiled=compiled
+        )
         write_forest(
             forest,
             output,

@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import functools
 
+from forest.caps import check_glb_vertices, check_palette
 from forest.cost import forest_cost
-from forest.errors import ForestError, GrammarError
+from forest.errors import ForestError, GrammarError, LimitError
 from forest.growth.compile import compile_grammar
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.presets import PresetOrGrammarError, grammar_of
-from forest.settings import ForestSettings
+from forest.settings import ForestSettings, get_settings
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest
 from service.errors import field_error, forest_error
@@ -63,11 +64,15 @@ def resolve_grammar(
 
 
 def check_cost(
-    req: TreeRequest, settings: ServiceSettings, pieces: float, trees: int, where: str = ""
+    req: TreeRequest, settings: ServiceSettings, cg: CompiledGrammar, trees: int, where: str = ""
 ) -> None:
     """The request's estimated peak memory and scene bytes (:func:`forest.cost.forest_cost`)
-    within the settings' caps: 422 naming the cap before any work (``where``: " per tile")."""
-    cost = forest_cost(pieces, trees, req.frames, req.segments, req.format, req.skinned)
+    within the settings' caps, and its palette (bones x frames) and a .glb's baked vertices
+    within the library's (:mod:`forest.caps`): 422 naming the cap before any work
+    (``where``: " per tile")."""
+    cost = forest_cost(
+        cg.expected_pieces * trees, trees, req.frames, req.segments, req.format, req.skinned
+    )
     field: list[str | int] = ["trees"] if trees > 1 else ["grammar" if req.grammar else "preset"]
     if cost.memory_bytes > settings.max_forest_memory_mb << 20:
         raise field_error(
@@ -85,3 +90,15 @@ def check_cost(
             "segments",
             "limit_error",
         )
+    # the caps the worker's generation and writer hold (the worker's own settings)
+    try:
+        check_palette(cg, trees, req.frames, get_settings())
+        if req.format == "glb":
+            check_glb_vertices(cg, trees, req.segments)
+    except LimitError as exc:
+        palette = exc.path == "max_palette_matrices"
+        raise field_error(
+            ["frames"] if palette and req.frames > 1 else field,
+            f"{exc.message} ({exc.path}{where})" if palette else exc.message,
+            "limit_error",
+        ) from None

@@ -21,6 +21,7 @@ import pygltflib as gl
 
 from forest.atomic import replaced_when_written
 from forest.bark.atlas import make_atlas, read_slices, tile_folder
+from forest.caps import MAX_VERTICES
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material
@@ -49,7 +50,6 @@ if TYPE_CHECKING:
     from forest.lod.impostor import Impostor
 
 Progress = Callable[[str, int, int], None]
-MAX_VERTICES = 8_000_000  # baked vertices per file (bark and leaves): about 450 MB of GLB
 
 
 def baked_vertices(forest: Forest) -> int:

@@ -5,15 +5,16 @@ height, which needs :func:`forest.growth.expand.expand`)."""
 
 from __future__ import annotations
 
+import contextlib
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from forest.bark.tilesets import SETS as BARK_SETS
-from forest.errors import GrammarError, LimitError
+from forest.errors import ForestError, GrammarError, LimitError
 from forest.geometry.pieces import MAX_LEAF_RIMS, PIECE_NAMES, piece_library
-from forest.growth.expand import expand
+from forest.growth.expand import PieceGraph, expand
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.grammar_errors import did_you_mean, raise_all, reference_errors
 from forest.growth.keyed import GROW, tree_keys
@@ -117,13 +118,16 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
         )
     if g.max_depth is None:
         _check_terminates(cg)
-    if g.twig_radius is not None or g.crown is not None or cg.by_thickness:
+    sampled = g.twig_radius is not None or g.crown is not None or cg.by_thickness
+    if sampled:
         # growth ends by thickness and height, which counting by depth cannot see: grow a
         # small sample (its own fixed seed; the per-tree cap still stops a runaway)
-        expected = _sampled_pieces(cg, settings)
+        expected, kinds, bearers = _sampled_pieces(cg, settings)
     else:
-        expected = _expected_pieces(cg)
+        expected, kinds, bearers = _expected_pieces(cg)
     object.__setattr__(cg, "expected_pieces", expected)
+    object.__setattr__(cg, "expected_kinds", kinds)
+    object.__setattr__(cg, "expected_bearers", bearers)
     if expected > settings.max_pieces_per_tree:
         raise LimitError(
             f"the grammar grows about {expected:.3g} pieces per tree, over the cap of "
@@ -131,6 +135,14 @@ def compile_grammar(g: Grammar, settings: ForestSettings | None = None) -> Compi
             path="max_pieces_per_tree",
             limit=settings.max_pieces_per_tree,
         )
+    if not sampled and g.close_tips and has_cap and expected <= SAMPLE_MAX_PIECES:
+        # the chains that finish thick tips depend on the radii there, which counting by
+        # depth cannot see: the kinds (bones, vertices) come from a sample where one is
+        # cheap and grows (a grammar that fails to is refused when the forest grows)
+        with contextlib.suppress(ForestError):
+            _, kinds, bearers = _sampled_pieces(cg, settings)
+            object.__setattr__(cg, "expected_kinds", kinds)
+            object.__setattr__(cg, "expected_bearers", bearers)
     return cg
 
 
@@ -166,15 +178,34 @@ def _alt_weights(cg: CompiledGrammar, depth: int) -> NDArray[np.float64]:
 
 
 SAMPLE_TREES = 4
+SAMPLE_MARGIN = 1.15  # over the sample's mean: a margin for the spread of sizes
+SAMPLE_MAX_PIECES = 20_000  # a tree counted by depth is sampled only below this: ~0.1 s
 
 
-def _sampled_pieces(cg: CompiledGrammar, settings: ForestSettings) -> float:
-    """Mean pieces per tree of a few trees of average size (1.15 x: a margin for the spread
-    of sizes)."""
+def _sampled_pieces(
+    cg: CompiledGrammar, settings: ForestSettings
+) -> tuple[float, NDArray[np.float64], float]:
+    """Mean pieces per tree of a few trees of average size, each kind's and the foliage
+    bearers' (x :data:`SAMPLE_MARGIN`)."""
     g = cg.grammar
     radius = np.full(SAMPLE_TREES, g.trunk_radius * sum(g.tree_scale) / 2)
     graph = expand(cg, tree_keys(0, np.arange(SAMPLE_TREES), GROW), settings, radius)
-    return 1.15 * len(graph) / SAMPLE_TREES
+    per_tree = SAMPLE_MARGIN / SAMPLE_TREES
+    kinds = np.bincount(graph.piece, minlength=len(PIECE_NAMES)).astype(np.float64) * per_tree
+    bearers = len(foliage_bearers(cg, graph)) * per_tree
+    return len(graph) * per_tree, kinds, bearers
+
+
+def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:
+    """``(k,)`` the instances that bear leaf sprays: of a foliage symbol, not a cap, and no
+    thicker than the leaves' ``max_radius`` (leaves live on the last orders, not on trunks
+    and main limbs)."""
+    bears = cg.foliage[graph.symbol]
+    if "Cap" in PIECE_NAMES:
+        bears &= graph.piece != PIECE_NAMES.index("Cap")
+    if cg.grammar.leaves.max_radius is not None:
+        bears &= graph.scale <= cg.grammar.leaves.max_radius
+    return np.flatnonzero(bears).astype(np.int32)
 
 
 def _check_terminates(cg: CompiledGrammar) -> None:
@@ -228,24 +259,35 @@ def _check_terminates(cg: CompiledGrammar) -> None:
         )
 
 
-def _expected_pieces(cg: CompiledGrammar) -> float:
+def _expected_pieces(cg: CompiledGrammar) -> tuple[float, NDArray[np.float64], float]:
     """Expected pieces per tree, summed level by level up to max_depth (each level linear
-    in the alternatives)."""
+    in the alternatives); each kind's, with the caps that close the tips (which the total
+    leaves out; not the finishing chains, which depend on the radii), and the foliage
+    bearers' (every foliage piece: thickness is not known)."""
     n = len(cg.symbols)
     level = np.zeros(n)
     level[cg.axiom] = 1.0
-    total = 0.0
+    total = bearers = caps = 0.0
+    kinds = np.zeros(len(PIECE_NAMES))
     has = cg.alt_succ >= 0
     succ = cg.alt_succ[has]
+    rims = np.array([p.n_leaf_rims for p in piece_library()])[cg.alt_piece]
+    open_rims = rims - has.sum(axis=1)  # rims without a successor: capped
     for d in range(cg.max_depth + 1):
         w = _alt_weights(cg, d)
         tot = np.bincount(cg.alt_symbol, weights=w, minlength=n)
         grown = level * (tot > 0)
         total += grown.sum()
+        caps += (level * (tot <= 0)).sum()  # no eligible alternative: a tip
+        bearers += grown[cg.foliage].sum()
         if total > 1e15 or not grown.any():
             break
         p = w / np.where(tot > 0, tot, 1.0)[cg.alt_symbol]
         per_alt = grown[cg.alt_symbol] * p
+        kinds += np.bincount(cg.alt_piece, weights=per_alt, minlength=len(PIECE_NAMES))
+        caps += per_alt @ (rims if d == cg.max_depth else open_rims)  # pruned at max_depth
         per_rim = np.broadcast_to(per_alt[:, None], has.shape)[has]
         level = np.bincount(succ, weights=per_rim, minlength=n).astype(float)
-    return float(total)
+    if cg.grammar.close_tips and cg.cap_alt >= 0:
+        kinds[cg.alt_piece[cg.cap_alt]] += caps
+    return float(total), kinds, float(bearers)

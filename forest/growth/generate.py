@@ -13,11 +13,12 @@ from numpy.typing import NDArray
 from forest import __version__
 from forest.bark.tiles import draw_tile_indices, lower_trunk
 from forest.bark.tilesets import shipped_manifest
+from forest.caps import check_palette
 from forest.errors import LimitError
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceArrays, piece_library
 from forest.geometry.transforms import F64, similarity_scale
 from forest.growth.assembly import topological_transforms
-from forest.growth.compile import compile_grammar
+from forest.growth.compile import compile_grammar, foliage_bearers
 from forest.growth.expand import MAX_FINISH, PieceGraph, end_branches, finish_reach
 from forest.growth.foliage import FoliageAnchors, Season, spray_anchors
 from forest.growth.grammar import CompiledGrammar
@@ -183,18 +184,6 @@ def foliage_or_none(forest: Forest) -> FoliageAnchors | None:
     return anchors if len(anchors) else None
 
 
-def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:
-    """``(k,)`` the instances that bear leaf sprays: of a foliage symbol, not a cap, and no
-    thicker than the leaves' ``max_radius`` (leaves live on the last orders, not on trunks
-    and main limbs)."""
-    bears = cg.foliage[graph.symbol]
-    if "Cap" in PIECE_NAMES:
-        bears &= graph.piece != PIECE_NAMES.index("Cap")
-    if cg.grammar.leaves.max_radius is not None:
-        bears &= graph.scale <= cg.grammar.leaves.max_radius
-    return np.flatnonzero(bears).astype(np.int32)
-
-
 def generate_forest(
     grammar: Grammar,
     seed: int,
@@ -221,6 +210,8 @@ def generate_forest(
             path="max_pieces_per_forest",
             limit=settings.max_pieces_per_forest,
         )
+    # the palette's size before any expansion (the exact count below is the backstop)
+    check_palette(cg, options.trees, options.frames, settings)
     note = progress or (lambda stage, done, total: None)
     # bark tiles draw per forest; placement, growth and pose per tree and piece, keyed on the
     # seed and the tree's id, so a tree is the same in any forest or tile (forest.growth.keyed)

@@ -5,7 +5,7 @@ builds."""
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -116,6 +116,11 @@ class CompiledGrammar:
     finish_alt: int
     pipe_exponent: float | None
     expected_pieces: float
+    expected_kinds: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
+    """``(P,)`` expected pieces of each kind (PIECE_NAMES) per tree, with the margin of
+    ``expected_pieces``: the bones and baked vertices follow from it before expansion."""
+    expected_bearers: float = 0.0
+    """Expected foliage-bearing pieces per tree (:func:`forest.growth.compile.foliage_bearers`)."""
 
     def choice_table(self, depth: int) -> NDArray[np.float64]:
         """``(S, A)`` cumulative weights of the alternatives eligible at ``depth``."""

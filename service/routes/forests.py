@@ -33,9 +33,7 @@ def create_forest(
         where = " per tile" if req.tile_size else ""
         raise field_error(["trees"], f"at most {s.max_forest_trees} trees{where}", "limit_error")
     _, cg = resolve_grammar(req, s, per_tile, s.max_forest_pieces)
-    check_cost(
-        req, s, cg.expected_pieces * per_tile, per_tile, " per tile" if req.tile_size else ""
-    )
+    check_cost(req, s, cg, per_tile, " per tile" if req.tile_size else "")
     cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)
     params = req.model_dump(mode="json")
     return submit(services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"])

@@ -82,7 +82,7 @@ def _submit(req: TreeRequest, services: Services, tenant: str) -> tuple[JobRow, 
     """Check the request (422 before any work) and queue its job; the job and the file name."""
     s = services.settings
     grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
-    check_cost(req, s, cg.expected_pieces, 1)
+    check_cost(req, s, cg, 1)
     cost = job_cost(cg.expected_pieces, req.frames)
     # no idempotency key: a 200 deletes the job's file once sent, so a replay would find none
     params = req.model_dump(mode="json")

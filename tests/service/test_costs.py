@@ -10,8 +10,11 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import pytest
 
 from farm.db import migrate
+from forest.settings import ForestSettings
+from service import inputs
 from service.app import create_app
 from service.settings import ServiceSettings
 
@@ -83,3 +86,31 @@ def test_a_forest_within_the_caps_passes(tmp_path: Path) -> None:
     r = post(settings, "/v1/forests", body)
     assert r.status_code == 202, r.text
     assert r.json()["state"] == "queued"
+
+
+def test_palette_cap_before_any_work(tmp_path: Path) -> None:
+    """1,000 oaks x 24 frames: within raised memory and scene caps, but about 110 M palette
+    matrices, over the library's 50 M; refused from the grammar's estimate (it was queued, and
+    the worker refused it only once grown)."""
+    settings = ServiceSettings(data_dir=tmp_path, max_forest_memory_mb=1 << 20,
+                               max_scene_bytes=1 << 40)  # fmt: skip
+    body = {"preset": "oak", "trees": 1000, "frames": 24}
+    msg = refused(post(settings, "/v1/forests", body), ["frames"], "max_palette_matrices")
+    assert "use fewer frames or trees" in msg, msg
+
+
+def test_tree_palette_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setattr(inputs, "get_settings", lambda: ForestSettings(max_palette_matrices=1000))
+    body = {"preset": "oak", "frames": 1}
+    refused(post(ServiceSettings(data_dir=tmp_path), "/v1/trees", body), ["preset"],
+            "max_palette_matrices")  # fmt: skip
+
+
+def test_glb_vertex_cap_before_any_work(tmp_path: Path) -> None:
+    """100 oaks bake to about 56 M vertices, over the glTF writer's 8 M."""
+    settings = ServiceSettings(data_dir=tmp_path, max_forest_memory_mb=1 << 20)
+    body = {"preset": "oak", "trees": 100, "format": "glb"}
+    r = post(settings, "/v1/forests", body)
+    assert r.status_code == 422, r.text
+    detail = r.json()["errors"][0]
+    assert detail["loc"] == ["body", "trees"] and "glTF cap" in detail["msg"], detail
