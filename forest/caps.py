@@ -16,6 +16,7 @@ up to 1.02 and 1.43. A forest the estimate lets through is counted again once gr
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from forest.errors import LimitError
 from forest.geometry.pieces import piece_library
@@ -26,18 +27,24 @@ from forest.settings import ForestSettings
 MAX_VERTICES = 8_000_000  # baked vertices per .glb (bark and leaves): about 450 MB of GLB
 
 
+def _per_tree(cg: CompiledGrammar, per_kind: NDArray[np.float64]) -> float:
+    """``per_kind`` (a value per piece kind) summed over a tree's expected pieces; a grammar
+    built without the kinds (by hand) counts every piece as the heaviest kind."""
+    if not len(cg.expected_kinds):
+        return cg.expected_pieces * float(per_kind.max())
+    return float(cg.expected_kinds @ per_kind)
+
+
 def expected_bones(cg: CompiledGrammar) -> float:
     """Expected bones per tree: each piece kind's joints."""
-    joints = np.array([p.n_joints for p in piece_library()], np.float64)
-    return float(cg.expected_kinds @ joints)
+    return _per_tree(cg, np.array([p.n_joints for p in piece_library()], np.float64))
 
 
 def expected_vertices(cg: CompiledGrammar, segments: int = 1) -> float:
     """Expected baked vertices per tree of a .glb (as :func:`forest.gltf.document.
     baked_vertices` counts them): 4 per bark quad, and the leaf sprays' (each bearer's mean
     sprays of the mean model, no more than ``leaves.max_triangles`` allows a tree)."""
-    quads = np.array([len(p.quads) for p in piece_library(segments)], np.float64)
-    bark = 4.0 * float(cg.expected_kinds @ quads)
+    bark = 4.0 * _per_tree(cg, np.array([len(p.quads) for p in piece_library(segments)], float))
     leaves = cg.grammar.leaves
     models = cloud_models(leaves.family, leaves.length, leaves.phyllotaxis)
     per_spray = float(np.mean([len(c.positions) for c in models]))
