@@ -37,6 +37,9 @@ MAX_ERRORS = 20
 """Validation errors listed in one answer; the rest are counted (``errors_left_out``)."""
 INPUT_CAP = 256
 """About this many characters of an invalid input are echoed back; a longer one is not."""
+NAME_CAP, MSG_CAP = 200, 1000
+"""A field name (an unknown one is the client's text, of any length) and a message are cut to
+about this many characters: a 900 KB field name was echoed three times (2.7 MB)."""
 SEPARATORS = (",", ":")  # as Starlette's JSONResponse writes
 _PART = re.compile(r"\[(\d+)\]|\.?([^.\[\]]+)")
 
@@ -139,9 +142,14 @@ def _fit(value: Any, budget: int = INPUT_CAP) -> int:
     return budget - 24  # a number, a bool, None
 
 
+def _cut(text: str, cap: int = NAME_CAP) -> str:
+    return text if len(text) <= cap else text[:cap] + "\u2026"
+
+
 def _clean_error(raw: Any) -> dict[str, Any]:
     """One validation error for the wire: its field path (a library's or a schema check's own
-    path where it names one), its ``input`` only when short, ``ctx`` as text."""
+    path where it names one), its ``input`` only when short, ``ctx`` as text; names and
+    messages cut short."""
     err: dict[str, Any] = (
         dict(raw) if isinstance(raw, dict) else {"loc": [], "msg": str(raw), "type": "error"}
     )
@@ -153,7 +161,12 @@ def _clean_error(raw: Any) -> dict[str, Any]:
         err["msg"] = found.reason
         err.pop("input", None)
     elif isinstance(ctx, dict):
-        err["ctx"] = {k: v if isinstance(v, int | float | str) else str(v) for k, v in ctx.items()}
+        err["ctx"] = {
+            k: v if isinstance(v, int | float) else _cut(str(v), MSG_CAP) for k, v in ctx.items()
+        }
+    err["loc"] = [_cut(p) if isinstance(p, str) else p for p in err.get("loc", ())]
+    if isinstance(err.get("msg"), str):
+        err["msg"] = _cut(err["msg"], MSG_CAP)
     if "input" in err and _fit(err["input"]) < 0:
         del err["input"]  # never echo a large input (a 4 MB list cost 20 s to answer)
     err.pop("url", None)
