@@ -12,6 +12,7 @@ import json
 import logging
 import math
 import re
+import sqlite3
 from collections.abc import Mapping, Sequence
 from http import HTTPStatus
 from typing import Any
@@ -25,6 +26,7 @@ from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import Response
 
+from farm.volume import FULL, is_full
 from forest.errors import ForestError, LimitError
 from forest.growth.grammar_errors import GrammarErrors, did_you_mean, fields_at
 from schemas.base import FieldValueError
@@ -249,8 +251,21 @@ async def http_error(request: Request, exc: Exception) -> Response:
     return problem(exc.status_code, detail, headers=exc.headers)
 
 
+def _store_full(exc: Exception) -> bool:
+    """The job store refused a write for want of room: SQLite's SQLITE_FULL ("database or disk
+    is full": its file is on the data volume), PostgreSQL's disk_full (53100)."""
+    orig = getattr(exc, "orig", None)
+    if getattr(orig, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+        return True
+    return getattr(orig, "sqlstate", None) == "53100" or (orig is not None and is_full(orig))
+
+
 async def database_unavailable(request: Request, exc: Exception) -> Response:
-    """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection."""
+    """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection;
+    a store that has no room to write is 507, as an upload that finds none is."""
+    if _store_full(exc):
+        log.warning("job store full on %s %s", request.method, request.url.path)
+        return problem(507, FULL)
     log.warning(
         "database unavailable on %s %s: %s", request.method, request.url.path, type(exc).__name__
     )
