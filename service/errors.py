@@ -12,6 +12,7 @@ import json
 import logging
 import math
 import re
+import sqlite3
 from collections.abc import Mapping, Sequence
 from http import HTTPStatus
 from typing import Any
@@ -25,6 +26,7 @@ from sqlalchemy.exc import DBAPIError
 from starlette.exceptions import HTTPException as StarletteHTTPException
 from starlette.responses import Response
 
+from farm.volume import FULL, is_full
 from forest.errors import ForestError, LimitError
 from forest.growth.grammar_errors import GrammarErrors, did_you_mean, fields_at
 from schemas.base import FieldValueError
@@ -37,6 +39,9 @@ MAX_ERRORS = 20
 """Validation errors listed in one answer; the rest are counted (``errors_left_out``)."""
 INPUT_CAP = 256
 """About this many characters of an invalid input are echoed back; a longer one is not."""
+NAME_CAP, MSG_CAP = 200, 1000
+"""A field name (an unknown one is the client's text, of any length) and a message are cut to
+about this many characters: a 900 KB field name was echoed three times (2.7 MB)."""
 SEPARATORS = (",", ":")  # as Starlette's JSONResponse writes
 _PART = re.compile(r"\[(\d+)\]|\.?([^.\[\]]+)")
 
@@ -139,9 +144,14 @@ def _fit(value: Any, budget: int = INPUT_CAP) -> int:
     return budget - 24  # a number, a bool, None
 
 
+def _cut(text: str, cap: int = NAME_CAP) -> str:
+    return text if len(text) <= cap else text[:cap] + "\u2026"
+
+
 def _clean_error(raw: Any) -> dict[str, Any]:
     """One validation error for the wire: its field path (a library's or a schema check's own
-    path where it names one), its ``input`` only when short, ``ctx`` as text."""
+    path where it names one), its ``input`` only when short, ``ctx`` as text; names and
+    messages cut short."""
     err: dict[str, Any] = (
         dict(raw) if isinstance(raw, dict) else {"loc": [], "msg": str(raw), "type": "error"}
     )
@@ -153,7 +163,12 @@ def _clean_error(raw: Any) -> dict[str, Any]:
         err["msg"] = found.reason
         err.pop("input", None)
     elif isinstance(ctx, dict):
-        err["ctx"] = {k: v if isinstance(v, int | float | str) else str(v) for k, v in ctx.items()}
+        err["ctx"] = {
+            k: v if isinstance(v, int | float) else _cut(str(v), MSG_CAP) for k, v in ctx.items()
+        }
+    err["loc"] = [_cut(p) if isinstance(p, str) else p for p in err.get("loc", ())]
+    if isinstance(err.get("msg"), str):
+        err["msg"] = _cut(err["msg"], MSG_CAP)
     if "input" in err and _fit(err["input"]) < 0:
         del err["input"]  # never echo a large input (a 4 MB list cost 20 s to answer)
     err.pop("url", None)
@@ -236,8 +251,21 @@ async def http_error(request: Request, exc: Exception) -> Response:
     return problem(exc.status_code, detail, headers=exc.headers)
 
 
+def _store_full(exc: Exception) -> bool:
+    """The job store refused a write for want of room: SQLite's SQLITE_FULL ("database or disk
+    is full": its file is on the data volume), PostgreSQL's disk_full (53100)."""
+    orig = getattr(exc, "orig", None)
+    if getattr(orig, "sqlite_errorcode", None) == sqlite3.SQLITE_FULL:
+        return True
+    return getattr(orig, "sqlstate", None) == "53100" or (orig is not None and is_full(orig))
+
+
 async def database_unavailable(request: Request, exc: Exception) -> Response:
-    """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection."""
+    """The job store does not answer: 503 with Retry-After, not a 500 or a reset connection;
+    a store that has no room to write is 507, as an upload that finds none is."""
+    if _store_full(exc):
+        log.warning("job store full on %s %s", request.method, request.url.path)
+        return problem(507, FULL)
     log.warning(
         "database unavailable on %s %s: %s", request.method, request.url.path, type(exc).__name__
     )

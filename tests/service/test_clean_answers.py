@@ -185,6 +185,19 @@ def test_a_large_invalid_body_is_refused_before_parsing(plain: Server) -> None:
     assert body["errors"][0]["input"] == "x"
 
 
+def test_a_long_field_name_is_not_echoed(plain: Server) -> None:
+    """An unknown field's name is the client's text: a 900 KB one was echoed three times (in
+    ``detail``, ``loc`` and ``pointer``: a 2.7 MB answer)."""
+    name = "x" * 900_000
+    r = raw_post(plain, "/v1/forests", json.dumps({"preset": "oak", name: 1}))
+    body = problem(r, 422)
+    assert len(r.content) < 5000, len(r.content)
+    [err] = body["errors"]
+    assert err["type"] == "extra_forbidden", err
+    assert err["loc"][0] == "body" and err["loc"][1].startswith("xxx"), err
+    assert err["loc"][1].endswith("\u2026") and err["pointer"].endswith("\u2026"), err
+
+
 def test_the_number_of_errors_is_capped(plain: Server) -> None:
     r = plain.post("/v1/trees", {f"field{i}": i for i in range(500)} | {"preset": "oak"})
     body = problem(r, 422)

@@ -122,6 +122,23 @@ def test_upload_on_a_full_volume_makes_no_job(
     assert server.get("/v1/jobs?kind=render").json()["total"] == 0
 
 
+def test_a_job_store_without_room_is_507_not_an_outage(
+    make_server: MakeServer, volume: Path
+) -> None:
+    """The embedded store's SQLite file on the full volume: a new job cannot be written. That
+    is the volume, as ``/readyz`` says, not a store that is away (it was 503 with
+    Retry-After, "the job store is unavailable")."""
+    server = make_server(ENV, data=volume)
+    fill(volume, leave=0)
+    r = server.post("/v1/forests", FOREST)
+    assert r.status_code == 507, r.text
+    assert r.json()["detail"] == "data volume full" and "retry-after" not in r.headers
+    assert server.get("/v1/jobs").status_code == 200  # reading still works
+    (volume / "filler").unlink()
+    r = server.post("/v1/forests", FOREST)
+    assert r.status_code == 202, r.text
+
+
 # -- stored errors --------------------------------------------------------------------------
 
 PXR_LINES = (
