@@ -32,6 +32,8 @@ from service_harness import (
     require_server,
 )
 
+from schemas.jobs import unfit
+
 pytestmark = pytest.mark.slow  # schemathesis against a running server
 
 SMALL_CAPS = {  # generated requests stay cheap: the point is the contract, not the work
@@ -161,7 +163,9 @@ def spoil_numbers(op: Any, client: httpx.Client, sent: dict[str, int]) -> None:
     @given(case=op.as_strategy(), data=st.data())
     def check(case: Any, data: st.DataObject) -> None:
         paths = list(numbers(case.body))
-        if not paths:
+        # a body with a fault of its own (a NUL in a string: 422 at that string) says nothing
+        # of the spoiled number
+        if not paths or unfit(case.body) is not None:
             return
         path = data.draw(st.sampled_from(paths), label="number")
         token = data.draw(st.sampled_from(NON_FINITE), label="token")
