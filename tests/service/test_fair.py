@@ -31,8 +31,9 @@ from farm import tiles
 from farm.db import JobRow, migrate
 from farm.dispatch import Dispatcher
 from farm.fair import pump
+from farm.reaper import reap_once
 from farm.settings import FarmSettings
-from farm.store import JobStore
+from farm.store import HELD, JobStore
 from schemas.jobs import JobState
 
 KEYS = {"FOREST_API_KEYS": "key-a=alice,key-b=bob"}
@@ -296,3 +297,23 @@ def test_set_up_heartbeats_and_stops_on_cancel(
     assert after is not None and after.state == JobState.CANCELED
     assert after.heartbeat_at is not None and after.heartbeat_at > before.heartbeat_at
     assert store.count_children(row.id) == 0  # the batch written before it looked: deleted
+
+
+def test_held_jobs_are_the_windows_not_the_reapers(
+    farm: tuple[JobStore, Dispatcher, FarmSettings],
+) -> None:
+    """A job is written held; the reaper does not re-send it as lost (however old) but pumps
+    the window, which sends it (a submit whose pump was lost with its process)."""
+    store, dispatcher, settings = farm
+    row, _ = store.create("forest", SMALL, 3, tenant="alice")
+    assert row.enqueued_at is None and row.stage == HELD
+    time.sleep(0.05)
+    assert store.reap(0.01) == ([], [])  # held, not lost
+    assert store.in_flight() == {}
+    assert reap_once(store, dispatcher, 0.01, settings) == 0
+    sent_row = store.get(row.id)
+    assert sent_row is not None and sent_row.enqueued_at is not None
+    assert sent_row.state == JobState.QUEUED and sent_row.stage == JobState.QUEUED
+    assert store.in_flight() == {"alice": 1}
+    # sent: abandon (the API's answer to a broker error) no longer fails it
+    assert store.abandon(row.id, "broker away") is None
