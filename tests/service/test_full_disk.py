@@ -179,7 +179,11 @@ def test_failed_tiled_forest_of_many_tiles_can_be_deleted(
     row, _ = store.create("forest", params, 3)
     assert len(tile_job_ids(row.id, params)) == 72_900
     sql = "INSERT INTO jobs (id, kind) VALUES " + ", ".join(["(%s, %s)"] * 200_000)
-    assert store.abandon(row.id, f"OperationalError: number of parameters\n[SQL: {sql}]")
+    # claimed first: held, the job is the server's fair window's to send to its workers
+    claim = store.claim(row.id, "test-worker", 30)
+    assert claim is not None
+    error = f"OperationalError: number of parameters\n[SQL: {sql}]"
+    assert store.finish(claim, JobState.FAILED, error=error)
     r = httpx.delete(f"{server.url}/v1/jobs/{row.id}", timeout=60)
     assert r.status_code == 200, r.text
     assert r.json()["state"] == JobState.FAILED  # a finished job stays as it ended
