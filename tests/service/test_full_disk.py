@@ -136,7 +136,9 @@ def store_server(
     backend: dict[str, str], make_server: MakeServer, tmp_path: Path
 ) -> Iterator[tuple[Server, JobStore]]:
     data = tmp_path / "data"
-    server = make_server(backend, data=data)
+    # the tests write job rows themselves: no reaper round may pump one of them (held) to a
+    # worker before the test claims it
+    server = make_server(backend | {"FOREST_REAPER_INTERVAL_S": "600"}, data=data)
     url = FarmSettings(data_dir=data, database_url=backend.get("FOREST_DATABASE_URL")).db_url
     store = JobStore(url)
     try:
