@@ -65,8 +65,8 @@ class JobRow(Base):
     artifacts_deleted_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
     """When the job's artifacts were deleted (on request or past ``artifact_ttl_s``)."""
     parent: Mapped[str | None] = mapped_column(String(32), nullable=True)
-    """The job that made this one (a tile's forest job); a tile with no ``enqueued_at`` is
-    held back by the fair window (:mod:`farm.fair`), not lost."""
+    """The job that made this one (a tile's forest job). A queued job or tile with no
+    ``enqueued_at`` is held back by the fair window (:mod:`farm.fair`), not lost."""
     priority: Mapped[int] = mapped_column(Integer, default=5, server_default="5")
     """0-9, higher first among a tenant's held work."""
     cost: Mapped[int] = mapped_column(BigInteger, default=0, server_default="0")

@@ -1,15 +1,18 @@
-"""The fair window: a tiled forest's tiles reach the broker a few at a time, fairly across
-tenants, so no request can fill the queue ahead of everyone else's work.
+"""The fair window: every job reaches the broker a few at a time, fairly across tenants, so no
+tenant's backlog can fill the queue ahead of everyone else's work.
 
-A tiled forest job writes its tile rows held (queued, no ``enqueued_at``: :data:`farm.store.HELD`).
-:func:`pump` sends held tiles while fewer than ``max_tiles_in_flight`` tiles are in flight (sent
-and not finished), each time from the tenant with the fewest tiles in flight, none past
-``max_tenant_tiles_in_flight``; within a tenant the job of highest ``priority``, then the oldest.
-It runs whenever a tile ends (in the worker that ran it) and at each poll of a tiled forest job
-(:mod:`farm.tiles`), so capacity refills as it frees. The broker therefore never holds more than
-the window: another tenant's job, sent at once, waits behind at most about one tile. The state
-is the job table's (one pump at a time holds a lock of the database while it counts and takes);
-the broker stays Celery's (a plain send per tile).
+A job is written held (queued, no ``enqueued_at``: :data:`farm.store.HELD`), and so are a tiled
+forest's tile rows. :func:`pump` sends held jobs and tiles while fewer than
+``max_tiles_in_flight`` are in flight (sent and not finished, all tenants together), each time
+from the tenant with the fewest in flight, none past ``max_tenant_tiles_in_flight``; within a
+tenant its highest ``priority`` first, then the oldest. A tiled forest counts until its tiles
+are written, then only its tiles do (so a tenant's forests cannot take its whole share while
+they wait on their own tiles). It runs when a job is submitted (the API), whenever a job or
+tile ends (in the worker that ran it), at each poll of a tiled forest (:mod:`farm.tiles`) and
+at each reaper round (a pump missed by a crash), so capacity refills as it frees. The broker
+therefore never holds more than the window: another tenant's job waits behind at most about
+one task per worker. The state is the job table's (one pump at a time holds a lock of the
+database while it counts and takes); the broker stays Celery's (a plain send per job).
 """
 
 from __future__ import annotations
@@ -19,56 +22,50 @@ from collections import Counter
 
 from farm.dispatch import Dispatcher
 from farm.settings import FarmSettings
-from farm.store import JobStore
+from farm.store import TILE_KIND, JobStore
+
+__all__ = ["TILE_KIND", "pump", "pump_quietly"]
 
 log = logging.getLogger(__name__)
-TILE_KIND = "forest_tile"
 
 
 def pump(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> int:
-    """Send held tiles while the window has room; how many were sent. One pump at a time
+    """Send held jobs and tiles while the window has room; how many were sent. One pump at a time
     counts and takes (:meth:`JobStore.exclusive`), so concurrent pumps (every worker runs
-    one) neither send a tile twice nor overshoot the window; the messages go out after."""
-    taken: list[str] = []
+    one) neither send a job twice nor overshoot the window; the messages go out after. If a
+    send fails, what was not sent is held again and the error raised."""
+    taken: list[tuple[str, str]] = []
     with store.exclusive() as s:
-        backlog = store.backlog(s)
-        flying = store.in_flight([b.id for b in backlog], s)
-        tenants: Counter[str] = Counter()
-        for b in backlog:
-            tenants[b.tenant] += flying.get(b.id, 0)
-        total = sum(tenants.values())
-        drained: set[str] = set()
+        waiting = store.waiting(s)
+        flying: Counter[str] = Counter(store.in_flight(s))
+        total = sum(flying.values())
         while total < settings.max_tiles_in_flight:
-            ready = [
-                b
-                for b in backlog
-                if b.id not in drained and tenants[b.tenant] < settings.max_tenant_tiles_in_flight
-            ]
+            ready = [t for t in waiting if flying[t] < settings.max_tenant_tiles_in_flight]
             if not ready:
                 break
-            # the tenant with least in flight; then its most urgent, oldest job
-            job = min(ready, key=lambda b: (tenants[b.tenant], -b.priority, b.created_at, b.id))
-            tile = store.take_held(s, job.id)
-            if tile is None:
-                drained.add(job.id)
+            # the tenant with least in flight (the longest waiting on a tie)
+            tenant = min(ready, key=lambda t: (flying[t], waiting[t], t))
+            got = store.take_next(s, tenant)
+            if got is None:
+                del waiting[tenant]
                 continue
-            taken.append(tile)
-            tenants[job.tenant] += 1
+            taken.append(got)
+            flying[tenant] += 1
             total += 1
-    for k, tile in enumerate(taken):
+    for k, (job_id, kind) in enumerate(taken):
         try:
-            dispatcher.send(tile, TILE_KIND)
+            dispatcher.send(job_id, kind)
         except Exception:
-            for unsent in taken[k:]:
+            for unsent, _ in taken[k:]:
                 store.hold_again(unsent)  # the next pump tries again
             raise
     return len(taken)
 
 
 def pump_quietly(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> None:
-    """:func:`pump` where a failure must not fail the caller (a tile that just ended): the
-    next tile's end or the forest job's next poll pumps again."""
+    """:func:`pump` where a failure must not fail the caller (a job that just ended, a reaper
+    round): the next job's end, tiled forest's poll or reaper round pumps again."""
     try:
         pump(store, dispatcher, settings)
     except Exception:
-        log.exception("the fair window could not send tiles")
+        log.exception("the fair window could not send jobs")

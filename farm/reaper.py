@@ -1,7 +1,8 @@
 """The reaper: expired leases (a worker died) and queued jobs whose message went missing are
-sent to the broker again. Runs as a thread in the API process and in every worker process;
-every ``housekeeping_s`` it also removes scratch folders that dead processes left behind and
-the artifacts of jobs finished more than ``artifact_ttl_s`` ago."""
+sent to the broker again, and the fair window is pumped (:mod:`farm.fair`). Runs as a thread
+in the API process and in every worker process; every ``housekeeping_s`` it also removes
+scratch folders that dead processes left behind and the artifacts of jobs finished more than
+``artifact_ttl_s`` ago."""
 
 from __future__ import annotations
 
@@ -11,18 +12,30 @@ import time
 
 from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
+from farm.fair import pump_quietly
+from farm.settings import FarmSettings
 from farm.store import JobStore
 
 log = logging.getLogger(__name__)
 
 
-def reap_once(store: JobStore, dispatcher: Dispatcher, requeue_after_s: float) -> int:
+def reap_once(
+    store: JobStore,
+    dispatcher: Dispatcher,
+    requeue_after_s: float,
+    settings: FarmSettings | None = None,
+) -> int:
+    """One round: expired leases and lost messages sent again; with ``settings``, the fair
+    window pumped too (held jobs are sent even if the pump that should have sent them was
+    lost with its process)."""
     resend, failed = store.reap(requeue_after_s)
     for row in resend:
         dispatcher.send(row.id, row.kind)
         log.info("re-enqueued job %s (%s)", row.id, row.stage)
     for row in failed:
         log.warning("job %s failed: lease expired after %d attempt(s)", row.id, row.attempts)
+    if settings is not None:
+        pump_quietly(store, dispatcher, settings)
     return len(resend)
 
 
@@ -62,18 +75,20 @@ class Reaper(threading.Thread):
         artifacts: ArtifactStore | None = None,
         housekeeping_s: float = 300.0,
         artifact_ttl_s: float = 0.0,
+        settings: FarmSettings | None = None,
     ) -> None:
         super().__init__(name="forest-reaper", daemon=True)
         self.store, self.dispatcher, self.artifacts = store, dispatcher, artifacts
         self.interval_s, self.requeue_after_s = interval_s, requeue_after_s
         self.housekeeping_s, self.artifact_ttl_s = housekeeping_s, artifact_ttl_s
+        self.settings = settings  # the fair window's, pumped each round
         self.stopped = threading.Event()
 
     def run(self) -> None:
         tidied = time.monotonic()
         while not self.stopped.wait(self.interval_s):
             try:
-                reap_once(self.store, self.dispatcher, self.requeue_after_s)
+                reap_once(self.store, self.dispatcher, self.requeue_after_s, self.settings)
             except Exception:  # a database or broker hiccup: try again next round
                 log.exception("reaper round failed")
             # listing the artifact folder is not free (shared storage): less often

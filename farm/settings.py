@@ -64,11 +64,12 @@ class FarmSettings(BaseSettings):
     requeue_after_s: float = Field(60.0, gt=0)
     """A queued job this long without a worker is sent to the broker again (lost messages)."""
     max_tiles_in_flight: int = Field(4, ge=1)
-    """Tiles of tiled forests sent to the broker and not finished, all tenants together
-    (:mod:`farm.fair`): the rest wait in the job table. About twice the job workers."""
+    """Jobs and tiles of tiled forests sent to the broker and not finished, all tenants
+    together (:mod:`farm.fair`; the name predates untiled jobs joining the window): the rest
+    wait in the job table. About twice the job workers."""
     max_tenant_tiles_in_flight: int = Field(2, ge=1)
     """The same, per tenant: another tenant's job waits behind at most this many of one
-    tenant's tiles. About the number of job workers."""
+    tenant's jobs and tiles. About the number of job workers."""
     max_attempts: int = Field(3, ge=1, le=100)
     retry_delay_s: float = Field(2.0, ge=0)
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
 
-from sqlalchemy import Engine, delete, func, insert, select, text, update
+from sqlalchemy import Engine, delete, exists, func, insert, select, text, update
 from sqlalchemy.exc import IntegrityError
-from sqlalchemy.orm import Session
+from sqlalchemy.orm import Session, aliased
 
 from farm.db import JobRow, engine_for, utcnow
 from farm.error_text import capped
@@ -28,8 +28,9 @@ FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
 UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
 IN_BATCH = 500  # ids per IN list: far below every driver's bound-parameter limit
 WINDOW_LOCK = 7318450022  # the fair window's advisory lock (beside the migrations' 7318450021)
+TILE_KIND = "forest_tile"
 HELD = "waiting for a turn"
-"""The stage of a tile that is queued but not sent yet (:mod:`farm.fair`)."""
+"""The stage of a job (or tile) that is queued but not sent yet (:mod:`farm.fair`)."""
 
 
 class IdempotencyConflict(Exception):
@@ -43,15 +44,6 @@ class IdempotencyConflict(Exception):
 def scoped_key(tenant: str, key: str) -> str:
     """An idempotency key as stored: per tenant (two tenants may use the same key)."""
     return hashlib.sha256(f"{tenant}\0{key}".encode()).hexdigest()
-
-
-class Backlog(NamedTuple):
-    """An unfinished tiled forest job, as the fair window sees it."""
-
-    id: str
-    tenant: str
-    priority: int
-    created_at: datetime
 
 
 def request_hash(kind: str, params: dict[str, Any]) -> str:
@@ -95,7 +87,8 @@ class JobStore:
         priority: int = 5,
         estimate: dict[str, Any] | None = None,
     ) -> tuple[JobRow, bool]:
-        """Insert a queued job of ``tenant``; with an idempotency key the tenant already used
+        """Insert a queued job of ``tenant``, held until the fair window sends it
+        (:func:`farm.fair.pump`); with an idempotency key the tenant already used
         for the same request, answer that job instead (``created`` False). ``estimate``
         (:class:`schemas.jobs.JobCost`) is what the tenant's quotas sum while it is unfinished."""
         digest = request_hash(kind, params)
@@ -116,13 +109,13 @@ class JobStore:
             attempts=0,
             max_attempts=max_attempts,
             progress=0.0,
-            stage=JobState.QUEUED,
             cancel_requested=False,
             idempotency_key=stored,
             request_hash=digest,
             artifacts=[],
             created_at=now,
-            enqueued_at=now,  # sent right after; if that fails, the reaper resends it later
+            enqueued_at=None,  # held: the fair window sends it (farm.fair.pump)
+            stage=HELD,
             priority=priority,
             cost=int((estimate or {}).get("units", 0)),
             tiles=int((estimate or {}).get("tiles", 0)),
@@ -232,11 +225,16 @@ class JobStore:
         """A job that never reached the broker is failed with ``error`` and its idempotency
         key let go (the caller was told to retry: the retry makes a new job). Only while it is
         still queued with no attempt; None if a worker took it after all (the message did go
-        out)."""
+        out). Only while held (no ``enqueued_at``): a job whose message went out is not."""
         with self.session() as s, s.begin():
             res = s.execute(
                 update(JobRow)
-                .where(JobRow.id == job_id, JobRow.state == JobState.QUEUED, JobRow.attempts == 0)
+                .where(
+                    JobRow.id == job_id,
+                    JobRow.state == JobState.QUEUED,
+                    JobRow.attempts == 0,
+                    JobRow.enqueued_at.is_(None),
+                )
                 .values(
                     state=JobState.FAILED,
                     stage=JobState.FAILED,
@@ -403,33 +401,92 @@ class JobStore:
             yield s
 
     @staticmethod
-    def backlog(s: Session) -> list[Backlog]:
-        """Unfinished tiled jobs (which may hold tiles not sent yet)."""
-        got = s.execute(
-            select(JobRow.id, JobRow.tenant, JobRow.priority, JobRow.created_at).where(
+    def waiting(s: Session) -> dict[str, datetime]:
+        """Tenants with something the window may send, each with its oldest such job: held
+        top-level jobs, and unfinished tiled forests (which may hold tiles not sent yet)."""
+        held = s.execute(
+            select(JobRow.tenant, func.min(JobRow.created_at))
+            .where(
+                JobRow.state == JobState.QUEUED,
+                JobRow.enqueued_at.is_(None),
+                JobRow.parent.is_(None),
+                JobRow.cancel_requested.is_(False),
+            )
+            .group_by(JobRow.tenant)
+        ).all()
+        tiled = s.execute(
+            select(JobRow.tenant, func.min(JobRow.created_at))
+            .where(
                 JobRow.kind == "forest",
                 JobRow.tiles > 0,
                 JobRow.state.in_(UNFINISHED),
                 JobRow.cancel_requested.is_(False),
             )
+            .group_by(JobRow.tenant)
         ).all()
-        return [Backlog(*r) for r in got]
+        oldest: dict[str, datetime] = {}
+        for tenant, at in [*held, *tiled]:
+            oldest[tenant] = min(at, oldest.get(tenant, at))
+        return oldest
 
-    def in_flight(self, parents: Sequence[str], s: Session | None = None) -> dict[str, int]:
-        """Per job of ``parents``: its children sent to the broker and not finished."""
-        if not parents:
-            return {}
+    def in_flight(self, s: Session | None = None) -> dict[str, int]:
+        """Per tenant: its jobs and tiles sent to the broker and not finished. A tiled forest
+        whose tiles are written is not counted while it waits on them (its tiles are: counting
+        both, a tenant's forests could fill its share and starve their own tiles)."""
+        child = aliased(JobRow)
         sent = (JobRow.state == JobState.ACTIVE) | (
             (JobRow.state == JobState.QUEUED) & JobRow.enqueued_at.is_not(None)
         )
-        q = (
-            select(JobRow.parent, func.count())
-            .where(JobRow.parent.in_(list(parents)), sent)
-            .group_by(JobRow.parent)
-        )
+        has_tiles = exists().where(child.parent == JobRow.id)
+        q = select(JobRow.tenant, func.count()).where(sent, ~has_tiles).group_by(JobRow.tenant)
         with contextlib.nullcontext(s) if s is not None else self.session() as ss:
             got = ss.execute(q).all()
-        return {str(p): int(n) for p, n in got}
+        return {str(t): int(n) for t, n in got}
+
+    def take_next(self, s: Session, tenant: str) -> tuple[str, str] | None:
+        """Mark the next job of ``tenant`` sent (the caller sends it once ``s`` commits): its
+        most urgent, oldest held job, or a held tile of its most urgent, oldest tiled forest,
+        whichever comes first; ``(id, kind)``, or None when it holds nothing."""
+        top = s.execute(
+            select(JobRow.id, JobRow.kind, JobRow.priority, JobRow.created_at)
+            .where(
+                JobRow.tenant == tenant,
+                JobRow.state == JobState.QUEUED,
+                JobRow.enqueued_at.is_(None),
+                JobRow.parent.is_(None),
+                JobRow.cancel_requested.is_(False),
+            )
+            .order_by(JobRow.priority.desc(), JobRow.created_at, JobRow.id)
+            .limit(1)
+        ).first()
+        forests = s.execute(
+            select(JobRow.id, JobRow.priority, JobRow.created_at).where(
+                JobRow.tenant == tenant,
+                JobRow.kind == "forest",
+                JobRow.tiles > 0,
+                (JobRow.state == JobState.ACTIVE)
+                | ((JobRow.state == JobState.QUEUED) & JobRow.enqueued_at.is_not(None)),
+                JobRow.cancel_requested.is_(False),
+            )
+        ).all()
+        order: list[tuple[int, datetime, str, str | None]] = [
+            (-p, at, str(i), None) for i, p, at in forests
+        ]
+        if top is not None:
+            order.append((-top.priority, top.created_at, str(top.id), str(top.kind)))
+        for _, _, job_id, kind in sorted(order):
+            if kind is not None:  # a held job: itself
+                s.execute(
+                    update(JobRow)
+                    .where(JobRow.id == job_id, JobRow.enqueued_at.is_(None))
+                    .values(enqueued_at=utcnow(), stage=JobState.QUEUED)
+                    .execution_options(synchronize_session=False)
+                )
+                return job_id, kind
+            tile = self.take_held(s, job_id)
+            if tile is not None:
+                return tile, TILE_KIND
+        return None
 
     @staticmethod
     def take_held(s: Session, parent: str) -> str | None:
@@ -455,7 +512,7 @@ class JobStore:
         return str(held)
 
     def hold_again(self, job_id: str) -> None:
-        """A child whose message could not be sent goes back to held."""
+        """A job or tile whose message could not be sent goes back to held."""
         with self.session() as s, s.begin():
             s.execute(
                 update(JobRow)
@@ -636,13 +693,8 @@ class JobStore:
             lost = s.scalars(
                 select(JobRow).where(
                     JobRow.state == JobState.QUEUED,
-                    # a child with no enqueued_at is held by the fair window, not lost
-                    (
-                        JobRow.enqueued_at.is_(None)
-                        & JobRow.parent.is_(None)
-                        & (JobRow.created_at < stale)
-                    )
-                    | (JobRow.enqueued_at < stale),
+                    # a job with no enqueued_at is held by the fair window, not lost
+                    JobRow.enqueued_at < stale,
                 )
             ).all()
         for row in expired:
@@ -680,15 +732,14 @@ class JobStore:
             if res.rowcount == 1:  # type: ignore[attr-defined]
                 (resend if values["state"] == JobState.QUEUED else failed).append(row)
         for row in lost:  # claimed by one reaper only: every API process and worker runs one
-            sent_at = (
-                JobRow.enqueued_at.is_(None)
-                if row.enqueued_at is None
-                else JobRow.enqueued_at == row.enqueued_at
-            )
             with self.session() as s, s.begin():
                 res = s.execute(
                     update(JobRow)
-                    .where(JobRow.id == row.id, JobRow.state == JobState.QUEUED, sent_at)
+                    .where(
+                        JobRow.id == row.id,
+                        JobRow.state == JobState.QUEUED,
+                        JobRow.enqueued_at == row.enqueued_at,
+                    )
                     .values(enqueued_at=now)
                     .execution_options(synchronize_session=False)
                 )

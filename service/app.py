@@ -63,6 +63,7 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
                 artifacts=services.artifacts,
                 housekeeping_s=settings.housekeeping_s,
                 artifact_ttl_s=settings.artifact_ttl_s,
+                settings=settings,
             )
             thread.start()
         try:

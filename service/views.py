@@ -15,6 +15,7 @@ from sqlalchemy.exc import DBAPIError
 from farm import volume
 from farm.db import JobRow
 from farm.error_text import capped
+from farm.fair import pump
 from farm.store import IdempotencyConflict, scoped_key
 from schemas.jobs import Artifact, Job, JobCost
 from service.deps import Services
@@ -145,10 +146,12 @@ def enqueue(
                     raise HTTPException(507, volume.FULL) from None
                 raise
         try:
-            services.dispatcher.send(row.id, kind)
+            # the fair window sends it now if it has room, else as the tenant's turn comes
+            pump(services.store, services.dispatcher, services.settings)
         except (KombuOperationalError, OSError, DBAPIError) as exc:
-            # the broker is away: answer 503 and fail the job now rather than leave it for the
-            # reaper to send later (the client, told to retry, would make it twice)
+            # the broker is away: answer 503 and fail the job now rather than leave it for a
+            # later pump to send (the client, told to retry, would make it twice); unless its
+            # message went out before the failure
             log.warning("broker unavailable for job %s: %s", row.id, type(exc).__name__)
             abandoned = services.store.abandon(row.id, NOT_SUBMITTED)
             if abandoned is not None:
@@ -156,7 +159,7 @@ def enqueue(
                 raise HTTPException(
                     503, BROKER_UNAVAILABLE, headers={"Retry-After": str(RETRY_AFTER_S)}
                 ) from None
-            row = services.store.get(row.id) or row  # a worker has it: the message went out
+        row = services.store.get(row.id) or row  # sent or held: as it is now
     return row
 
 

@@ -153,7 +153,9 @@ def store_server(
     backend: dict[str, str], make_server: MakeServer, tmp_path: Path
 ) -> Iterator[tuple[Server, JobStore]]:
     data = tmp_path / "data"
-    server = make_server(backend, data=data)
+    # the tests write job rows themselves: no reaper round may pump one of them (held) to a
+    # worker before the test claims it
+    server = make_server(backend | {"FOREST_REAPER_INTERVAL_S": "600"}, data=data)
     url = FarmSettings(data_dir=data, database_url=backend.get("FOREST_DATABASE_URL")).db_url
     store = JobStore(url)
     try:
@@ -196,7 +198,11 @@ def test_failed_tiled_forest_of_many_tiles_can_be_deleted(
     row, _ = store.create("forest", params, 3)
     assert len(tile_job_ids(row.id, params)) == 72_900
     sql = "INSERT INTO jobs (id, kind) VALUES " + ", ".join(["(%s, %s)"] * 200_000)
-    assert store.abandon(row.id, f"OperationalError: number of parameters\n[SQL: {sql}]")
+    # claimed first: held, the job is the server's fair window's to send to its workers
+    claim = store.claim(row.id, "test-worker", 30)
+    assert claim is not None
+    error = f"OperationalError: number of parameters\n[SQL: {sql}]"
+    assert store.finish(claim, JobState.FAILED, error=error)
     r = httpx.delete(f"{server.url}/v1/jobs/{row.id}", timeout=60)
     assert r.status_code == 200, r.text
     assert r.json()["state"] == JobState.FAILED  # a finished job stays as it ended

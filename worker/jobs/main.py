@@ -47,6 +47,7 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
         artifacts=rt.artifacts,
         housekeeping_s=settings.housekeeping_s,
         artifact_ttl_s=settings.artifact_ttl_s,
+        settings=settings,
     )
     reaper.start()
     node = name or f"forest-{os.getpid()}@{socket.gethostname()}"

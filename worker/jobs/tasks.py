@@ -95,14 +95,12 @@ def run_attempt(
 
 
 def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
-    """Run one delivery of a job; answers what happened (for logs and tests). A tile that
-    ends frees a place in the fair window: the next tile is sent (:mod:`farm.fair`)."""
+    """Run one delivery of a job; answers what happened (for logs and tests). A job or tile
+    that ends frees a place in the fair window: the next is sent (:mod:`farm.fair`)."""
     rt = runtime()
     claim = rt.store.claim(job_id, OWNER, rt.settings.lease_s)
     if claim is None:
         return "skipped"  # finished, canceled, or leased by a live worker
-    if claim.kind != TILE_KIND:
-        return run_claim(rt, claim, kinds)
     try:
         return run_claim(rt, claim, kinds)
     finally:
