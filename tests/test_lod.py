@@ -40,15 +40,24 @@ from tests.helpers_skin import usd_skinned_points
 BAKES = gl_missing() is None  # the impostor needs the render extra's GL
 
 
-def _levels(preset: str, seed: int) -> list[Level]:
-    forest = generate_forest(load_preset(preset), seed, ForestOptions(trees=1))
+def _lod0(forest: Forest) -> tuple[BarkMesh, LeavesMesh | None]:
+    """Tree 0's full meshes, as the writers make them."""
     anchors = foliage_or_none(forest)
     inst, bones = tree_slices(forest)[0]
     still = joint_frames(forest).still
     to_tree = invert_similarity(forest.tree_transforms[0])
     bark = BarkMesh(*tree_mesh(forest, inst, bones, to_tree, still, weld=True))
     made = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree, still)
-    leaves = None if made is None else LeavesMesh(*made)
+    return bark, None if made is None else LeavesMesh(*made)
+
+
+def _levels(preset: str, seed: int) -> list[Level]:
+    forest = generate_forest(load_preset(preset), seed, ForestOptions(trees=1))
+    anchors = foliage_or_none(forest)
+    inst, bones = tree_slices(forest)[0]
+    still = joint_frames(forest).still
+    to_tree = invert_similarity(forest.tree_transforms[0])
+    bark, leaves = _lod0(forest)
     return tree_levels(forest, anchors, inst, bones, to_tree, still, bark, leaves)
 
 
@@ -274,12 +283,7 @@ def test_impostor_atlas_shows_lod0_from_every_side(lod_scene: tuple[Forest, Path
     root.GetVariantSets().GetVariantSet(LOD).SetVariantSelection(lod_variant(0))
 
     anchors = foliage_or_none(forest)
-    inst, bones = tree_slices(forest)[0]
-    still = joint_frames(forest).still
-    to_tree = invert_similarity(forest.tree_transforms[0])
-    bark = BarkMesh(*tree_mesh(forest, inst, bones, to_tree, still, weld=True))
-    made = None if anchors is None else leaves_mesh(forest, anchors, inst, bones, to_tree, still)
-    leaves = None if made is None else LeavesMesh(*made)
+    bark, leaves = _lod0(forest)
     family = "broadleaf" if anchors is None else anchors.family
     # the outer ring of cell centres: max(|u|, |v|) = 1 - 1/frames, just above the horizon
     c = (np.arange(frames) + 0.5) / frames * 2.0 - 1.0

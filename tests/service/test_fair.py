@@ -70,6 +70,27 @@ def wait_stage(server: Server, job_id: str, prefix: str, headers: dict[str, str]
         time.sleep(0.2)
 
 
+def b_waits_behind(server: Server, a_jobs: Any, timeout: float) -> int:
+    """Tenant B posts one small forest and waits for it (``timeout``: a hang guard, not a
+    timing); how many of tenant A's jobs (``a_jobs``: a condition on the job table) started
+    between B's submit and B's start."""
+    r = server.post("/v1/forests", SMALL, headers=B)
+    assert r.status_code == 202, r.text
+    small = r.json()["id"]
+    server.headers = B
+    job = server.wait(small, timeout=timeout)
+    assert job["state"] == "completed", job
+    with store_of(server) as store, store.session() as s:
+        row = store.get(small)
+        assert row is not None and row.started_at is not None
+        jumped = s.scalar(
+            select(func.count()).where(
+                a_jobs, JobRow.started_at > row.created_at, JobRow.started_at < row.started_at
+            )
+        )
+    return int(jumped or 0)
+
+
 def test_another_tenant_waits_about_one_tile(backend: dict[str, str], make_server: Any) -> None:
     server = make_server(backend | KEYS)
     # 100 x 100 tiles of 10 m holding 200 trees: most tiles are empty, each takes well under
@@ -84,28 +105,14 @@ def test_another_tenant_waits_about_one_tile(backend: dict[str, str], make_serve
     while total(server, "kind=forest_tile&state=completed", A) < 4:  # A's tiles are flowing
         assert time.monotonic() < deadline, server.log()
         time.sleep(0.2)
-    r = server.post("/v1/forests", SMALL, headers=B)
-    assert r.status_code == 202, r.text
-    small = r.json()["id"]
-    server.headers = B
-    job = server.wait(small, timeout=180)  # a hang guard, not a timing
-    assert job["state"] == "completed", job
+    jumped = b_waits_behind(server, JobRow.parent == big, timeout=180)
     with store_of(server) as store, store.session() as s:
-        row = store.get(small)
-        assert row is not None and row.started_at is not None
-        jumped = s.scalar(
-            select(func.count()).where(
-                JobRow.parent == big,
-                JobRow.started_at > row.created_at,
-                JobRow.started_at < row.started_at,
-            )
-        )
         sent = s.scalar(
             select(func.count()).where(JobRow.parent == big, JobRow.enqueued_at.is_not(None))
         )
     print(f"{jumped} of A's tiles started between B's submit and B's start; {sent} sent")
     # B's job started behind at most the tiles A had in flight (2) and one refill per worker
-    assert jumped is not None and jumped <= 4, f"{jumped} of A's tiles started first"
+    assert jumped <= 4, f"{jumped} of A's tiles started first"
     assert sent is not None and sent < 10_000 - 100, "A's tiles were not held back"
     r = httpx.delete(f"{server.url}/v1/jobs/{big}", headers=A, timeout=60)
     assert r.status_code == 200, r.text
@@ -125,28 +132,14 @@ def test_another_tenant_waits_behind_many_small_jobs(
         r = server.post("/v1/forests", SMALL | {"seed": seed}, headers=A)
         assert r.status_code == 202, r.text
         mine.append(r.json()["id"])
-    r = server.post("/v1/forests", SMALL, headers=B)
-    assert r.status_code == 202, r.text
-    small = r.json()["id"]
-    server.headers = B
-    job = server.wait(small, timeout=240)  # a hang guard, not a timing
-    assert job["state"] == "completed", job
+    jumped = b_waits_behind(server, JobRow.id.in_(mine), timeout=240)
     with store_of(server) as store, store.session() as s:
-        row = store.get(small)
-        assert row is not None and row.started_at is not None
-        jumped = s.scalar(
-            select(func.count()).where(
-                JobRow.id.in_(mine),
-                JobRow.started_at > row.created_at,
-                JobRow.started_at < row.started_at,
-            )
-        )
         ahead = s.scalar(
             select(func.count()).where(JobRow.id.in_(mine), JobRow.started_at.is_(None))
         )
     print(f"{jumped} of A's jobs started between B's submit and B's start; {ahead} still waiting")
     # B's job started behind at most A's share of the window (2) and one refill per worker
-    assert jumped is not None and jumped <= 4, f"{jumped} of A's jobs started first"
+    assert jumped <= 4, f"{jumped} of A's jobs started first"
     # A's backlog still progresses
     server.headers = A
     assert server.wait(mine[-1], timeout=600)["state"] == "completed"
