@@ -88,6 +88,13 @@ def test_respond_async_answers_the_job(server: Server, tmp_path: Path) -> None:
     assert file.content == reference_scene(tmp_path, body, "tree")  # the very bytes of a 200
 
 
+def test_a_tree_takes_a_priority(server: Server) -> None:
+    r = server.post("/v1/trees", SMALL | {"priority": 9}, headers={"Prefer": "respond-async"})
+    assert r.status_code == 202, r.text
+    assert r.json()["priority"] == 9
+    assert server.wait(r.json()["id"])["state"] == "completed"
+
+
 def test_api_memory_stays_flat_over_many_trees(server: Server) -> None:
     """100 trees (4 clients): the API's resident memory grows by less than 100 MiB after a
     warm-up, and each tree was a job (the API made them itself before)."""
