@@ -61,18 +61,27 @@ def split_corners(
 
 @dataclass(frozen=True, eq=False)
 class VertexSet:
-    """A primitive's vertex accessors and where each of its vertices is, by its values
-    (position, normal, UV, joints, weights as written): a lower level whose vertices are all
+    """A primitive's vertex accessors and each vertex's values (position, normal, UV, joints,
+    weights as written, as float32 bits ``(n, 16)``): a lower level whose vertices are all
     among them draws them with an index buffer of its own, and the file holds them once."""
 
     attributes: gl.Attributes
-    rows: dict[bytes, int]
+    keys: NDArray[np.uint32]
+
+    def find(self, keys: NDArray[np.uint32]) -> NDArray[np.int64]:
+        """Each row of ``keys``' vertex in this set, -1 where it has none."""
+        both = np.concatenate([self.keys, keys])
+        _, inverse = np.unique(both, axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        where = np.full(int(inverse.max()) + 1, -1, np.int64)
+        where[inverse[: len(self.keys)]] = np.arange(len(self.keys))
+        return where[inverse[len(self.keys) :]]
 
 
-def _vertex_rows(*columns: NDArray[np.generic]) -> list[bytes]:
-    """One byte string per vertex of its attribute values (float32 and int32 columns)."""
+def _vertex_keys(*columns: NDArray[np.generic]) -> NDArray[np.uint32]:
+    """Each vertex's attribute values (float32 and int columns) as one row of float32 bits."""
     table = np.concatenate([np.asarray(c, np.float32).reshape(len(c), -1) for c in columns], 1)
-    return [row.tobytes() for row in np.ascontiguousarray(table)]
+    return np.ascontiguousarray(table).view(np.uint32)
 
 
 def skinned_primitive(
@@ -98,12 +107,12 @@ def skinned_primitive(
     j[:, :k] = np.where(w[:, :k] > 0, mesh.joints[src], 0)
     tris = corner.reshape(-1, 4)[:, QUAD_TRIS].ravel()
     points, normals = mesh.points[src].astype(np.float32), mesh.normals[src].astype(np.float32)
-    rows = _vertex_rows(points, normals, uv, j, w) if (base is not None or share) else []
-    if base is not None:
-        found = [base.rows.get(r, -1) for r in rows]
-        if min(found, default=-1) >= 0:
-            where = np.array(found, np.int64)[tris]
-            index = where.astype(np.uint16 if len(base.rows) <= 65535 else np.uint32)
+    keys = _vertex_keys(points, normals, uv, j, w) if (base is not None or share) else None
+    if base is not None and keys is not None and len(keys):
+        found = base.find(keys)
+        if found.min() >= 0:
+            where = found[tris]
+            index = where.astype(np.uint16 if len(base.keys) <= 65535 else np.uint32)
             prim = gl.Primitive(
                 attributes=base.attributes,
                 indices=blob.accessor(index, gl.ELEMENT_ARRAY_BUFFER),
@@ -136,4 +145,4 @@ def skinned_primitive(
         indices=blob.accessor(index, gl.ELEMENT_ARRAY_BUFFER),
         material=material,
     )
-    return prim, VertexSet(attrs, {r: i for i, r in enumerate(rows)}) if share else None
+    return prim, VertexSet(attrs, keys) if share and keys is not None else None
