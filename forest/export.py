@@ -40,6 +40,7 @@ def write_forest(
     packing: Packing | None = None,
     lod: bool | None = None,
     profile: Profile | None = None,
+    lod0_triangles: int | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` in the format of its suffix; returns the path.
 
@@ -51,7 +52,8 @@ def write_forest(
     ``lod``: each skinned USD tree's levels of detail (:mod:`forest.lod`; None means yes; a
     .glb's follow its ``profile``, and it refuses ``lod``). ``profile``: a .glb's ``game``
     (its default: levels of detail, at most 256 joints per tree) or ``film`` (the full tree on
-    every joint), :mod:`forest.gltf.document`; USD refuses it."""
+    every joint), :mod:`forest.gltf.document`; USD refuses it. ``lod0_triangles``: the game
+    profile's LOD0 budget (:func:`forest.gltf.document.forest_gltf`); None for its default."""
     # imported here: a .glb needs none of the USD writer, a USD scene none of glTF's
     if is_glb(path):
         from forest.gltf.document import write_glb
@@ -66,9 +68,13 @@ def write_forest(
         extra: dict[str, Any] = {} if packing is None else {"packing": packing}
         if profile is not None:
             extra["profile"] = profile
+        if lod0_triangles is not None:
+            extra["lod0_triangles"] = lod0_triangles
         return write_glb(forest, path, tiles=folder, progress=progress, **extra)
     if profile is not None:
         raise ForestError("--profile applies to a .glb only", path="profile")
+    if lod0_triangles is not None:
+        raise ForestError("--lod0-triangles applies to a .glb only", path="lod0_triangles")
     from forest.usd.scene import write_scene
 
     return write_scene(

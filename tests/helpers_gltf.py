@@ -24,6 +24,9 @@ ROOT = Path(__file__).resolve().parents[1]
 NODE_DIR = ROOT / "tests" / "node"
 TREES, FRAMES, FPS = 2, 6, 24.0
 CHECK_FRAMES = (0, 3)  # the two frames whose skinned vertices the consumers must reproduce
+# the game profile's LOD0 budget for the small forest's files: over its trees' triangles, so
+# LOD0 is the whole tree the expectations below are made of
+WHOLE_LOD0 = 1_000_000
 
 
 def small_forest(frames: int = FRAMES) -> Forest:
@@ -82,6 +85,11 @@ def quad_corners(doc: gl.GLTF2, prim: gl.Primitive) -> np.ndarray:
     return read(doc, prim.indices).reshape(-1, 6)[:, [0, 1, 2, 5]].ravel().astype(np.intp)
 
 
+def gl_count(doc: gl.GLTF2, prim: gl.Primitive) -> int:
+    """A primitive's vertex count."""
+    return int(doc.accessors[prim.attributes.POSITION].count)
+
+
 def tree_mesh_nodes(doc: gl.GLTF2) -> list[int]:
     """Each tree's most detailed skinned node, in tree order: the scene's skinned roots (the
     film profile's ``Tree_<k>_Mesh``, the game profile's ``Tree_<k>_LOD0``; a game tree's
@@ -90,10 +98,12 @@ def tree_mesh_nodes(doc: gl.GLTF2) -> list[int]:
 
 
 def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[list[np.ndarray]]:
-    """Per tree, per primitive of its mesh (bark, then leaves): ``(n, 3)`` the library's own
-    skinning at ``time`` of each of the GLB's vertices (world space, y up). Bark: the pieces'
-    quad corners (:func:`expected_bark`), each at the vertex the file's indices give it;
-    leaves: the cards as the USD Leaves mesh stands, moved rigidly with their hub bone."""
+    """Per tree, per primitive of its mesh (bark, then leaves: one primitive, or the game
+    profile's runs of :data:`forest.gltf.lod.CARDS_PER_PRIMITIVE` cards): ``(n, 3)`` the
+    library's own skinning at ``time`` of each of the GLB's vertices (world space, y up).
+    Bark: the pieces' quad corners (:func:`expected_bark`), each at the vertex the file's
+    indices give it; leaves: the cards as the USD Leaves mesh stands, moved rigidly with
+    their hub bone."""
     bark = expected_bark(forest, time)
     pal = forest.palette(time)
     still = joint_frames(forest).still
@@ -115,7 +125,9 @@ def expected_tree(forest: Forest, doc: gl.GLTF2, time: float | None) -> list[lis
             bone = dcc.bone[joint + bones.start]
             # the hub's kept joint's motion from the standing tree (still) to ``time``
             move = pal[bone] @ np.linalg.inv(still[bone]) @ forest.tree_transforms[k]
-            prims.append(np.einsum("vij,vj->vi", move[:, :3, :3], pts) + move[:, :3, 3])
+            cards = np.einsum("vij,vj->vi", move[:, :3, :3], pts) + move[:, :3, 3]
+            runs = np.cumsum([gl_count(doc, p) for p in mesh.primitives[1:]])[:-1]
+            prims += np.split(cards, runs)
         out.append(prims)
     return out
 

@@ -33,7 +33,7 @@ from forest.bark.tilesets import set_dir
 from forest.errors import ForestError, LimitError
 from forest.gltf import document
 from forest.gltf.compress import glb
-from forest.gltf.document import forest_gltf, write_glb
+from forest.gltf.document import Profile, forest_gltf, write_glb
 from forest.gltf.skin import CONSTANT_TOL, sample_pose
 from forest.growth.generate import Forest
 from forest.growth.joint_budget import GAME_JOINTS
@@ -217,22 +217,32 @@ def test_atlas_uvs_land_in_each_quads_tile(forest: Forest) -> None:
     assert (uv[:, 1, 1] < uv[:, 0, 1]).all()
 
 
-def test_species_tile_set_is_baked(tmp_path: Path) -> None:
-    """The atlas holds the grammar's set: the first tile of oak's set sits in cell 0."""
+@pytest.mark.parametrize("profile", ["film", "game"])
+def test_species_tile_set_is_baked(profile: Profile, tmp_path: Path) -> None:
+    """The bark picture holds the grammar's set: the first tile of birch's set sits in cell 0
+    of the film profile's atlas (inside its border) and of the game profile's super tile of
+    the bark class's 8 tiles (4 x 2 cells, no border: it repeats)."""
     from forest.growth.generate import ForestOptions, generate_forest
     from forest.growth.presets import load_preset
 
     f = generate_forest(load_preset("birch"), 1, ForestOptions(trees=1))
-    doc = forest_gltf(f)
+    doc = forest_gltf(f, profile=profile, impostor=False)
     blob = doc.binary_blob()
     view = doc.bufferViews[doc.images[0].bufferView]
     png = blob[view.byteOffset : view.byteOffset + view.byteLength]
-    path = tmp_path / "atlas.png"
+    path = tmp_path / "bark.png"
     path.write_bytes(png)
-    atlas = read_pixels(path)
+    picture = read_pixels(path)
     first = read_pixels(set_dir("birch") / "bark.1001.png")[..., :3]
-    pad = atlas_layout(f.manifest.n_slices, first.shape[0])[3]
-    assert np.array_equal(atlas[pad : pad + first.shape[0], pad : pad + first.shape[1]], first)
+    size = first.shape[0]
+    if profile == "film":
+        pad = atlas_layout(f.manifest.n_slices, size)[3]
+    else:
+        pad = 0
+        assert picture.shape[:2] == (2 * size, 4 * size)
+        last = read_pixels(set_dir("birch") / "bark.1008.png")[..., :3]
+        assert np.array_equal(picture[size:, 3 * size :], last)
+    assert np.array_equal(picture[pad : pad + size, pad : pad + size], first)
 
 
 def test_size_cap_is_a_limit_error(forest: Forest, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -22,7 +22,15 @@ from typing import Any
 import numpy as np
 import pygltflib as gl
 import pytest
-from helpers_gltf import CHECK_FRAMES, FPS, FRAMES, TREES, expected_tree, small_forest
+from helpers_gltf import (
+    CHECK_FRAMES,
+    FPS,
+    FRAMES,
+    TREES,
+    WHOLE_LOD0,
+    expected_tree,
+    small_forest,
+)
 
 from forest.gltf.document import write_glb
 from forest.growth.generate import Forest
@@ -46,7 +54,7 @@ def blender_run(tmp_path_factory: pytest.TempPathFactory) -> Run:
         )
     tmp = tmp_path_factory.mktemp("gltf-blender")
     forest = small_forest()
-    glb = write_glb(forest, tmp / "forest.glb")
+    glb = write_glb(forest, tmp / "forest.glb", lod0_triangles=WHOLE_LOD0)
     report, points = _import(glb, tmp)
     return forest, report, points, gl.GLTF2.load(str(glb))
 

@@ -25,9 +25,12 @@ def png_bytes(pixels: NDArray[np.uint8]) -> bytes:
         return path.read_bytes()
 
 
-def add_bark_material(gltf: gl.GLTF2, blob: Blob, atlas: NDArray[np.uint8], name: str) -> int:
-    """The bark material (base colour from the atlas, not metallic, rough); its index."""
-    texture = blob.texture(png_bytes(atlas), f"bark-{name}")
+def add_bark_material(
+    gltf: gl.GLTF2, blob: Blob, picture: NDArray[np.uint8], name: str, *, repeat: bool = False
+) -> int:
+    """The bark material (base colour from ``picture``: the atlas, or a super tile that
+    ``repeat``s; not metallic, rough); its index."""
+    texture = blob.texture(png_bytes(picture), f"bark-{name}", repeat=repeat)
     gltf.materials.append(
         gl.Material(
             name="Bark",

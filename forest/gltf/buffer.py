@@ -83,16 +83,17 @@ class Blob:
         self.gltf.images.append(gl.Image(bufferView=view, mimeType="image/png", name=name))
         return len(self.gltf.images) - 1
 
-    def texture(self, png: bytes, name: str) -> int:
-        """A mip-mapped, edge-clamped texture of a PNG stored in the buffer; its index in
-        ``textures``."""
+    def texture(self, png: bytes, name: str, *, repeat: bool = False) -> int:
+        """A mip-mapped texture of a PNG stored in the buffer, clamped at its edges or
+        (``repeat``) tiling; its index in ``textures``."""
         source = self.image(png, name)
+        wrap = gl.REPEAT if repeat else gl.CLAMP_TO_EDGE
         self.gltf.samplers.append(
             gl.Sampler(
                 magFilter=gl.LINEAR,
                 minFilter=gl.LINEAR_MIPMAP_LINEAR,
-                wrapS=gl.CLAMP_TO_EDGE,
-                wrapT=gl.CLAMP_TO_EDGE,
+                wrapS=wrap,
+                wrapT=wrap,
             )
         )
         self.gltf.textures.append(

@@ -21,6 +21,7 @@ import pygltflib as gl
 
 from forest.atomic import replaced_when_written
 from forest.bark.atlas import make_atlas, read_slices, tile_folder
+from forest.bark.lattice import bark_tiles, lattice_st, super_tile
 from forest.caps import MAX_VERTICES
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
@@ -36,14 +37,16 @@ from forest.gltf.lod import (
     bark_quads,
     chain_levels,
     impostor_quads,
+    leaf_chunks,
     leaf_quads,
+    tiling_bark_quads,
 )
 from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.lod.levels import tree_levels
-from forest.lod.select import GAME_LOD0, BarkMesh, LeavesMesh
+from forest.lod.select import GAME_LOD0, TARGETS, BarkMesh, LeavesMesh, LodTarget
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 
 if TYPE_CHECKING:
@@ -79,6 +82,27 @@ def check_size(forest: Forest) -> None:
 Profile = Literal["game", "film"]
 PROFILES: tuple[Profile, ...] = ("game", "film")
 DEFAULT_PROFILE: Profile = "game"
+# a game LOD0 under LOD1's budget would keep fewer pieces than LOD1; over the top it is the
+# full tree anyway
+MIN_LOD0_TRIANGLES = TARGETS[1].budget
+MAX_LOD0_TRIANGLES = 100_000_000
+
+
+def game_lod0(triangles: int, profile: Profile) -> LodTarget:
+    """The game profile's LOD0 target for a budget of ``triangles`` (refused for film, which
+    keeps the full tree, and under :data:`MIN_LOD0_TRIANGLES`)."""
+    if profile != "game":
+        raise ForestError(
+            "--lod0-triangles applies to the game profile (film keeps the full tree)",
+            path="lod0_triangles",
+        )
+    if not MIN_LOD0_TRIANGLES <= triangles <= MAX_LOD0_TRIANGLES:
+        raise ForestError(
+            f"LOD0 budget must be {MIN_LOD0_TRIANGLES:,} to {MAX_LOD0_TRIANGLES:,} triangles, "
+            f"got {triangles:,}",
+            path="lod0_triangles",
+        )
+    return LodTarget(1.0, triangles)
 
 
 def profile_joints(profile: Profile) -> int | None:
@@ -94,6 +118,7 @@ def forest_gltf(
     *,
     profile: Profile = DEFAULT_PROFILE,
     impostor: bool | None = None,
+    lod0_triangles: int | None = None,
 ) -> gl.GLTF2:
     """The forest as a glTF document with its binary blob set. ``tiles``: a tile-set folder
     whose ``bark.<UDIM>.png`` make the atlas, instead of the shipped set of the grammar's
@@ -102,11 +127,14 @@ def forest_gltf(
     mesh per tree, the full tree on a joint per bone, a leaf material tinted per tree).
     ``joint_budget``: joints per tree's skin (:mod:`forest.growth.joint_budget`, None for one
     per bone), the profile's by default. ``impostor``: the game profile's LOD3 (True, False,
-    or None: where the render extra's GL is present)."""
+    or None: where the render extra's GL is present). ``lod0_triangles``: the game profile's
+    LOD0 budget (:data:`forest.lod.select.GAME_LOD0`'s by default): a tree over it drops its
+    thinnest pieces and thins its leaf cards down to it."""
     if profile not in PROFILES:
         raise ForestError(
             f"unknown glTF profile {profile!r}; one of {', '.join(PROFILES)}", path="profile"
         )
+    lod0 = GAME_LOD0 if lod0_triangles is None else game_lod0(lod0_triangles, profile)
     if joint_budget == "profile":
         joint_budget = profile_joints(profile)
     game = profile == "game"
@@ -138,7 +166,14 @@ def forest_gltf(
     blob = Blob(gltf)
     slices = read_slices(tile_folder(forest.grammar.bark, tiles), forest.manifest.n_slices)
     n_slices, size = len(slices), slices.shape[1]
-    bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
+    if game:
+        # welded bark: the bark class's tiles as one repeating picture (forest.bark.lattice)
+        bark_class = bark_tiles(forest.manifest)
+        n_bark = bark_class.stop - bark_class.start
+        picture = super_tile(slices[bark_class])
+        bark = add_bark_material(gltf, blob, picture, forest.grammar.bark, repeat=True)
+    else:
+        bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
     frames = joint_frames(forest, joint_budget)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
@@ -188,16 +223,16 @@ def forest_gltf(
                 bones,
                 to_tree,
                 frames.still,
-                full_bark,
+                full_bark._replace(st=lattice_st(full_bark.quads)),
                 full_leaves,
                 joint_budget,
-                GAME_LOD0,
+                lod0,
             )
             meshes: list[list[tuple[SkinnedQuads, int]]] = []
             for level in levels:
-                prims_ = [(bark_quads(level.bark, n_slices, size), bark)]
+                prims_ = [(tiling_bark_quads(level.bark, n_bark), bark)]
                 if level.leaves is not None and shared_leaves is not None:
-                    prims_.append((leaf_quads(level.leaves), shared_leaves))
+                    prims_ += [(c, shared_leaves) for c in leaf_chunks(level.leaves, flat=True)]
                 meshes.append(prims_)
             if full_leaves is not None:
                 tints.append(
@@ -244,12 +279,20 @@ def write_glb(
     packing: Packing = DEFAULT_PACKING,
     profile: Profile = DEFAULT_PROFILE,
     impostor: bool | None = None,
+    lod0_triangles: int | None = None,
 ) -> Path:
     """Write ``forest`` to ``path`` (.glb) atomically; returns the path. ``packing``: how
-    the binary data is stored (:mod:`forest.gltf.compress`); ``profile`` and ``impostor``:
-    as :func:`forest_gltf`'s."""
+    the binary data is stored (:mod:`forest.gltf.compress`); ``profile``, ``impostor`` and
+    ``lod0_triangles``: as :func:`forest_gltf`'s."""
     out = Path(path)
-    doc = forest_gltf(forest, tiles, progress, profile=profile, impostor=impostor)
+    doc = forest_gltf(
+        forest,
+        tiles,
+        progress,
+        profile=profile,
+        impostor=impostor,
+        lod0_triangles=lod0_triangles,
+    )
     gltf = pack(doc, packing)
     # one step: pygltflib encodes the whole document in one call
     if progress:

@@ -25,6 +25,7 @@ import pygltflib as gl
 from numpy.typing import NDArray
 
 from forest.bark.atlas import atlas_uv
+from forest.bark.lattice import lattice_uv
 from forest.geometry.transforms import F64
 from forest.gltf.bark import png_bytes
 from forest.gltf.buffer import Blob
@@ -41,7 +42,10 @@ SCREEN_COVERAGE = "MSFT_screencoverage"
 # takes over when the tree is about half as tall on screen
 COVERAGE = (0.4, 0.15, 0.04, 0.004)
 IMPOSTOR_ROUGHNESS = 0.8
-IMPOSTOR_LEVEL = 3  # the card pair: after the levels made of pieces
+IMPOSTOR_LEVEL = 3
+# a card's four vertices: 16,383 cards are the most whose vertices a 16-bit index reaches
+# (65,535 is the primitive restart value)
+CARDS_PER_PRIMITIVE = 65535 // 4  # the card pair: after the levels made of pieces
 
 
 def lod_name(tree: int, level: int) -> str:
@@ -50,7 +54,7 @@ def lod_name(tree: int, level: int) -> str:
 
 
 def bark_quads(bark: BarkMesh, n_slices: int, size: int) -> SkinnedQuads:
-    """A level's bark with each quad's tile as atlas UVs."""
+    """A level's bark with each quad's tile as atlas UVs (``bark.st``: UDIM st)."""
     return SkinnedQuads(
         bark.points,
         bark.normals,
@@ -61,12 +65,50 @@ def bark_quads(bark: BarkMesh, n_slices: int, size: int) -> SkinnedQuads:
     )
 
 
-def leaf_quads(leaves: LeavesMesh) -> SkinnedQuads:
+def tiling_bark_quads(bark: BarkMesh, n_tiles: int) -> SkinnedQuads:
+    """A level's bark on the repeating super tile of ``n_tiles`` bark tiles (``bark.st``:
+    :func:`forest.bark.lattice.lattice_st`'s corners)."""
+    return SkinnedQuads(
+        bark.points,
+        bark.normals,
+        bark.quads,
+        bark.joints,
+        bark.weights,
+        lattice_uv(bark.st, n_tiles),
+    )
+
+
+def leaf_quads(leaves: LeavesMesh, *, flat: bool = False) -> SkinnedQuads:
     """A level's leaf cards, each vertex on its joint with weight 1 (the leaf picture's row 0
-    is t = 0, as glTF's v = 0 is the image's top row: st as it is)."""
+    is t = 0, as glTF's v = 0 is the image's top row: st as it is). ``flat``: without
+    normals (a card is flat, so a reader's own face normal is the card's)."""
     uv = leaves.st.astype(np.float32)[leaves.quads]
     one = np.ones((len(leaves.joint), 1))
-    return SkinnedQuads(leaves.points, leaves.normals, leaves.quads, leaves.joint[:, None], one, uv)
+    normals = None if flat else leaves.normals
+    return SkinnedQuads(leaves.points, normals, leaves.quads, leaves.joint[:, None], one, uv)
+
+
+def leaf_chunks(leaves: LeavesMesh, *, flat: bool = False) -> list[SkinnedQuads]:
+    """:func:`leaf_quads` in runs of at most :data:`CARDS_PER_PRIMITIVE` cards, so every
+    primitive indexes its vertices with 16 bits (half the index bytes of one big one)."""
+    whole = leaf_quads(leaves, flat=flat)
+    out = []
+    for start in range(0, len(leaves.quads), CARDS_PER_PRIMITIVE):
+        quads = leaves.quads[start : start + CARDS_PER_PRIMITIVE]
+        used = np.unique(quads)
+        index = np.full(len(leaves.points), -1, np.int64)
+        index[used] = np.arange(len(used))
+        out.append(
+            SkinnedQuads(
+                whole.points[used],
+                None if whole.normals is None else whole.normals[used],
+                index[quads],
+                whole.joints[used],
+                whole.weights[used],
+                whole.uv[start : start + CARDS_PER_PRIMITIVE],
+            )
+        )
+    return out
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,8 @@ QUAD_TRIS = np.array([0, 1, 2, 0, 2, 3], np.intp)  # a quad's corners as two tri
 class SkinnedQuads:
     """A quad mesh bound to a skin, in the skin's bind space.
 
-    points, normals : (v, 3) float64
+    points, normals : (v, 3) float64; normals None for flat faces (glTF readers then compute
+        each triangle's own: a leaf card's normal, at no bytes)
     quads : (q, 4) int vertex indices
     joints : (v, k) int joint of each influence (into the skin's joints)
     weights : (v, k) float64 weights (rows summing to a positive number)
@@ -34,7 +35,7 @@ class SkinnedQuads:
     """
 
     points: F64
-    normals: F64
+    normals: F64 | None
     quads: NDArray[np.integer]
     joints: NDArray[np.integer]
     weights: F64
@@ -106,8 +107,12 @@ def skinned_primitive(
     j = np.zeros((len(src), 4), np.int64)
     j[:, :k] = np.where(w[:, :k] > 0, mesh.joints[src], 0)
     tris = corner.reshape(-1, 4)[:, QUAD_TRIS].ravel()
-    points, normals = mesh.points[src].astype(np.float32), mesh.normals[src].astype(np.float32)
-    keys = _vertex_keys(points, normals, uv, j, w) if (base is not None or share) else None
+    points = mesh.points[src].astype(np.float32)
+    normals = None if mesh.normals is None else mesh.normals[src].astype(np.float32)
+    columns: list[NDArray[np.generic]] = [points, uv, j, w]
+    if normals is not None:
+        columns.insert(1, normals)
+    keys = _vertex_keys(*columns) if (base is not None or share) else None
     if base is not None and keys is not None and len(keys):
         found = base.find(keys)
         if found.min() >= 0:
@@ -127,7 +132,7 @@ def skinned_primitive(
     rigid = bool(np.all((w == 0) | (w == 1)))
     attrs = gl.Attributes(
         POSITION=blob.accessor(points, gl.ARRAY_BUFFER, bounds=True),
-        NORMAL=blob.accessor(normals, gl.ARRAY_BUFFER),
+        NORMAL=None if normals is None else blob.accessor(normals, gl.ARRAY_BUFFER),
         TEXCOORD_0=blob.accessor(uv_data, gl.ARRAY_BUFFER, normalized=uv_data.dtype == np.uint16),
         JOINTS_0=blob.accessor(
             j.astype(np.uint8 if n_joints <= 256 else np.uint16), gl.ARRAY_BUFFER

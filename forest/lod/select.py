@@ -76,7 +76,7 @@ class LodTarget:
 TARGETS = (LodTarget(1.0, 1 << 62), LodTarget(0.25, 40_000), LodTarget(0.05, 8_000))
 # a game engine's LOD0 (the glTF game profile, forest.gltf.lod): the full tree where it is
 # light enough, else the thinnest pieces dropped and the leaf cards thinned as for LOD1
-GAME_LOD0 = LodTarget(1.0, 150_000)
+GAME_LOD0 = LodTarget(1.0, 100_000)
 # of a level's triangles, the bark's share; the leaves take the rest. The crown's outline is
 # leaves: past LOD0 the thin twigs hide inside it, and the limbs show only through gaps
 BARK_SHARE = 0.5

@@ -1,0 +1,144 @@
+"""Bark that tiles one repeating picture (the glTF game profile): welded vertices instead of a
+vertex per quad corner.
+
+The atlas (:mod:`forest.bark.atlas`) gives every quad its own tile, so neighbouring quads
+read different cells and no vertex can be shared. Every tile of the set's ``bark`` class has
+the same edge colours on opposite sides (:mod:`forest.bark.tileset`), so any grid of them is
+seamless: a *super tile* of the bark tiles, repeated (glTF's default ``REPEAT`` wrap), covers
+a tree if each quad's corners get coordinates that run on across its neighbours'. Those come
+from a walk over the quads (:func:`lattice_st`): a quad's lattice cell is its neighbour's
+moved one step, so the picture continues across every edge the walk crosses. The walk
+crosses only edges where both quads stand the same way up (tubes are built upright, so it
+runs along and around each branch); where quads meet turned a quarter (around crotches and
+apexes) or where a walk closes on itself (around a tube) the two sides disagree, and the
+vertex splits there.
+
+What the game form gives up: the fork, crotch and lower-trunk tiles (every quad shows bark
+tiles; the lower-trunk colour of birch and pine is the film profile's and USD's).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+
+import numpy as np
+from numpy.typing import NDArray
+
+from forest.errors import ForestError
+from forest.geometry.pieces import QUAD_ST
+from forest.geometry.transforms import F64
+from schemas.tileset import TileSetManifest
+
+BARK_ID = 1  # the tile class whose tiles wrap both ways (schemas.tileset.CLASS_EDGES)
+
+_CORNERS = QUAD_ST.astype(np.int64)  # (4, 2) a quad's corners in its own frame
+
+
+def _neighbours(quads: NDArray[np.integer]) -> NDArray[np.int64]:
+    """``(q, 4)`` the quad across each side (side i: corners i, i+1), -1 where there is none
+    or where more than two quads share the edge."""
+    q = len(quads)
+    a = np.asarray(quads, np.int64)
+    b = np.roll(a, -1, axis=1)
+    lo, hi = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()
+    order = np.lexsort((hi, lo))
+    key_lo, key_hi = lo[order], hi[order]
+    same = (key_lo[1:] == key_lo[:-1]) & (key_hi[1:] == key_hi[:-1])
+    out = np.full(q * 4, -1, np.int64)
+    # an edge held by exactly two sides: pair them (a third holder leaves it unpaired)
+    pair = same.copy()
+    pair[1:] &= ~same[:-1]
+    pair[:-1] &= ~same[1:]
+    i = np.flatnonzero(pair)
+    out[order[i]] = order[i + 1] // 4
+    out[order[i + 1]] = order[i] // 4
+    return out.reshape(q, 4)
+
+
+def _step_table() -> dict[tuple[int, int, int], tuple[int, int]]:
+    """For a quad crossing its side ``side`` into a neighbour whose corners ``bx``, ``by``
+    are that side's two vertices: the neighbour's cell less the quad's, where the two stand
+    the same way up (the neighbour's side runs the other way along the same line)."""
+    table = {}
+    for side in range(4):
+        d_a = _CORNERS[(side + 1) % 4] - _CORNERS[side]
+        for bx in range(4):
+            for by in range(4):
+                if bx != by and np.array_equal(_CORNERS[by] - _CORNERS[bx], d_a):
+                    dx, dy = _CORNERS[side] - _CORNERS[bx]
+                    table[side, bx, by] = (int(dx), int(dy))
+    return table
+
+
+_STEP = _step_table()
+
+
+def lattice_st(quads: NDArray[np.integer]) -> F64:
+    """``(q, 4, 2)`` integer coordinates of every quad corner on a lattice: a quad spans one
+    cell, upright in its own frame (u along its a -> d side, v along a -> b), and two quads
+    that share an edge agree on both of its corners wherever the walk (breadth first, from the
+    lowest quad index not yet reached) crossed that edge. Deterministic for a mesh."""
+    quads = np.asarray(quads, np.int64)
+    n = len(quads)
+    nbr_list = _neighbours(quads).tolist()
+    corners = quads.tolist()
+    reached = [False] * n
+    sx = [0] * n
+    sy = [0] * n
+    step = _STEP
+    for start in range(n):
+        if reached[start]:
+            continue
+        reached[start] = True
+        queue = deque([start])
+        while queue:
+            a = queue.popleft()
+            ax, ay, ca = sx[a], sy[a], corners[a]
+            for side, b in enumerate(nbr_list[a]):
+                if b < 0 or reached[b]:
+                    continue
+                cb = corners[b]
+                # a quarter turn (around crotches and apexes) has no entry: the walk stops
+                # there, so every quad keeps its upright frame and bark runs along each branch
+                found = step.get((side, cb.index(ca[side]), cb.index(ca[(side + 1) % 4])))
+                if found is None:
+                    continue
+                reached[b] = True
+                sx[b], sy[b] = ax + found[0], ay + found[1]
+                queue.append(b)
+    shift = np.stack([np.array(sx, np.int64), np.array(sy, np.int64)], axis=1)
+    return (_CORNERS[None] + shift[:, None]).astype(np.float64)
+
+
+def super_tile_shape(n: int) -> tuple[int, int]:
+    """Columns and rows of a super tile of ``n`` tiles (every tile once): two rows where
+    ``n`` is even, else one."""
+    if n < 1:
+        raise ForestError("the tile set has no bark tiles for a repeating bark picture")
+    return (n // 2, 2) if n % 2 == 0 and n > 2 else (n, 1)
+
+
+def super_tile(tiles: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """``(rows * s, columns * s, c)`` the bark-class tiles ``(n, s, s, c)`` in a grid (row
+    major, top-left first): seamless when repeated, as every cell is."""
+    columns, rows = super_tile_shape(len(tiles))
+    s = tiles.shape[1]
+    grid = tiles.reshape(rows, columns, s, s, -1)
+    return np.ascontiguousarray(grid.transpose(0, 2, 1, 3, 4).reshape(rows * s, columns * s, -1))
+
+
+def lattice_uv(st: F64, n: int) -> NDArray[np.float32]:
+    """Lattice corners ``(q, 4, 2)`` (u around, v up, one cell a quad) -> glTF UVs on the
+    repeating super tile of ``n`` tiles (v down the picture)."""
+    columns, rows = super_tile_shape(n)
+    u = st[..., 0] / columns
+    v = -st[..., 1] / rows
+    return np.stack([u, v], axis=-1).astype(np.float32)
+
+
+def bark_tiles(manifest: TileSetManifest) -> slice:
+    """The slices of the set's ``bark`` class (id 1): the tiles that repeat seamlessly."""
+    cls = next((c for c in manifest.classes if c.id == BARK_ID), None)
+    if cls is None:
+        raise ForestError("the tile set has no bark class (id 1)", path="tiles")
+    return slice(cls.first, cls.first + cls.count)
