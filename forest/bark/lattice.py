@@ -19,10 +19,10 @@ tiles; the lower-trunk colour of birch and pine is the film profile's and USD's)
 
 from __future__ import annotations
 
-from collections import deque
-
 import numpy as np
 from numpy.typing import NDArray
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from forest.errors import ForestError
 from forest.geometry.pieces import QUAD_ST
@@ -55,18 +55,20 @@ def _neighbours(quads: NDArray[np.integer]) -> NDArray[np.int64]:
     return out.reshape(q, 4)
 
 
-def _step_table() -> dict[tuple[int, int, int], tuple[int, int]]:
-    """For a quad crossing its side ``side`` into a neighbour whose corners ``bx``, ``by``
-    are that side's two vertices: the neighbour's cell less the quad's, where the two stand
-    the same way up (the neighbour's side runs the other way along the same line)."""
-    table = {}
+def _step_table() -> NDArray[np.int64]:
+    """``(4, 4, 4, 3)``: for a quad crossing its side ``side`` into a neighbour whose
+    corners ``bx``, ``by`` are that side's two vertices, ``[side, bx, by]`` is the
+    neighbour's cell less the quad's and 1, where the two stand the same way up (the
+    neighbour's side runs the other way along the same line); 0 0 0 otherwise (a quarter
+    turn, around crotches and apexes: the walk stops there, so every quad keeps its upright
+    frame and bark runs along each branch)."""
+    table = np.zeros((4, 4, 4, 3), np.int64)
     for side in range(4):
         d_a = _CORNERS[(side + 1) % 4] - _CORNERS[side]
         for bx in range(4):
             for by in range(4):
                 if bx != by and np.array_equal(_CORNERS[by] - _CORNERS[bx], d_a):
-                    dx, dy = _CORNERS[side] - _CORNERS[bx]
-                    table[side, bx, by] = (int(dx), int(dy))
+                    table[side, bx, by] = (*(_CORNERS[side] - _CORNERS[bx]), 1)
     return table
 
 
@@ -76,38 +78,49 @@ _STEP = _step_table()
 def lattice_st(quads: NDArray[np.integer]) -> F64:
     """``(q, 4, 2)`` integer coordinates of every quad corner on a lattice: a quad spans one
     cell, upright in its own frame (u along its a -> d side, v along a -> b), and two quads
-    that share an edge agree on both of its corners wherever the walk (breadth first, from the
-    lowest quad index not yet reached) crossed that edge. Deterministic for a mesh."""
+    that share an edge agree on both of its corners wherever a spanning tree of the upright
+    neighbours (breadth first from each connected part's lowest quad index) crosses that
+    edge. Deterministic for a mesh."""
     quads = np.asarray(quads, np.int64)
     n = len(quads)
-    nbr_list = _neighbours(quads).tolist()
-    corners = quads.tolist()
-    reached = [False] * n
-    sx = [0] * n
-    sy = [0] * n
-    step = _STEP
-    for start in range(n):
-        if reached[start]:
-            continue
-        reached[start] = True
-        queue = deque([start])
-        while queue:
-            a = queue.popleft()
-            ax, ay, ca = sx[a], sy[a], corners[a]
-            for side, b in enumerate(nbr_list[a]):
-                if b < 0 or reached[b]:
-                    continue
-                cb = corners[b]
-                # a quarter turn (around crotches and apexes) has no entry: the walk stops
-                # there, so every quad keeps its upright frame and bark runs along each branch
-                found = step.get((side, cb.index(ca[side]), cb.index(ca[(side + 1) % 4])))
-                if found is None:
-                    continue
-                reached[b] = True
-                sx[b], sy[b] = ax + found[0], ay + found[1]
-                queue.append(b)
-    shift = np.stack([np.array(sx, np.int64), np.array(sy, np.int64)], axis=1)
-    return (_CORNERS[None] + shift[:, None]).astype(np.float64)
+    if n == 0:
+        return np.zeros((0, 4, 2))
+    nbr = _neighbours(quads)
+    a = np.repeat(np.arange(n), 4)
+    side = np.tile(np.arange(4), n)
+    b = nbr.ravel()
+    a, side, b = a[b >= 0], side[b >= 0], b[b >= 0]
+    x, y = quads[a, side], quads[a, (side + 1) % 4]
+    bx = np.argmax(quads[b] == x[:, None], axis=1)
+    by = np.argmax(quads[b] == y[:, None], axis=1)
+    step = _STEP[side, bx, by]
+    keep = step[:, 2] == 1
+    a, b, step = a[keep], b[keep], step[keep, :2]
+    # one step per ordered pair (two quads sharing two edges keep the first)
+    _, first = np.unique(a * n + b, return_index=True)
+    a, b, step = a[first], b[first], step[first]
+    # a root joined to each connected part's lowest quad: one walk reaches every part
+    graph = csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
+    _, label = connected_components(graph, directed=False)
+    lowest = np.full(label.max() + 1, n, np.int64)
+    np.minimum.at(lowest, label, np.arange(n))
+    root = n
+    rows = np.concatenate([a, np.full(len(lowest), root)])
+    cols = np.concatenate([b, lowest])
+    walk = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1))
+    _, pred = breadth_first_order(walk, root, directed=True, return_predecessors=True)
+    pred = pred[:n].astype(np.int64)
+    # each quad's step from its predecessor, then the sum along its path (pointer jumping)
+    pairs = a * n + b  # sorted: np.unique's order
+    from_root = pred == root
+    shift = np.zeros((n + 1, 2), np.int64)
+    inner = np.flatnonzero(~from_root)
+    shift[inner] = step[np.searchsorted(pairs, pred[inner] * n + inner)]
+    up = np.append(np.where(from_root, root, pred), root)
+    while (up[:n] != root).any():
+        shift += shift[up]
+        up = up[up]
+    return (_CORNERS[None] + shift[:n, None]).astype(np.float64)
 
 
 def super_tile_shape(n: int) -> tuple[int, int]:
