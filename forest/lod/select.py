@@ -167,9 +167,58 @@ def spread_pick(n: int, fraction: float) -> NDArray[np.intp]:
     return np.flatnonzero(np.floor((i + 1) * fraction) > np.floor(i * fraction))
 
 
+def cap_holes(quads: I32, st: F64) -> tuple[I32, F64]:
+    """``quads`` (q, 4) and their corners' st (q, 4, 2) with every hole closed: where a
+    dropped piece leaves a loop of edges that one quad alone holds (a cut branch's end, the
+    rim a dropped twig stood on), a fan of quads over the loop's own vertices, wound as the
+    surface around it. A corner of a cap reads the st its vertex has in the quad beside it,
+    so a cap adds no vertex (a level's bark stays LOD0's vertices). Loops of an odd length
+    or that touch another loop stay open (they do not occur on tube rims)."""
+    a = np.asarray(quads, np.int64)
+    b = np.roll(a, -1, axis=1)
+    lo, hi = np.minimum(a, b).ravel(), np.maximum(a, b).ravel()
+    key = lo * (int(a.max(initial=0)) + 1) + hi
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
+    lone = np.flatnonzero(counts[inverse.ravel()] == 1)
+    if not len(lone):
+        return quads, st
+    start, end = a.ravel()[lone], b.ravel()[lone]
+    corner_st = st.reshape(-1, 2)[lone]  # the st each loop vertex has beside the hole
+    # a cap runs each lone edge the other way, from its end to its start; a vertex of one
+    # loop is one edge's start and another's end: more, and it joins two loops (left open)
+    vertex, n = np.unique(np.concatenate([start, end]), return_counts=True)
+    shared = vertex[n > 2]
+    ok = ~(np.isin(start, shared) | np.isin(end, shared))
+    start, end, corner_st = start[ok], end[ok], corner_st[ok]
+    step = dict(zip(end.tolist(), start.tolist(), strict=True))
+    st_of = dict(zip(start.tolist(), corner_st, strict=True))
+    new_quads, new_st = [], []
+    seen: set[int] = set()
+    for v0 in sorted(step):
+        if v0 in seen:
+            continue
+        loop = [v0]
+        while (nxt := step.get(loop[-1])) is not None and nxt != v0 and len(loop) <= len(step):
+            loop.append(nxt)
+        seen.update(loop)
+        if nxt != v0 or len(loop) % 2 or len(loop) < 4:
+            continue
+        for i in range(1, len(loop) - 2, 2):
+            q = (loop[0], loop[i], loop[i + 1], loop[i + 2])
+            new_quads.append(q)
+            new_st.append([st_of[v] for v in q])
+    if not new_quads:
+        return quads, st
+    return (
+        np.concatenate([quads, np.array(new_quads, quads.dtype)]),
+        np.concatenate([st, np.array(new_st, st.dtype)]),
+    )
+
+
 def select_bark(bark: BarkMesh, keep_quad: NDArray[np.bool_]) -> BarkMesh:
-    """The quads ``keep_quad`` of ``bark`` and the vertices they use (LOD0's, same skin)."""
-    quads = bark.quads[keep_quad]
+    """The quads ``keep_quad`` of ``bark`` and the vertices they use (LOD0's, same skin),
+    with the holes the dropped pieces leave capped (:func:`cap_holes`)."""
+    quads, st = cap_holes(bark.quads[keep_quad], bark.st[keep_quad])
     used = np.zeros(len(bark.points), bool)
     used[quads.ravel()] = True
     index = np.cumsum(used) - 1
@@ -179,7 +228,7 @@ def select_bark(bark: BarkMesh, keep_quad: NDArray[np.bool_]) -> BarkMesh:
         index[quads].astype(np.int32),
         bark.joints[used],
         bark.weights[used],
-        bark.st[keep_quad],
+        st,
     )
 
 
