@@ -21,8 +21,6 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import breadth_first_order, connected_components
 
 from forest.errors import ForestError
 from forest.geometry.pieces import QUAD_ST
@@ -75,6 +73,23 @@ def _step_table() -> NDArray[np.int64]:
 _STEP = _step_table()
 
 
+def _lowest_of_parts(n: int, a: NDArray[np.int64], b: NDArray[np.int64]) -> NDArray[np.int64]:
+    """``(n,)`` the lowest node of each node's connected part of the graph with edges
+    ``a[i] - b[i]`` (min-label hooking and pointer jumping: a few passes over the edges)."""
+    label = np.arange(n)
+    while True:
+        la, lb = label[a], label[b]
+        low = np.minimum(la, lb)
+        new = label.copy()
+        np.minimum.at(new, la, low)
+        np.minimum.at(new, lb, low)
+        while not np.array_equal(new, new[new]):
+            new = new[new]
+        if np.array_equal(new, label):
+            return label
+        label = new
+
+
 def lattice_st(quads: NDArray[np.integer]) -> F64:
     """``(q, 4, 2)`` integer coordinates of every quad corner on a lattice: a quad spans one
     cell, upright in its own frame (u along its a -> d side, v along a -> b), and two quads
@@ -96,31 +111,31 @@ def lattice_st(quads: NDArray[np.integer]) -> F64:
     step = _STEP[side, bx, by]
     keep = step[:, 2] == 1
     a, b, step = a[keep], b[keep], step[keep, :2]
-    # one step per ordered pair (two quads sharing two edges keep the first)
-    _, first = np.unique(a * n + b, return_index=True)
-    a, b, step = a[first], b[first], step[first]
-    # a root joined to each connected part's lowest quad: one walk reaches every part
-    graph = csr_matrix((np.ones(len(a)), (a, b)), shape=(n, n))
-    _, label = connected_components(graph, directed=False)
-    lowest = np.full(label.max() + 1, n, np.int64)
-    np.minimum.at(lowest, label, np.arange(n))
-    root = n
-    rows = np.concatenate([a, np.full(len(lowest), root)])
-    cols = np.concatenate([b, lowest])
-    walk = csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(n + 1, n + 1))
-    _, pred = breadth_first_order(walk, root, directed=True, return_predecessors=True)
-    pred = pred[:n].astype(np.int64)
-    # each quad's step from its predecessor, then the sum along its path (pointer jumping)
-    pairs = a * n + b  # sorted: np.unique's order
-    from_root = pred == root
-    shift = np.zeros((n + 1, 2), np.int64)
-    inner = np.flatnonzero(~from_root)
-    shift[inner] = step[np.searchsorted(pairs, pred[inner] * n + inner)]
-    up = np.append(np.where(from_root, root, pred), root)
-    while (up[:n] != root).any():
-        shift += shift[up]
-        up = up[up]
-    return (_CORNERS[None] + shift[:n, None]).astype(np.float64)
+    # breadth first from each connected part's lowest quad, all parts at once, a level at a
+    # time; a quad reached from several takes the lowest (deterministic)
+    order = np.lexsort((b, a))
+    a, b, step = a[order], b[order], step[order]
+    first_edge = np.searchsorted(a, np.arange(n + 1))
+    shift = np.zeros((n, 2), np.int64)
+    reached = np.zeros(n, bool)
+    frontier = np.unique(_lowest_of_parts(n, a, b))
+    reached[frontier] = True
+    while len(frontier):
+        count = first_edge[frontier + 1] - first_edge[frontier]
+        if not count.sum():
+            break
+        edge = np.repeat(first_edge[frontier] - np.cumsum(count) + count, count) + np.arange(
+            count.sum()
+        )
+        to = b[edge]
+        fresh = ~reached[to]
+        edge, to = edge[fresh], to[fresh]
+        to, pick = np.unique(to, return_index=True)  # edges come in source order
+        edge = edge[pick]
+        shift[to] = shift[a[edge]] + step[edge]
+        reached[to] = True
+        frontier = to
+    return (_CORNERS[None] + shift[:, None]).astype(np.float64)
 
 
 def super_tile_shape(n: int) -> tuple[int, int]:

@@ -20,8 +20,8 @@ import numpy as np
 import pygltflib as gl
 
 from forest.atomic import replaced_when_written
-from forest.bark.atlas import make_atlas, read_slices, tile_folder
-from forest.bark.lattice import bark_tiles, lattice_st, super_tile
+from forest.bark.atlas import atlas_uv, make_atlas, read_slices, tile_folder
+from forest.bark.lattice import bark_tiles, lattice_st, lattice_uv, super_tile
 from forest.caps import MAX_VERTICES
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
@@ -39,7 +39,6 @@ from forest.gltf.lod import (
     impostor_quads,
     leaf_chunks,
     leaf_quads,
-    tiling_bark_quads,
 )
 from forest.gltf.primitive import SkinnedQuads, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
@@ -202,7 +201,12 @@ def forest_gltf(
         full_leaves = None if made is None else LeavesMesh(*made)
         if not game:
             prims = [
-                skinned_primitive(blob, bark_quads(full_bark, n_slices, size), n_joints, bark)[0]
+                skinned_primitive(
+                    blob,
+                    bark_quads(full_bark, atlas_uv(full_bark.st, n_slices, size)),
+                    n_joints,
+                    bark,
+                )[0]
             ]
             if full_leaves is not None and leaf_materials is not None:
                 colour = full_leaves.colour.astype(np.float64).mean(axis=0)
@@ -230,7 +234,8 @@ def forest_gltf(
             )
             meshes: list[list[tuple[SkinnedQuads, int]]] = []
             for level in levels:
-                prims_ = [(tiling_bark_quads(level.bark, n_bark), bark)]
+                uv = lattice_uv(level.bark.st, n_bark)
+                prims_ = [(bark_quads(level.bark, uv), bark)]
                 if level.leaves is not None and shared_leaves is not None:
                     prims_ += [(c, shared_leaves) for c in leaf_chunks(level.leaves, flat=True)]
                 meshes.append(prims_)

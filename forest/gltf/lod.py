@@ -24,8 +24,6 @@ import numpy as np
 import pygltflib as gl
 from numpy.typing import NDArray
 
-from forest.bark.atlas import atlas_uv
-from forest.bark.lattice import lattice_uv
 from forest.geometry.transforms import F64
 from forest.gltf.bark import png_bytes
 from forest.gltf.buffer import Blob
@@ -53,29 +51,11 @@ def lod_name(tree: int, level: int) -> str:
     return f"Tree_{tree:05d}_LOD{level}"
 
 
-def bark_quads(bark: BarkMesh, n_slices: int, size: int) -> SkinnedQuads:
-    """A level's bark with each quad's tile as atlas UVs (``bark.st``: UDIM st)."""
-    return SkinnedQuads(
-        bark.points,
-        bark.normals,
-        bark.quads,
-        bark.joints,
-        bark.weights,
-        atlas_uv(bark.st, n_slices, size),
-    )
-
-
-def tiling_bark_quads(bark: BarkMesh, n_tiles: int) -> SkinnedQuads:
-    """A level's bark on the repeating super tile of ``n_tiles`` bark tiles (``bark.st``:
-    :func:`forest.bark.lattice.lattice_st`'s corners)."""
-    return SkinnedQuads(
-        bark.points,
-        bark.normals,
-        bark.quads,
-        bark.joints,
-        bark.weights,
-        lattice_uv(bark.st, n_tiles),
-    )
+def bark_quads(bark: BarkMesh, uv: NDArray[np.float32]) -> SkinnedQuads:
+    """A level's bark with its corners' glTF ``uv`` (q, 4, 2): atlas UVs of its UDIM st
+    (:func:`forest.bark.atlas.atlas_uv`, film) or its lattice on the repeating bark picture
+    (:func:`forest.bark.lattice.lattice_uv`, game)."""
+    return SkinnedQuads(bark.points, bark.normals, bark.quads, bark.joints, bark.weights, uv)
 
 
 def leaf_quads(leaves: LeavesMesh, *, flat: bool = False) -> SkinnedQuads:
