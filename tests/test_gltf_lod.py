@@ -174,3 +174,27 @@ def test_capped_lod0_keeps_the_crowns_coverage(oak: Forest) -> None:
     for x, y in zip(a.albedo, b.albedo, strict=True):
         cover_a, cover_b = (x[..., 3] > 0).mean(), (y[..., 3] > 0).mean()
         assert abs(cover_b / cover_a - 1.0) <= 0.05, (cover_a, cover_b)
+
+
+def test_lower_trunk_keeps_its_colour(tmp_path: Path) -> None:
+    """The repeating picture holds the bark class's tiles only; a set with a lower trunk
+    (birch's black foot) tints those vertices with COLOR_0 (multiplied into the base colour
+    by glTF readers), shared by every level; a set without one writes no COLOR_0."""
+    birch = generate_forest(load_preset("birch"), 1, ForestOptions(trees=1))
+    doc = gl.GLTF2.load(str(write_glb(birch, tmp_path / "birch.glb", impostor=False)))
+    lod0 = next(n for n in doc.nodes if n.name == "Tree_00000_LOD0")
+    bark = doc.meshes[lod0.mesh].primitives[0]
+    assert bark.attributes.COLOR_0 is not None
+    acc = doc.accessors[bark.attributes.COLOR_0]
+    assert acc.componentType == gl.UNSIGNED_BYTE and acc.normalized and acc.type == gl.VEC4
+    colour = read(doc, bark.attributes.COLOR_0)  # as a reader sees it, in [0, 1]
+    assert (colour[:, 3] == 1).all()
+    tinted = (colour[:, :3] < 1).any(axis=1)
+    assert 0 < tinted.mean() < 0.2  # the foot, not the tree
+    assert colour[tinted, :3].max() < 0.5  # darker: birch's foot is nearly black
+    for name in ("Tree_00000_LOD1", "Tree_00000_LOD2"):
+        node = next(n for n in doc.nodes if n.name == name)
+        assert doc.meshes[node.mesh].primitives[0].attributes.COLOR_0 == bark.attributes.COLOR_0
+    oak = generate_forest(load_preset("oak"), 1, ForestOptions(trees=1))
+    doc = gl.GLTF2.load(str(write_glb(oak, tmp_path / "oak.glb", impostor=False)))
+    assert all(p.attributes.COLOR_0 is None for m in doc.meshes for p in m.primitives)

@@ -13,8 +13,8 @@ runs along and around each branch); where quads meet turned a quarter (around cr
 apexes) or where a walk closes on itself (around a tube) the two sides disagree, and the
 vertex splits there.
 
-What the game form gives up: the fork, crotch and lower-trunk tiles (every quad shows bark
-tiles; the lower-trunk colour of birch and pine is the film profile's and USD's).
+What the game form gives up: the fork, crotch and lower-trunk tiles' patterns (every quad
+shows bark tiles); the lower trunk keeps its colour as a tint (:func:`lower_tint`).
 """
 
 from __future__ import annotations
@@ -170,3 +170,34 @@ def bark_tiles(manifest: TileSetManifest) -> slice:
     if cls is None:
         raise ForestError("the tile set has no bark class (id 1)", path="tiles")
     return slice(cls.first, cls.first + cls.count)
+
+
+def lower_tint(slices: NDArray[np.uint8], manifest: TileSetManifest) -> F64 | None:
+    """The colour (linear RGB, each channel at most 1) that turns the bark class's mean into
+    the lower trunk's (a class that ``stands_for`` bark: birch's black foot, pine's grey-brown
+    plates), for glTF's ``COLOR_0``, which readers multiply into the base colour; None where
+    the set has no lower trunk. The repeating picture holds the bark class only: the lower
+    trunk keeps its colour, not its own tiles' pattern."""
+    lower = [c for c in manifest.classes if c.stands_for == BARK_ID]
+    if not lower:
+        return None
+
+    def mean(cls: slice) -> F64:
+        srgb = slices[cls].reshape(-1, slices.shape[-1])[:, :3].astype(np.float64) / 255.0
+        lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+        return np.asarray(lin.mean(axis=0))
+
+    below = mean(slice(lower[0].first, lower[0].first + lower[0].count))
+    return np.clip(below / np.maximum(mean(bark_tiles(manifest)), 1e-6), 0.0, 1.0)
+
+
+def lower_quads(st: F64, manifest: TileSetManifest) -> NDArray[np.bool_]:
+    """``(q,)`` the quads whose UDIM st (:func:`forest.usd.materials.tile_udim_st`) lies in a
+    lower-trunk class's tiles."""
+    cell = np.floor(np.asarray(st).mean(axis=1)).astype(np.int64)  # a quad's centre: its tile
+    k = cell[:, 0] + 10 * cell[:, 1]
+    out = np.zeros(len(k), bool)
+    for c in manifest.classes:
+        if c.stands_for is not None:
+            out |= (k >= c.first) & (k < c.first + c.count)
+    return out

@@ -18,10 +18,18 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import pygltflib as gl
+from numpy.typing import NDArray
 
 from forest.atomic import replaced_when_written
 from forest.bark.atlas import atlas_uv, make_atlas, read_slices, tile_folder
-from forest.bark.lattice import bark_tiles, lattice_st, lattice_uv, super_tile
+from forest.bark.lattice import (
+    bark_tiles,
+    lattice_st,
+    lattice_uv,
+    lower_quads,
+    lower_tint,
+    super_tile,
+)
 from forest.caps import MAX_VERTICES
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
@@ -85,6 +93,15 @@ DEFAULT_PROFILE: Profile = "game"
 # full tree anyway
 MIN_LOD0_TRIANGLES = TARGETS[1].budget
 MAX_LOD0_TRIANGLES = 100_000_000
+
+
+def rows_of(base: F64, rows: F64) -> NDArray[np.intp]:
+    """Each of ``rows``' index in ``base`` (every row is one of ``base``'s, bit for bit: a
+    level's bark vertices are LOD0's)."""
+    _, first, inverse = np.unique(
+        np.concatenate([base, rows]), axis=0, return_index=True, return_inverse=True
+    )
+    return np.asarray(first[inverse.ravel()[len(base) :]], np.intp)
 
 
 def game_lod0(triangles: int, profile: Profile) -> LodTarget:
@@ -171,8 +188,10 @@ def forest_gltf(
         n_bark = bark_class.stop - bark_class.start
         picture = super_tile(slices[bark_class])
         bark = add_bark_material(gltf, blob, picture, forest.grammar.bark, repeat=True)
+        tint = lower_tint(slices, forest.manifest)
     else:
         bark = add_bark_material(gltf, blob, make_atlas(slices), forest.grammar.bark)
+        tint = None  # the atlas holds the lower trunk's own tiles
     frames = joint_frames(forest, joint_budget)
     pose = sample_pose(forest, frames)
     anchors = foliage_or_none(forest)
@@ -220,6 +239,12 @@ def forest_gltf(
             )
             gltf.scenes[0].nodes.append(len(gltf.nodes) - 1)
         else:
+            # the lower trunk's colour, per LOD0 vertex (levels keep LOD0's vertices)
+            lower_colour = None
+            if tint is not None:
+                lower = np.zeros(len(full_bark.points), bool)
+                lower[full_bark.quads[lower_quads(full_bark.st, forest.manifest)].ravel()] = True
+                lower_colour = np.where(lower[:, None], tint, 1.0)
             levels = tree_levels(
                 forest,
                 anchors,
@@ -235,7 +260,10 @@ def forest_gltf(
             meshes: list[list[tuple[SkinnedQuads, int]]] = []
             for level in levels:
                 uv = lattice_uv(level.bark.st, n_bark)
-                prims_ = [(bark_quads(level.bark, uv), bark)]
+                tinted = None
+                if lower_colour is not None:
+                    tinted = lower_colour[rows_of(full_bark.points, level.bark.points)]
+                prims_ = [(bark_quads(level.bark, uv, tinted), bark)]
                 if level.leaves is not None and shared_leaves is not None:
                     prims_ += [(c, shared_leaves) for c in leaf_chunks(level.leaves, flat=True)]
                 meshes.append(prims_)

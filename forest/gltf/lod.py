@@ -51,11 +51,13 @@ def lod_name(tree: int, level: int) -> str:
     return f"Tree_{tree:05d}_LOD{level}"
 
 
-def bark_quads(bark: BarkMesh, uv: NDArray[np.float32]) -> SkinnedQuads:
+def bark_quads(bark: BarkMesh, uv: NDArray[np.float32], colour: F64 | None = None) -> SkinnedQuads:
     """A level's bark with its corners' glTF ``uv`` (q, 4, 2): atlas UVs of its UDIM st
     (:func:`forest.bark.atlas.atlas_uv`, film) or its lattice on the repeating bark picture
-    (:func:`forest.bark.lattice.lattice_uv`, game)."""
-    return SkinnedQuads(bark.points, bark.normals, bark.quads, bark.joints, bark.weights, uv)
+    (:func:`forest.bark.lattice.lattice_uv`, game); ``colour`` (v, 3): each vertex's tint."""
+    return SkinnedQuads(
+        bark.points, bark.normals, bark.quads, bark.joints, bark.weights, uv, colour
+    )
 
 
 def leaf_quads(leaves: LeavesMesh, *, flat: bool = False) -> SkinnedQuads:

@@ -32,6 +32,8 @@ class SkinnedQuads:
     joints : (v, k) int joint of each influence (into the skin's joints)
     weights : (v, k) float64 weights (rows summing to a positive number)
     uv : (q, 4, 2) float32 glTF UVs of every quad corner
+    colour : (v, 3) linear RGB in [0, 1] each vertex multiplies the base colour by (glTF's
+        COLOR_0), or None
     """
 
     points: F64
@@ -40,6 +42,7 @@ class SkinnedQuads:
     joints: NDArray[np.integer]
     weights: F64
     uv: NDArray[np.float32]
+    colour: F64 | None = None
 
 
 def split_corners(
@@ -109,9 +112,16 @@ def skinned_primitive(
     tris = corner.reshape(-1, 4)[:, QUAD_TRIS].ravel()
     points = mesh.points[src].astype(np.float32)
     normals = None if mesh.normals is None else mesh.normals[src].astype(np.float32)
+    # vertex colour as glTF reads it: unsigned bytes, normalised (alpha 1)
+    colour = None
+    if mesh.colour is not None:
+        rgb = np.round(np.clip(mesh.colour[src], 0.0, 1.0) * 255)
+        colour = np.concatenate([rgb, np.full((len(src), 1), 255.0)], axis=1).astype(np.uint8)
     columns: list[NDArray[np.generic]] = [points, uv, j, w]
     if normals is not None:
         columns.insert(1, normals)
+    if colour is not None:
+        columns.append(colour)
     keys = _vertex_keys(*columns) if (base is not None or share) else None
     if base is not None and keys is not None and len(keys):
         found = base.find(keys)
@@ -142,6 +152,7 @@ def skinned_primitive(
             gl.ARRAY_BUFFER,
             normalized=rigid,
         ),
+        COLOR_0=None if colour is None else blob.accessor(colour, gl.ARRAY_BUFFER, normalized=True),
     )
     # 65535 is the primitive restart value, no index of a uint16 buffer
     index = tris.astype(np.uint16 if len(src) <= 65535 else np.uint32)
