@@ -80,13 +80,20 @@ def make_atlas(slices: NDArray[np.uint8]) -> NDArray[np.uint8]:
     )
 
 
+def udim_slices(st: F64) -> NDArray[np.int64]:
+    """``(q,)`` the slice each quad's UDIM st ``(q, 4, 2)`` reads (its centre lies inside its
+    tile ``1001 + k``: u in [k % 10, k % 10 + 1], v in [k // 10, k // 10 + 1])."""
+    cell_xy = np.floor(np.asarray(st).mean(axis=1))
+    return (cell_xy[:, 0] + 10 * cell_xy[:, 1]).astype(np.int64)
+
+
 def atlas_uv(st: F64, n: int, size: int) -> NDArray[np.float32]:
     """UDIM st ``(q, 4, 2)`` (tile ``1001 + k`` spans u in [k % 10, k % 10 + 1], v in
     [k // 10, k // 10 + 1], v up, as :func:`forest.usd.materials.tile_udim_st` makes them) ->
     atlas UVs ``(q, 4, 2)`` float32 (glTF: v down from the image's top row; USD's st is
     ``(u, 1 - v)``)."""
-    cell_xy = np.floor(st.mean(axis=1))  # a quad's centre lies inside its tile
-    k = (cell_xy[:, 0] + 10 * cell_xy[:, 1]).astype(np.int64)
+    k = udim_slices(st)
+    cell_xy = np.stack([k % 10, k // 10], axis=-1).astype(np.float64)
     if len(k) and (k.max() >= n):
         raise ForestError(f"a quad uses slice {int(k.max())} of a set of {n}", path="tiles")
     local = st - cell_xy[:, None]

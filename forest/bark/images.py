@@ -152,6 +152,12 @@ def read_example(path: Path, min_size: int = 2) -> ExampleImage:
     )
 
 
+def srgb_to_linear(srgb: NDArray[np.floating]) -> NDArray[np.float64]:
+    """sRGB-encoded values in [0, 1] as linear ones (the sRGB transfer function's inverse)."""
+    x = np.asarray(srgb, np.float64)
+    return np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)
+
+
 def read_pixels(path: Path) -> U8:
     """A single image as stored, ``(h, w, c)`` uint8 (tile-set outputs, in tests)."""
     return read_subimages(path)[0]

@@ -22,6 +22,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.bark.atlas import udim_slices
+from forest.bark.images import srgb_to_linear
 from forest.errors import ForestError
 from forest.geometry.pieces import QUAD_ST
 from forest.geometry.transforms import F64
@@ -183,9 +185,8 @@ def lower_tint(slices: NDArray[np.uint8], manifest: TileSetManifest) -> F64 | No
         return None
 
     def mean(cls: slice) -> F64:
-        srgb = slices[cls].reshape(-1, slices.shape[-1])[:, :3].astype(np.float64) / 255.0
-        lin = np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
-        return np.asarray(lin.mean(axis=0))
+        srgb = slices[cls].reshape(-1, slices.shape[-1])[:, :3] / 255.0
+        return np.asarray(srgb_to_linear(srgb).mean(axis=0))
 
     below = mean(slice(lower[0].first, lower[0].first + lower[0].count))
     return np.clip(below / np.maximum(mean(bark_tiles(manifest)), 1e-6), 0.0, 1.0)
@@ -194,8 +195,7 @@ def lower_tint(slices: NDArray[np.uint8], manifest: TileSetManifest) -> F64 | No
 def lower_quads(st: F64, manifest: TileSetManifest) -> NDArray[np.bool_]:
     """``(q,)`` the quads whose UDIM st (:func:`forest.usd.materials.tile_udim_st`) lies in a
     lower-trunk class's tiles."""
-    cell = np.floor(np.asarray(st).mean(axis=1)).astype(np.int64)  # a quad's centre: its tile
-    k = cell[:, 0] + 10 * cell[:, 1]
+    k = udim_slices(st)
     out = np.zeros(len(k), bool)
     for c in manifest.classes:
         if c.stands_for is not None:

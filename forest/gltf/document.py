@@ -18,7 +18,6 @@ from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import pygltflib as gl
-from numpy.typing import NDArray
 
 from forest.atomic import replaced_when_written
 from forest.bark.atlas import atlas_uv, make_atlas, read_slices, tile_folder
@@ -48,7 +47,7 @@ from forest.gltf.lod import (
     leaf_chunks,
     leaf_quads,
 )
-from forest.gltf.primitive import SkinnedQuads, skinned_primitive
+from forest.gltf.primitive import SkinnedQuads, find_rows, skinned_primitive
 from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
@@ -93,15 +92,6 @@ DEFAULT_PROFILE: Profile = "game"
 # full tree anyway
 MIN_LOD0_TRIANGLES = TARGETS[1].budget
 MAX_LOD0_TRIANGLES = 100_000_000
-
-
-def rows_of(base: F64, rows: F64) -> NDArray[np.intp]:
-    """Each of ``rows``' index in ``base`` (every row is one of ``base``'s, bit for bit: a
-    level's bark vertices are LOD0's)."""
-    _, first, inverse = np.unique(
-        np.concatenate([base, rows]), axis=0, return_index=True, return_inverse=True
-    )
-    return np.asarray(first[inverse.ravel()[len(base) :]], np.intp)
 
 
 def game_lod0(triangles: int, profile: Profile) -> LodTarget:
@@ -262,7 +252,7 @@ def forest_gltf(
                 uv = lattice_uv(level.bark.st, n_bark)
                 tinted = None
                 if lower_colour is not None:
-                    tinted = lower_colour[rows_of(full_bark.points, level.bark.points)]
+                    tinted = lower_colour[find_rows(full_bark.points, level.bark.points)]
                 prims_ = [(bark_quads(level.bark, uv, tinted), bark)]
                 if level.leaves is not None and shared_leaves is not None:
                     prims_ += [(c, shared_leaves) for c in leaf_chunks(level.leaves, flat=True)]

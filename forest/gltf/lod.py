@@ -40,10 +40,10 @@ SCREEN_COVERAGE = "MSFT_screencoverage"
 # takes over when the tree is about half as tall on screen
 COVERAGE = (0.4, 0.15, 0.04, 0.004)
 IMPOSTOR_ROUGHNESS = 0.8
-IMPOSTOR_LEVEL = 3
+IMPOSTOR_LEVEL = 3  # the card pair: after the levels made of pieces
 # a card's four vertices: 16,383 cards are the most whose vertices a 16-bit index reaches
 # (65,535 is the primitive restart value)
-CARDS_PER_PRIMITIVE = 65535 // 4  # the card pair: after the levels made of pieces
+CARDS_PER_PRIMITIVE = 65535 // 4
 
 
 def lod_name(tree: int, level: int) -> str:

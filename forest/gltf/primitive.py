@@ -11,6 +11,7 @@ joined pieces, as USD's (no crease and no crack at a seam). Leaf cards keep thei
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pygltflib as gl
@@ -74,12 +75,17 @@ class VertexSet:
 
     def find(self, keys: NDArray[np.uint32]) -> NDArray[np.int64]:
         """Each row of ``keys``' vertex in this set, -1 where it has none."""
-        both = np.concatenate([self.keys, keys])
-        _, inverse = np.unique(both, axis=0, return_inverse=True)
-        inverse = inverse.ravel()
-        where = np.full(int(inverse.max()) + 1, -1, np.int64)
-        where[inverse[: len(self.keys)]] = np.arange(len(self.keys))
-        return where[inverse[len(self.keys) :]]
+        return find_rows(self.keys, keys)
+
+
+def find_rows(base: NDArray[Any], rows: NDArray[Any]) -> NDArray[np.int64]:
+    """Each of ``rows``' index among ``base``'s rows (equal values), -1 where it has none: one
+    ``np.unique`` over both."""
+    _, inverse = np.unique(np.concatenate([base, rows]), axis=0, return_inverse=True)
+    inverse = inverse.ravel()
+    where = np.full(int(inverse.max(initial=-1)) + 1, -1, np.int64)
+    where[inverse[: len(base)]] = np.arange(len(base))
+    return where[inverse[len(base) :]]
 
 
 def _vertex_keys(*columns: NDArray[np.generic]) -> NDArray[np.uint32]:

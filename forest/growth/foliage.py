@@ -41,6 +41,7 @@ from typing import Literal, get_args
 import numpy as np
 from numpy.typing import NDArray
 
+from forest.bark.images import srgb_to_linear
 from forest.geometry.pieces import HUB, TIP0
 from forest.geometry.transforms import F64
 from schemas.grammar import Leaves
@@ -644,8 +645,7 @@ def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDAr
 def hex_to_linear(colors: list[str]) -> NDArray[np.float64]:
     """``(n, 3)`` linear RGB of sRGB ``#rrggbb`` strings."""
     srgb = np.array([[int(c[i : i + 2], 16) for i in (1, 3, 5)] for c in colors], np.float64)
-    srgb /= 255.0
-    return np.where(srgb <= 0.04045, srgb / 12.92, ((srgb + 0.055) / 1.055) ** 2.4)
+    return srgb_to_linear(srgb / 255.0)
 
 
 def _rgb_to_hsv(rgb: F64) -> F64:
