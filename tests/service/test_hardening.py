@@ -259,6 +259,11 @@ def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path
     env = backend | {
         "FOREST_API_KEYS": ENV["FOREST_API_KEYS"],
         "FOREST_BROKER_URL": broker.replace(f":{target[1]}/", f":{port}/"),
+        # a window no earlier job of this module's database can fill: each POST below is
+        # sent at once, so it meets the outage (a held job would wait for the broker: 202,
+        # sent later, which is right but not what this test is about)
+        "FOREST_MAX_TILES_IN_FLIGHT": "1000",
+        "FOREST_MAX_TENANT_TILES_IN_FLIGHT": "1000",
     }
     try:
         for server in served(tmp_path / "broker-outage", env):
