@@ -51,8 +51,25 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 
 
 @main.command()
+@input_errors
+def recipes() -> None:
+    """List the built-in forest recipes (mixed stands for `forest generate --recipe`)."""
+    from forest.stand.recipes import builtin_summaries
+
+    for r in builtin_summaries():
+        click.echo(f"{r.name:<16} {r.description}")
+        click.echo(f"{'':<16} layers: {'; '.join(r.layers)}")
+
+
+@main.command()
 @click.option("--preset", help="Name of a shipped grammar (see `forest presets`).")
 @click.option("--grammar", type=click.Path(path_type=Path), help="A grammar JSON file.")
+@click.option(
+    "--recipe",
+    help="A mixed forest: a built-in recipe's name (see `forest recipes`) or a recipe JSON "
+    "file. Writes OUT (a .usda/.usdc root layer with the terrain) and OUT_layers/<layer>.usdc, "
+    "one scene per species layer; --trees splits by the layers' shares.",
+)
 @click.option("--seed", type=click.IntRange(0, 2**63 - 1), default=0, show_default=True)
 @click.option("--trees", type=int, default=1, show_default=True)
 @click.option(
@@ -182,6 +199,7 @@ def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
 def generate(
     preset: str | None,
     grammar: Path | None,
+    recipe: str | None,
     seed: int,
     trees: int,
     area: tuple[float, float],
@@ -213,6 +231,26 @@ def generate(
 
     check_output_path(output, SCENE_SUFFIXES)
     glb = is_glb(output)
+    if recipe is not None:
+        if preset is not None or grammar is not None:
+            raise ForestError("give --recipe or --preset/--grammar, not both", path="recipe")
+        if glb or output.suffix.lower() == ".usdz" or tiles_dir or lod0_triangles or profile:
+            raise ForestError(
+                "--recipe writes a USD root layer (.usda or .usdc) and takes no --tiles, "
+                "--profile or --lod0-triangles",
+                path="recipe",
+            )
+        options = ForestOptions(
+            trees=1,
+            area=area,
+            frames=frames,
+            fps=fps,
+            segments=segments,
+            wind=Wind(strength_deg=wind_deg),
+            season=season,  # type: ignore[arg-type]
+        )
+        _generate_stand(recipe, seed, trees, options, tile_size, skinned, textures, output, quiet)
+        return
     g = _load_grammar(preset, grammar)
     # no tile folder: generate_forest takes the manifest of the shipped set the grammar names
     manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else None
@@ -297,6 +335,40 @@ def generate(
         f"{len(forest.bones)} bones, {frames} frame(s)"
         + (", skinned" if wrote_skinned else ", posed")
     )
+
+
+def _generate_stand(
+    recipe: str,
+    seed: int,
+    trees: int,
+    options: Any,
+    tile_size: float | None,
+    skinned: bool | None,
+    textures: bool,
+    output: Path,
+    quiet: bool,
+) -> None:
+    """``forest generate --recipe``: place the stand, then grow and write each layer."""
+    from forest.stand.generate import plan_stand
+    from forest.stand.recipes import load_recipe
+    from forest.usd.stand import layers_folder, write_stand
+
+    with show_progress("forest", quiet) as bar:
+        stand = plan_stand(load_recipe(recipe), trees, options.area, seed)
+        write_stand(
+            stand,
+            output,
+            options,
+            skinned=skinned,
+            textures=textures,
+            tile_size=tile_size,
+            progress=bar.steps(f"grow and write {stand.trees} tree(s)"),
+        )
+    counts = ", ".join(
+        f"{len(t)} {layer.name}"
+        for layer, t in zip(stand.recipe.layers, stand.placement.layers, strict=True)
+    )
+    click.echo(f"wrote {output} and {layers_folder(output)}/: {stand.trees} tree(s) ({counts})")
 
 
 def _generate_tiled(

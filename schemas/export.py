@@ -14,6 +14,7 @@ from pydantic import BaseModel
 from schemas.grammar import Grammar
 from schemas.jobs import ForestRequest, Job, JobPage, PresetList, RenderRequest, TreeRequest
 from schemas.metrics import RenderMetrics
+from schemas.recipe import Recipe, RecipeList
 from schemas.tileset import TileSetManifest
 
 MODELS: dict[str, type[BaseModel]] = {
@@ -26,6 +27,8 @@ MODELS: dict[str, type[BaseModel]] = {
     "job": Job,
     "job-page": JobPage,
     "presets": PresetList,
+    "recipe": Recipe,
+    "recipes": RecipeList,
 }
 FOLDER = Path(__file__).parent / "json"
 

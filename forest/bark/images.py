@@ -11,6 +11,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -244,3 +245,65 @@ def read_subimages(path: Path) -> list[U8]:
 def read_texture_array(path: Path) -> U8:
     """Every subimage of a texture-array TIFF, ``(n, h, w, c)`` uint8 in slice order."""
     return np.stack(read_subimages(path))
+
+
+MAX_MAP_PIXELS = 16 * 1024 * 1024  # a 4096 x 4096 density map or heightfield
+MAX_MAP_BYTES = 32 * 1024 * 1024
+_SUFFIX = {"png": ".png", "jpeg": ".jpg", "tiff": ".tif", "exr": ".exr", "gif": ".gif"}
+
+
+def read_grey(data: bytes, field: str) -> NDArray[np.float32]:
+    """A greyscale map (a forest recipe's density map or heightfield) from a file's bytes:
+    ``(h, w)`` float32 in [0, 1] at the file's own precision (16-bit heights stay 16-bit); the
+    first channel of a colour image. Anything else is a ForestError at ``field``."""
+    if not data:
+        raise ForestError("the image is empty", path=field)
+    if len(data) > MAX_MAP_BYTES:
+        raise ForestError(
+            f"the image is {len(data):,} bytes, more than the {MAX_MAP_BYTES:,} accepted",
+            path=field,
+        )
+    kind = sniff_bytes(data[:HEAD_BYTES])
+    if kind not in _SUFFIX:
+        raise ForestError(
+            f"is {describe(kind)}, not a PNG, JPEG, TIFF, OpenEXR or GIF image", path=field
+        )
+    # OpenImageIO reads files: the bytes go to a private temporary one, named by their kind
+    fd, name = tempfile.mkstemp(suffix=_SUFFIX[kind], prefix="forest-map-")
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+        return _read_grey_file(name, field)
+    finally:
+        os.unlink(name)
+
+
+def _read_grey_file(name: str, field: str) -> NDArray[np.float32]:
+    inp = oiio.ImageInput.open(name)
+    if inp is None:
+        raise ForestError(f"not a readable image ({_oiio_message(oiio.geterror())})", path=field)
+    try:
+        spec = inp.spec()
+        width, height = spec.width, spec.height
+        if spec.deep or spec.depth > 1:
+            raise ForestError("deep and volume images are not maps", path=field)
+        if width < 2 or height < 2:
+            raise ForestError(f"is {width}x{height} pixels; a map needs at least 2x2", path=field)
+        if width * height > MAX_MAP_PIXELS:
+            raise ForestError(
+                f"is {width}x{height} pixels, more than the {MAX_MAP_PIXELS:,} accepted",
+                path=field,
+            )
+        with _quiet_stderr():
+            pixels = inp.read_image(0, 0, 0, 1, "float")
+        problem = inp.geterror()
+        if pixels is None or problem:
+            raise ForestError(
+                f"image data is truncated or corrupt ({_oiio_message(problem)})", path=field
+            )
+    finally:
+        inp.close()
+    grey = np.asarray(pixels, np.float32).reshape(height, width)
+    if not np.isfinite(grey).all():
+        raise ForestError("the image holds NaN or infinite values", path=field)
+    return np.clip(grey, 0.0, 1.0)

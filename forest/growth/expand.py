@@ -245,16 +245,19 @@ def expand(
     keys: NDArray[np.uint64],
     settings: ForestSettings,
     tree_radius: NDArray[np.float64] | None = None,
+    tree_size: NDArray[np.float64] | None = None,
 ) -> PieceGraph:
     """Grow one tree per key ``(n_trees,)`` (:func:`forest.growth.keyed.tree_keys`) from the
     axiom; every draw is batched over one depth level, and keyed on the tree and the piece's
     place in it.
 
     ``tree_radius`` ``(n_trees,)`` is each tree's root-rim radius in metres (its model scale;
-    1 if not given). Botanical rules of the grammar apply per level, all vectorised: the pipe
-    model at forks, the trunk's taper to the crown height, the crown envelope on first-order
-    branches, phyllotaxis rolls, and the end of every branch thinner than ``twig_radius``;
-    every rim left open gets a cap piece (``close_tips``).
+    1 if not given). ``tree_size`` ``(n_trees,)`` scales each tree's crown height (a young
+    tree of a mixed stand: :mod:`forest.stand`); 1 if not given. Botanical rules of the
+    grammar apply per level, all vectorised: the pipe model at forks, the trunk's taper to
+    the crown height, the crown envelope on first-order branches, phyllotaxis rolls, and the
+    end of every branch thinner than ``twig_radius``; every rim left open gets a cap piece
+    (``close_tips``).
     """
     g = cg.grammar
     n_trees = len(keys)
@@ -265,6 +268,8 @@ def expand(
     if crown:
         u = keyed.draw(keys, _TREE_HEIGHT)
         tree_h = crown.height[0] + u * (crown.height[1] - crown.height[0])
+        if tree_size is not None:
+            tree_h = tree_h * np.asarray(tree_size, np.float64)
     else:
         tree_h = np.full(n_trees, np.inf)
     f = _Open(

@@ -228,7 +228,9 @@ def generate_forest(
     trees = placed.transforms
     note("grow", 1, 5)
     tree_radius = similarity_scale(trees)
-    graph = expand_in_groups(cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius)
+    graph = expand_in_groups(
+        cg, tree_keys(placed.seed, placed.ids, GROW), settings, tree_radius, placed.sizes
+    )
     n_bones = int(joints_per_instance(graph, pieces).sum(dtype=np.int64))
     matrices = n_bones * max(options.frames, 1)
     if matrices > settings.max_palette_matrices:

@@ -57,18 +57,25 @@ def expand_in_groups(
     keys: NDArray[np.uint64],
     settings: ForestSettings,
     tree_radius: NDArray[np.float64],
+    tree_size: NDArray[np.float64] | None = None,
 ) -> PieceGraph:
     """:func:`expand` of contiguous groups of trees on threads, joined in tree order: the
     same graph as one call (every draw is keyed on its tree and path, never on the trees
     beside it), with the forest's piece cap checked on the total."""
     k = min(block_threads(), len(keys) // MIN_TREES_PER_GROUP)
     if k <= 1:
-        return expand(cg, keys, settings, tree_radius)
+        return expand(cg, keys, settings, tree_radius, tree_size)
     cuts = np.linspace(0, len(keys), k + 1).astype(int)
     with ThreadPoolExecutor(k, thread_name_prefix="forest-expand") as pool:
         parts = list(
             pool.map(
-                lambda ab: expand(cg, keys[ab[0] : ab[1]], settings, tree_radius[ab[0] : ab[1]]),
+                lambda ab: expand(
+                    cg,
+                    keys[ab[0] : ab[1]],
+                    settings,
+                    tree_radius[ab[0] : ab[1]],
+                    None if tree_size is None else tree_size[ab[0] : ab[1]],
+                ),
                 itertools.pairwise(cuts.tolist()),
             )
         )

@@ -34,11 +34,14 @@ I64 = NDArray[np.int64]
 @dataclass(frozen=True)
 class PlacedTrees:
     """Trees a caller placed: ``ids`` ``(t,)`` int64 their stable identities (global cells),
-    ``transforms`` ``(t, 4, 4)``, ``seed`` the forest seed their draws are keyed on."""
+    ``transforms`` ``(t, 4, 4)``, ``seed`` the forest seed their draws are keyed on, ``sizes``
+    ``(t,)`` each tree's size relative to the species' mature tree (None: all 1), which
+    scales its crown height (the transforms carry its trunk's scale)."""
 
     ids: I64
     transforms: F64
     seed: int
+    sizes: F64 | None = None
 
 
 # Trees a caller decided (a tile of a tiled forest: forest.growth.tiling); when set,

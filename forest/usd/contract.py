@@ -88,6 +88,11 @@ A tiled forest's root layer: ``/World/Tiles`` (:data:`TILES`, Xform, group; :dat
 string, the plan as JSON) and per tile ``T_<i>_<j>`` (:func:`tile_name`, Xform, assembly; a
 payload of the tile's scene, ``extentsHint``, :data:`TILE_INDEX` int2 ``(i, j)``,
 :data:`TILE_TREES` int).
+
+A mixed forest's root layer (:mod:`forest.usd.stand`): :data:`RECIPE` on ``/World``,
+:data:`TERRAIN` (Mesh) bound to :data:`TERRAIN_MATERIAL`, and :data:`STAND_LAYERS` with one
+prim per recipe layer (:data:`LAYER_SPECIES`, :data:`LAYER_ROLE`, :data:`TILE_TREES`)
+referencing its scene file, or per tile ``T_<i>_<j>`` when tiled.
 """
 
 from __future__ import annotations
@@ -107,6 +112,9 @@ BARK_TILES = f"{BARK_MATERIAL}/Tiles"  # the UsdUVTexture reading the UDIM tiles
 LEAF_MATERIAL = f"{LOOKS}/Leaf"
 LEAF_TINTED_MATERIAL = f"{LOOKS}/LeafTinted"
 TILES = f"{WORLD}/Tiles"  # a tiled forest's root layer
+STAND_LAYERS = f"{WORLD}/Layers"  # a mixed forest's root layer: one prim per species layer
+TERRAIN = f"{WORLD}/Terrain"  # its ground mesh
+TERRAIN_MATERIAL = f"{WORLD}/Looks/Ground"
 
 # prim names inside a material
 SURFACE = "Surface"  # the UsdPreviewSurface
@@ -222,3 +230,6 @@ ASSET_TREE = "forest:tree"
 TILING = "forest:tiling"
 TILE_INDEX = "forest:tile"
 TILE_TREES = "forest:trees"
+RECIPE = "forest:recipe"  # a mixed forest's recipe (JSON) on /World
+LAYER_SPECIES = "forest:species"  # a mixed forest layer's preset (or grammar) name
+LAYER_ROLE = "forest:role"  # canopy, understorey or edge
