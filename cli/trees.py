@@ -234,12 +234,16 @@ def generate(
     if recipe is not None:
         if preset is not None or grammar is not None:
             raise ForestError("give --recipe or --preset/--grammar, not both", path="recipe")
-        if glb or output.suffix.lower() == ".usdz" or tiles_dir or lod0_triangles or profile:
+        if output.suffix.lower() == ".usdz" or tiles_dir:
             raise ForestError(
-                "--recipe writes a USD root layer (.usda or .usdc) and takes no --tiles, "
-                "--profile or --lod0-triangles",
+                "--recipe writes a USD root layer (.usda or .usdc) or one .glb, and takes no "
+                "--tiles",
                 path="recipe",
             )
+        if not glb and (lod0_triangles or profile):
+            raise ForestError("--profile and --lod0-triangles apply to a .glb only", path="profile")
+        if glb and tile_size is not None:
+            raise ForestError("--tile-size writes a USD root layer, not a .glb", path="tile_size")
         options = ForestOptions(
             trees=1,
             area=area,
@@ -249,7 +253,20 @@ def generate(
             wind=Wind(strength_deg=wind_deg),
             season=season,  # type: ignore[arg-type]
         )
-        _generate_stand(recipe, seed, trees, options, tile_size, skinned, textures, output, quiet)
+        _generate_stand(
+            recipe,
+            seed,
+            trees,
+            options,
+            tile_size,
+            skinned,
+            textures,
+            output,
+            quiet,
+            glb_pack=glb_pack,
+            profile=profile,
+            lod0_triangles=lod0_triangles,
+        )
         return
     g = _load_grammar(preset, grammar)
     # no tile folder: generate_forest takes the manifest of the shipped set the grammar names
@@ -347,28 +364,52 @@ def _generate_stand(
     textures: bool,
     output: Path,
     quiet: bool,
+    *,
+    glb_pack: str,
+    profile: str | None,
+    lod0_triangles: int | None,
 ) -> None:
-    """``forest generate --recipe``: place the stand, then grow and write each layer."""
+    """``forest generate --recipe``: place the stand, then grow and write each layer (a USD
+    root layer and a scene per layer, or one .glb)."""
+    from forest.export import is_glb
     from forest.stand.generate import plan_stand
     from forest.stand.recipes import load_recipe
     from forest.usd.stand import layers_folder, write_stand
 
+    if lod0_triangles is not None:
+        from forest.gltf.document import game_lod0
+
+        game_lod0(lod0_triangles, "film" if profile == "film" else "game")  # before growing
     with show_progress("forest", quiet) as bar:
         stand = plan_stand(load_recipe(recipe), trees, options.area, seed)
-        write_stand(
-            stand,
-            output,
-            options,
-            skinned=skinned,
-            textures=textures,
-            tile_size=tile_size,
-            progress=bar.steps(f"grow and write {stand.trees} tree(s)"),
-        )
+        if is_glb(output):
+            from forest.gltf.stand import write_stand_glb
+
+            write_stand_glb(
+                stand,
+                output,
+                options,
+                progress=bar.steps(f"grow and write {stand.trees} tree(s)"),
+                packing=glb_pack,  # type: ignore[arg-type]
+                profile=profile or "game",  # type: ignore[arg-type]
+                lod0_triangles=lod0_triangles,
+            )
+        else:
+            write_stand(
+                stand,
+                output,
+                options,
+                skinned=skinned,
+                textures=textures,
+                tile_size=tile_size,
+                progress=bar.steps(f"grow and write {stand.trees} tree(s)"),
+            )
     counts = ", ".join(
         f"{len(t)} {layer.name}"
         for layer, t in zip(stand.recipe.layers, stand.placement.layers, strict=True)
     )
-    click.echo(f"wrote {output} and {layers_folder(output)}/: {stand.trees} tree(s) ({counts})")
+    where = output if is_glb(output) else f"{output} and {layers_folder(output)}/"
+    click.echo(f"wrote {where}: {stand.trees} tree(s) ({counts})")
 
 
 def _generate_tiled(
@@ -479,11 +520,22 @@ def _demo_preview(folder: Path, bar: Quiet) -> None:
 @bench.command("generate")
 @click.option("--trees", type=int, default=10_000, show_default=True)
 @click.option("--preset", default="alternating", show_default=True)
+@click.option(
+    "--recipe",
+    help="Bench a mixed forest instead: its placement and growth, layer by layer, beside a "
+    "single-species forest of as many trees (the recipe's first layer's species).",
+)
 @click.option("--repeat", type=int, default=3, show_default=True)
 @input_errors
-def bench_generate(trees: int, preset: str, repeat: int) -> None:
+def bench_generate(trees: int, preset: str, recipe: str | None, repeat: int) -> None:
     """Pieces/s of expansion + assembly + pose + tiles against a per-piece Python loop, and
-    seconds to write the forest as .usdc."""
+    seconds to write the forest as .usdc (or, with --recipe, a mixed forest's placement and
+    growth beside a single-species forest)."""
+    if recipe is not None:
+        from bench.stand import run_stand_bench
+
+        run_stand_bench(recipe, trees, repeat, echo=click.echo)
+        return
     from bench.generate import run_generate_bench
 
     run_generate_bench(trees=trees, preset=preset, repeat=repeat, echo=click.echo)

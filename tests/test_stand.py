@@ -284,3 +284,33 @@ def test_cli_recipe(tmp_path: Path) -> None:
     assert listed.exit_code == 0 and "boreal" in listed.output
     bad = CliRunner().invoke(main, ["generate", "--recipe", "nowhere", "-o", str(out)])
     assert bad.exit_code != 0 and "built-in" in bad.output
+
+
+def test_stand_as_one_glb(tmp_path: Path) -> None:
+    """A stand's .glb: the terrain a mesh node, every layer's trees named after their layer,
+    one Wind animation for all, and the Khronos validator finds no error."""
+    import pygltflib as gl
+    from helpers_gltf import node_tools, run_node
+
+    from forest.gltf.stand import write_stand_glb
+
+    stand = plan_stand(load_recipe(RECIPE), 24, (60.0, 60.0), 1)
+    opts = ForestOptions(frames=4)
+    out = write_stand_glb(stand, tmp_path / "s.glb", opts, impostor=False, packing="float")
+    doc = gl.GLTF2.load(str(out))
+    roots = [doc.nodes[n].name for n in doc.scenes[0].nodes]
+    assert roots[0] == "Terrain"
+    terrain = doc.meshes[doc.nodes[doc.scenes[0].nodes[0]].mesh].primitives[0]
+    lo, hi = (
+        doc.accessors[terrain.attributes.POSITION].min,
+        doc.accessors[terrain.attributes.POSITION].max,
+    )
+    assert hi[1] - lo[1] > 1.0 and hi[0] - lo[0] == pytest.approx(60.0, abs=1e-3)
+    for layer, trees in zip(stand.recipe.layers, stand.placement.layers, strict=True):
+        mine = {n for n in roots if n.startswith(f"{layer.name}_Tree_") and n.endswith("_LOD0")}
+        assert len(mine) == len(trees), (layer.name, len(mine), len(trees))
+    assert [a.name for a in doc.animations] == ["Wind"]
+    if node_tools() is None:  # and as shipped: quantized
+        out = write_stand_glb(stand, tmp_path / "q.glb", opts, impostor=False)
+        report = run_node("validate.mjs", str(out))
+        assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]

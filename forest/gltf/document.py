@@ -150,26 +150,48 @@ def forest_gltf(
         impostor = gl_missing() is None
     check_size(forest)
     opts = forest.options
-    gltf = gl.GLTF2(
+    gltf = document(
+        forest.version,
+        {
+            "grammar": json.dumps(forest.grammar.model_dump(mode="json"), sort_keys=True),
+            "seed": int(forest.seed),
+            "version": forest.version,
+            "trees": opts.trees,
+            "frames": opts.frames,
+            "fps": opts.fps,
+            "profile": profile,
+        },
+    )
+    blob = Blob(gltf)
+    add_forest(gltf, blob, forest, tiles, progress, joint_budget, game, bool(impostor), lod0)
+    blob.finish()
+    return gltf
+
+
+def document(version: str, extras: dict[str, object]) -> gl.GLTF2:
+    """An empty glTF document: one scene, ``extras`` under ``asset.extras.forest``."""
+    return gl.GLTF2(
         asset=gl.Asset(
-            version="2.0",
-            generator=f"interlocking-forest {forest.version}",
-            extras={
-                "forest": {
-                    "grammar": json.dumps(forest.grammar.model_dump(mode="json"), sort_keys=True),
-                    "seed": int(forest.seed),
-                    "version": forest.version,
-                    "trees": opts.trees,
-                    "frames": opts.frames,
-                    "fps": opts.fps,
-                    "profile": profile,
-                }
-            },
+            version="2.0", generator=f"interlocking-forest {version}", extras={"forest": extras}
         ),
         scene=0,
         scenes=[gl.Scene(name="Forest", nodes=[])],
     )
-    blob = Blob(gltf)
+
+
+def add_forest(
+    gltf: gl.GLTF2,
+    blob: Blob,
+    forest: Forest,
+    tiles: Path | None,
+    progress: Progress | None,
+    joint_budget: int | None,
+    game: bool,
+    impostor: bool,
+    lod0: LodTarget,
+) -> None:
+    """Every tree of ``forest`` into ``gltf`` (its materials, skins, meshes, levels and wind
+    channels; the scene's root nodes), in the profile ``game`` or film."""
     slices = read_slices(tile_folder(forest.grammar.bark, tiles), forest.manifest.n_slices)
     n_slices, size = len(slices), slices.shape[1]
     if game:
@@ -289,8 +311,6 @@ def forest_gltf(
         for chain in chains:
             chain_levels(gltf, chain)
     add_wind(gltf, blob, pose, skins)
-    blob.finish()
-    return gltf
 
 
 def write_glb(
@@ -307,7 +327,6 @@ def write_glb(
     """Write ``forest`` to ``path`` (.glb) atomically; returns the path. ``packing``: how
     the binary data is stored (:mod:`forest.gltf.compress`); ``profile``, ``impostor`` and
     ``lod0_triangles``: as :func:`forest_gltf`'s."""
-    out = Path(path)
     doc = forest_gltf(
         forest,
         tiles,
@@ -316,6 +335,14 @@ def write_glb(
         impostor=impostor,
         lod0_triangles=lod0_triangles,
     )
+    return save_glb(doc, path, packing, progress)
+
+
+def save_glb(
+    doc: gl.GLTF2, path: str | Path, packing: Packing, progress: Progress | None = None
+) -> Path:
+    """Pack ``doc`` (:mod:`forest.gltf.compress`) and write it to ``path`` atomically."""
+    out = Path(path)
     gltf = pack(doc, packing)
     # one step: pygltflib encodes the whole document in one call
     if progress:

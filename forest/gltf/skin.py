@@ -145,7 +145,9 @@ def add_wind(gltf: gl.GLTF2, blob: Blob, pose: Pose, skins: list[tuple[TreeSkin,
     if pose.times is None:
         return
     times = blob.accessor(pose.times, bounds=True)
-    anim = gl.Animation(name="Wind")
+    # one "Wind" for a whole file: a mixed forest's layers add their channels to it
+    found = [a for a in gltf.animations if a.name == "Wind"]
+    anim = found[0] if found else gl.Animation(name="Wind")
     f = len(pose.times)
     # (global bone, its node) of every joint of every tree, in file order
     bone = np.concatenate([np.arange(b.start, b.stop) for _, b in skins]).astype(np.intp)
@@ -166,5 +168,5 @@ def add_wind(gltf: gl.GLTF2, blob: Blob, pose: Pose, skins: list[tuple[TreeSkin,
                     target=gl.AnimationChannelTarget(node=node[int(j)], path=path),
                 )
             )
-    if anim.channels:  # glTF asks for at least one channel
+    if anim.channels and not found:  # glTF asks for at least one channel
         gltf.animations.append(anim)
