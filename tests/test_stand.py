@@ -314,3 +314,53 @@ def test_stand_as_one_glb(tmp_path: Path) -> None:
         out = write_stand_glb(stand, tmp_path / "q.glb", opts, impostor=False)
         report = run_node("validate.mjs", str(out))
         assert report["issues"]["numErrors"] == 0, report["issues"]["messages"][:5]
+
+
+def _png16(path: Path, grey: np.ndarray) -> None:
+    import OpenImageIO as oiio
+
+    out = oiio.ImageOutput.create(str(path))
+    out.open(str(path), oiio.ImageSpec(grey.shape[1], grey.shape[0], 1, "uint16"))
+    out.write_image(grey.astype(np.uint16)[:, :, None])  # (h, w, channels)
+    out.close()
+
+
+def test_heightfield_image_keeps_16_bits(tmp_path: Path) -> None:
+    """A 16-bit PNG heightfield: trees stand on it to the centimetre, and heights step by
+    range / 65535 (not by range / 255, as an 8-bit read would)."""
+    z, x = np.mgrid[0:64, 0:64]
+    grey = (x * 1000 + z * 7).astype(np.uint16)  # a ramp along x, fine steps along z
+    _png16(tmp_path / "h.png", grey)
+    recipe = {
+        "terrain": {"image": "h.png", "heights": [10.0, 75.535]},
+        "layers": [{"name": "a", "preset": "uniform", "share": 1.0, "spacing": 2.0}],
+    }
+    (tmp_path / "r.json").write_text(json.dumps(recipe))
+    stand = plan_stand(load_recipe(tmp_path / "r.json"), 50, (64.0, 64.0), 1)
+    h = stand.ground.heights
+    np.testing.assert_allclose(h, 10.0 + grey / 65535.0 * 65.535, atol=1e-6)
+    assert np.unique(np.round(np.diff(h[:, 0]), 6)).tolist() == [0.007]
+    out = write_stand(stand, tmp_path / "h.usdc", ForestOptions(), skinned=False, textures=False)
+    p = stand_trees(out)["a"][1]
+    assert np.abs(p[:, 1] - ground_height(out, p[:, 0], p[:, 2])).max() <= 0.01
+
+
+@pytest.mark.parametrize(
+    ("data", "words"),
+    [
+        (b"", "empty"),
+        (b"\x89PNG\r\n\x1a\n" + b"\0" * 40, "not a readable image"),
+        (b"%PDF-1.7 hello", "not a PNG"),
+    ],
+)
+def test_bad_heightfields_are_named(tmp_path: Path, data: bytes, words: str) -> None:
+    (tmp_path / "h.png").write_bytes(data)
+    recipe = {
+        "terrain": {"image": "h.png"},
+        "layers": [{"name": "a", "preset": "uniform", "share": 1.0}],
+    }
+    (tmp_path / "r.json").write_text(json.dumps(recipe))
+    with pytest.raises(ForestError) as err:
+        plan_stand(load_recipe(tmp_path / "r.json"), 5, (30.0, 30.0), 1)
+    assert err.value.path == "recipe.terrain.image" and words in err.value.message
+    assert str(tmp_path) not in str(err.value)
