@@ -167,6 +167,7 @@ class _Stream:
         self.density, self.light = density, light
         self.buf: list[tuple[float, float, float]] = []
         self.drawn = 0
+        self.slots: tuple[F64, F64] | None = None  # an orchard's planting slots, in order
 
     def _batch(self) -> None:
         w, d = self.area
@@ -178,10 +179,8 @@ class _Stream:
             n_rows = max(1, int(d // layer.rows))
             margin = (d - (n_rows - 1) * layer.rows) / 2
             z = margin + np.floor(z / d * n_rows) * layer.rows
-            if layer.spacing is not None:  # and in slots along each row
-                n_cols = max(1, int(w // layer.spacing))
-                x_margin = (w - (n_cols - 1) * layer.spacing) / 2
-                x = x_margin + np.floor(x / w * n_cols) * layer.spacing
+            if layer.spacing is not None:  # planted: slots along each row, the block filled
+                x, z = self._slots(n_rows, margin)
         chance = np.ones(BATCH)
         if self.density is not None:
             chance *= _sample_map(self.density, self.area, x, z)
@@ -209,6 +208,27 @@ class _Stream:
         fresh.reverse()  # pop() from the end takes them in drawn order
         self.buf = fresh + self.buf
         self.drawn += BATCH
+
+    def _slots(self, n_rows: int, margin: float) -> tuple[F64, F64]:
+        """The next :data:`BATCH` planting slots (rows ``rows`` apart, ``spacing`` apart along
+        a row), nearest the area's middle first (a square block), then row by row."""
+        w, d = self.area
+        rows, spacing = self.layer.rows or 1.0, self.layer.spacing or 1.0
+        if self.slots is None:
+            n_cols = max(1, int(w // spacing))
+            x_margin = (w - (n_cols - 1) * spacing) / 2
+            zz, xx = np.meshgrid(
+                margin + np.arange(n_rows) * rows,
+                x_margin + np.arange(n_cols) * spacing,
+                indexing="ij",
+            )
+            xx, zz = xx.ravel(), zz.ravel()
+            ring = np.maximum(np.abs(xx - w / 2) / w, np.abs(zz - d / 2) / d)
+            order = np.lexsort((xx, zz, np.round(ring, 9)))
+            self.slots = (xx[order], zz[order])
+        xs, zs = self.slots
+        take = np.arange(self.drawn, self.drawn + BATCH) % len(xs)
+        return xs[take], zs[take]
 
     def next(self, budget: int) -> tuple[float, float, float] | None:
         while not self.buf:
