@@ -1,3 +1,3 @@
 """interlocking-forest: trees from instanceable, interlocking quad-mesh pieces."""
 
-__version__ = "0.6.0"
+__version__ = "0.7.0"
