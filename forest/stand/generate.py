@@ -107,13 +107,16 @@ def plan_stand(
     recipe = loaded.recipe
     grammars = layer_grammars(recipe)
     maps: list[F64 | None] = []
+    read: dict[str, F64] = {}  # layers often share one map: read (and held) once
     for k, layer in enumerate(recipe.layers):
         if layer.density_map is None:
             maps.append(None)
             continue
-        field = f"recipe.layers.{k}.density_map"
-        grey = read_grey(image_bytes(layer.density_map, loaded.folder, field), field)
-        maps.append(grey.astype(np.float64))
+        if layer.density_map not in read:
+            field = f"recipe.layers.{k}.density_map"
+            grey = read_grey(image_bytes(layer.density_map, loaded.folder, field), field)
+            read[layer.density_map] = grey.astype(np.float64)
+        maps.append(read[layer.density_map])
     ground = heightfield(recipe.terrain, area, loaded.folder)
     placement = place_stand(recipe, list(grammars), trees, area, seed, ground, maps)
     return Stand(recipe, grammars, ground, placement, area, seed)

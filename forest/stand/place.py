@@ -30,6 +30,7 @@ from schemas.recipe import SIZE_MAX, SIZE_MIN, Recipe, RecipeLayer
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 TRIES_PER_TREE = 400
+CHECKS_PER_TREE = 16  # spacing checks per tree of the stand (1-5 in use; near jamming, more)
 MIN_SPACING_M = 0.5
 UNDERSTOREY_LIGHT = 0.35
 CROWN_OPACITY = 0.6  # one crown lets 40 % of the light through; two, 16 %
@@ -239,24 +240,36 @@ class _Stream:
 
 
 class _Spacing:
-    """Trunks placed so far in a hash of cells as wide as the largest spacing."""
+    """Trunks placed so far, one hash of cells per layer, each as wide as the layer's
+    largest spacing: a check scans a few cells of each layer whatever the other layers'
+    spacings (a single grid as wide as the largest spacing would hold thousands of small
+    trees per cell)."""
 
-    def __init__(self, cell: float) -> None:
-        self.cell = cell
-        self.cells: dict[tuple[int, int], list[tuple[float, float, float]]] = {}
+    def __init__(self, cells: list[float]) -> None:
+        self.size = cells
+        self.grids: list[dict[tuple[int, int], list[tuple[float, float, float]]]] = [
+            {} for _ in cells
+        ]
+        self.checks = 0
 
     def free(self, x: float, z: float, r: float) -> bool:
-        ci, cj = int(x // self.cell), int(z // self.cell)
-        for i in (ci - 1, ci, ci + 1):
-            for j in (cj - 1, cj, cj + 1):
-                for px, pz, pr in self.cells.get((i, j), ()):
-                    m = r if r > pr else pr
-                    if (px - x) ** 2 + (pz - z) ** 2 < m * m:
-                        return False
+        self.checks += 1
+        for cell, grid in zip(self.size, self.grids, strict=True):
+            if not grid:
+                continue
+            reach = math.ceil(max(r, cell) / cell)
+            ci, cj = int(x // cell), int(z // cell)
+            for i in range(ci - reach, ci + reach + 1):
+                for j in range(cj - reach, cj + reach + 1):
+                    for px, pz, pr in grid.get((i, j), ()):
+                        m = r if r > pr else pr
+                        if (px - x) ** 2 + (pz - z) ** 2 < m * m:
+                            return False
         return True
 
-    def add(self, x: float, z: float, r: float) -> None:
-        self.cells.setdefault((int(x // self.cell), int(z // self.cell)), []).append((x, z, r))
+    def add(self, layer: int, x: float, z: float, r: float) -> None:
+        cell = self.size[layer]
+        self.grids[layer].setdefault((int(x // cell), int(z // cell)), []).append((x, z, r))
 
 
 def light_map(trees: list[tuple[F64, F64]], radii: list[F64], area: tuple[float, float]) -> F64:
@@ -313,7 +326,8 @@ def place_stand(
     sizes = [_sizes(layer, counts[k], rngs[k]) for k, layer in enumerate(recipe.layers)]
     headings = [rngs[k].random(counts[k]) * 2 * np.pi for k in range(n_layers)]
     order_rng = np.random.default_rng(np.random.SeedSequence([seed, 0x0_DE_A1]))
-    hashed = _Spacing(max(max(spacing), MIN_SPACING_M))
+    hashed = _Spacing([max(sp * SIZE_MAX, MIN_SPACING_M) for sp in spacing])
+    most_checks = CHECKS_PER_TREE * total + 10_000
     placed: list[list[tuple[float, float, float]]] = [[] for _ in range(n_layers)]
     ids: list[list[int]] = [[] for _ in range(n_layers)]
     light: F64 | None = None
@@ -346,7 +360,8 @@ def place_stand(
             budget = stream.drawn + TRIES_PER_TREE * BATCH // 8
             while True:
                 spot = stream.next(budget)
-                if spot is None:
+                # a stand near jamming is refused, not searched for hours
+                if spot is None or hashed.checks > most_checks:
                     layer = recipe.layers[k]
                     raise ForestError(
                         f"found room for only {i} of {counts[k]} trees of layer "
@@ -357,7 +372,7 @@ def place_stand(
                     )
                 x, z, y = spot
                 if hashed.free(x, z, r):
-                    hashed.add(x, z, r)
+                    hashed.add(k, x, z, r)
                     placed[k].append((x, z, y))
                     ids[k].append(next_id)
                     next_id += 1
