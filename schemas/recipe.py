@@ -125,6 +125,15 @@ class Terrain(StrictModel):
     """Procedural terrain: the height between its lowest and highest points, metres."""
     feature: Annotated[float, Field(gt=0, le=1e5, allow_inf_nan=False)] = 60.0
     """Procedural terrain: the width of its largest hills, metres."""
+    extent: (
+        tuple[
+            Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)],
+            Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)],
+        ]
+        | None
+    ) = None
+    """Metres along x and z the terrain spans, centred on the forest's middle (the image's
+    real size); the forest's area must fit in it. Default: the forest's area."""
 
     @model_validator(mode="after")
     def _range(self) -> Terrain:

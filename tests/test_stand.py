@@ -364,3 +364,25 @@ def test_bad_heightfields_are_named(tmp_path: Path, data: bytes, words: str) -> 
         plan_stand(load_recipe(tmp_path / "r.json"), 5, (30.0, 30.0), 1)
     assert err.value.path == "recipe.terrain.image" and words in err.value.message
     assert str(tmp_path) not in str(err.value)
+
+
+def test_heightfield_extent(tmp_path: Path) -> None:
+    """A heightfield of its own extent (its real size): the terrain mesh spans it, the trees
+    stand in the forest's area on it; an area larger than the extent is refused."""
+    z, x = np.mgrid[0:32, 0:32]
+    _png16(tmp_path / "h.png", (np.sin(x / 5.0) * 20000 + 30000 + z * 300).astype(np.uint16))
+    recipe = {
+        "terrain": {"image": "h.png", "heights": [0.0, 30.0], "extent": [100.0, 80.0]},
+        "layers": [{"name": "a", "preset": "uniform", "share": 1.0, "spacing": 2.0}],
+    }
+    (tmp_path / "r.json").write_text(json.dumps(recipe))
+    stand = plan_stand(load_recipe(tmp_path / "r.json"), 40, (50.0, 40.0), 1)
+    out = write_stand(stand, tmp_path / "e.usdc", ForestOptions(), skinned=False, textures=False)
+    pts = read_stand(out).terrain_points
+    assert np.ptp(pts[:, 0]) == pytest.approx(100.0) and np.ptp(pts[:, 2]) == pytest.approx(80.0)
+    p = stand_trees(out)["a"][1]
+    assert np.abs(p[:, 0]).max() <= 25.0 and np.abs(p[:, 2]).max() <= 20.0
+    assert np.abs(p[:, 1] - ground_height(out, p[:, 0], p[:, 2])).max() <= 0.01
+    with pytest.raises(ForestError) as err:
+        plan_stand(load_recipe(tmp_path / "r.json"), 40, (120.0, 40.0), 1)
+    assert err.value.path == "recipe.terrain.extent"

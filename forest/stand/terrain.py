@@ -165,10 +165,19 @@ def _smooth_sample(lattice: F64, gx: F64, gz: F64) -> F64:
 def heightfield(
     terrain: Terrain | None, area: tuple[float, float], folder: Path | None
 ) -> Heightfield:
-    """The recipe's ground over ``area``: its heightfield image, its procedural hills, or
-    level ground when it has none."""
+    """The recipe's ground: its heightfield image, its procedural hills, or level ground when
+    it has none; over its ``extent``, or ``area`` (the forest's) by default."""
     if terrain is None:
         return flat(area)
+    if terrain.extent is not None:
+        w, d = terrain.extent
+        if area[0] > w * (1 + 1e-9) or area[1] > d * (1 + 1e-9):
+            raise ForestError(
+                f"the forest's area {area[0]:g} x {area[1]:g} m does not fit in the terrain's "
+                f"extent {w:g} x {d:g} m",
+                path="recipe.terrain.extent",
+            )
+        area = (w, d)
     if terrain.image is not None:
         from forest.bark.images import read_grey
 
