@@ -29,6 +29,21 @@ from forest.errors import ForestError
 )
 @click.option("--seed", type=int, default=1, show_default=True)
 @click.option("--stand-trees", type=int, default=16, show_default=True, help="Trees in each stand.")
+@click.option(
+    "--recipes",
+    "recipes_text",
+    default="all",
+    show_default=True,
+    help="Comma-separated built-in recipes (`forest recipes`) to draw as a mixed forest, from "
+    "above and at eye level; 'none' for none.",
+)
+@click.option(
+    "--recipe-trees",
+    type=int,
+    default=200,
+    show_default=True,
+    help="Trees in each recipe's stand (on 110 m x 110 m).",
+)
 @quiet_option
 @input_errors
 def gallery(
@@ -37,11 +52,14 @@ def gallery(
     size_text: str,
     seed: int,
     stand_trees: int,
+    recipes_text: str = "none",
+    recipe_trees: int = 200,
     quiet: bool = False,
 ) -> None:
     """Render every preset as one tree (side view on the ground, with a scale bar and its
     height) and as a small stand (overview), into DIR/<preset>.png, DIR/<preset>_stand.png
-    and DIR/contact_sheet.png."""
+    and DIR/contact_sheet.png; and every built-in recipe as a mixed forest on its terrain
+    (DIR/recipe_<name>.png from above, DIR/recipe_<name>_eye.png at eye level)."""
     needs("render", "moderngl", "PIL")
     from cli.sheets.gallery import GalleryOptions, make_gallery, parse_size
 
@@ -50,12 +68,21 @@ def gallery(
         presets = tuple(p.strip() for p in presets_text.split(",") if p.strip())
         if not presets:
             raise ForestError("name at least one preset", path="presets")
+    from forest.stand.recipes import recipe_names
+
+    recipes = tuple(r.strip() for r in recipes_text.split(",") if r.strip())
+    if recipes == ("all",):
+        recipes = tuple(recipe_names())
+    elif recipes in ((), ("none",)):
+        recipes = ()
     options = GalleryOptions(
         output=output,
         presets=presets,
         size=parse_size(size_text),
         seed=seed,
         stand_trees=stand_trees,
+        recipes=recipes,
+        recipe_trees=recipe_trees,
     )
     with show_progress("gallery", quiet) as bar:
         make_gallery(options, echo=bar.echo, progress=bar)

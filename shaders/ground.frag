@@ -4,9 +4,13 @@
 // fog, so the ground fades into the horizon's sky colour. Octaves finer than a pixel fade to
 // their mean (fwidth) instead of shimmering.
 // Defines accepted: STAGED (sun shadows from the depth map, colour unclamped for the tone map;
-// see piece.frag).
+// see piece.frag), TERRAIN (a mixed forest's terrain: lit by its interpolated normal, bare
+// soil and leaf litter on slopes).
 
 in vec3 v_position;
+#ifdef TERRAIN
+in vec3 v_normal;
+#endif
 
 layout(location = 0) out vec4 o_color;
 
@@ -21,9 +25,15 @@ uniform mat4 u_light_vp;
 uniform float u_shadow_texel;
 vec3 to_srgb(vec3 c) { return pow(max(c, 0.0), vec3(1.0 / 2.2)); }
 
-float sunlight(vec3 p) {
+float sunlight(vec3 p, vec3 n) {
+#ifdef TERRAIN
+    // the terrain is smooth: a texel or two up the normal is enough against acne
+    float grazing = 1.0 - clamp(dot(n, u_sun), 0.0, 1.0);
+    vec4 clip = u_light_vp * vec4(p + n * u_shadow_texel * (1.0 + 1.5 * grazing), 1.0);
+#else
     // the ground is flat and faces up: a texel up the normal is enough against acne
     vec4 clip = u_light_vp * vec4(p + vec3(0.0, u_shadow_texel, 0.0), 1.0);
+#endif
     vec3 q = clip.xyz / clip.w * 0.5 + 0.5;
     if (any(lessThan(q, vec3(0.0))) || any(greaterThan(q, vec3(1.0)))) {
         return 1.0;
@@ -78,14 +88,25 @@ void main() {
     float bare = fbm(xz / 0.6 + 17.0);
     vec3 albedo = mix(grass, dry, smoothstep(0.5, 0.8, patches));
     albedo = mix(albedo, soil, 0.7 * smoothstep(0.6, 0.8, bare));
+#ifdef TERRAIN
+    // slopes: the grass thins to soil and litter where the ground tilts past ~15 degrees
+    vec3 n = normalize(v_normal);
+    albedo = mix(albedo, mix(soil, dry, 0.4), 0.6 * smoothstep(0.95, 0.85, n.y));
+    albedo *= 0.75 + 0.5 * fbm(xz / 0.15 + 41.0);
+    float diffuse = max(dot(n, u_sun), 0.0);
+    vec3 sky = (0.5 + 0.5 * n.y) * u_sky;  // the hemisphere ambient a tilted face sees
+#else
+    vec3 n = vec3(0.0, 1.0, 0.0);
     albedo *= 0.75 + 0.5 * fbm(xz / 0.15 + 41.0);
     // the normal is +Y: the hemisphere ambient is the sky's colour
     float diffuse = max(u_sun.y, 0.0);
+    vec3 sky = u_sky;
+#endif
 #ifdef STAGED
-    diffuse *= sunlight(v_position);
-    vec3 lit = albedo * (vec3(1.35, 1.27, 1.13) * diffuse + 0.7 * u_sky);
+    diffuse *= sunlight(v_position, n);
+    vec3 lit = albedo * (vec3(1.35, 1.27, 1.13) * diffuse + 0.7 * sky);
 #else
-    vec3 lit = albedo * (vec3(1.25, 1.18, 1.05) * diffuse + 0.55 * u_sky);
+    vec3 lit = albedo * (vec3(1.25, 1.18, 1.05) * diffuse + 0.55 * sky);
 #endif
     float fog = 1.0 - exp(-u_fog * distance(u_camera, v_position));
     o_color = vec4(to_srgb(mix(lit, u_sky, fog)), 1.0);

@@ -1,7 +1,8 @@
 """``forest gallery``: every preset as one tree (side view, on the ground, with a scale bar
 and its measured height), in two close-ups (the leaves at a shoot end on the crown's sunny
 side, and the trunk's base) and as a small stand (overview, on the ground), plus two contact
-sheets (trees and stands; close-ups).
+sheets (trees and stands; close-ups); and each built-in mixed-forest recipe asked for
+(``recipes``) as a stand of a few hundred trees on its terrain, from above and at eye level.
 
 Each scene goes through a written and re-read USD file, as a render job sees it. One tree is
 framed from its own posed surface (every skinned piece vertex) and leaf clouds; the stand is
@@ -47,6 +48,8 @@ if TYPE_CHECKING:
     import moderngl
     from PIL import Image as PILImage
 
+    from worker.render.stand import StandScene
+
 Echo = Callable[[str], None]
 Progress = Callable[[str, int, int], None]  # (stage, done, total), as forest.growth.generate's
 SINGLE_SIZE = (480, 640)  # width, height: portrait for one tree, llvmpipe-friendly
@@ -63,6 +66,11 @@ LEAF_BAND = (0.45, 0.85)  # the close-up's shoot is taken between these fraction
 BASE_VIEW = (1.5, 3.0)  # metres of trunk a base close-up shows: 12 % of the height in this range
 CLOSE_ELEVATION = 8.0  # degrees: close-ups are seen from about eye level
 MIN_SIZE, MAX_SIZE = 64, 4096
+RECIPE_TREES = 200
+RECIPE_SIDE = 110.0  # metres: the square a recipe's stand grows on
+RECIPE_ELEVATION = 32.0  # degrees: steeper than a stand's overview, so glades and rows show
+RECIPE_AZIMUTH = {"orchard": 0.0}  # along the orchard's rows; the others at AZIMUTH
+RECIPE_EYE_DISTANCE = 0.3  # of the side: the eye stands in the wood, looking at its middle
 
 
 @dataclass(frozen=True)
@@ -74,6 +82,8 @@ class GalleryOptions:
     size: tuple[int, int] = SINGLE_SIZE
     seed: int = 1
     stand_trees: int = STAND_TREES
+    recipes: tuple[str, ...] = ()  # built-in recipes to draw (`forest recipes`)
+    recipe_trees: int = RECIPE_TREES
 
     def check(self) -> None:
         for name, v in zip(("width", "height"), self.size, strict=True):
@@ -93,6 +103,16 @@ class GalleryOptions:
                 )
         if self.presets is not None and not self.presets:
             raise ForestError("name at least one preset", path="presets")
+        from forest.stand.recipes import recipe_names
+
+        for name in self.recipes:
+            if name not in recipe_names():
+                raise ForestError(
+                    f"unknown recipe {name!r}; choose from {', '.join(recipe_names())}",
+                    path="recipes",
+                )
+        if not 2 <= self.recipe_trees <= 2000:
+            raise ForestError(f"must be in [2, 2000], got {self.recipe_trees}", path="recipe_trees")
         if self.output.exists() and not self.output.is_dir():
             raise OutputError("exists and is not a folder", path=str(self.output))
 
@@ -305,6 +325,91 @@ def _stand_scene(
             trees //= 2
 
 
+def _recipe_stand(name: str, trees: int, seed: int, path: Path) -> StandScene:
+    """Built-in recipe ``name``'s stand of ``trees`` on RECIPE_SIDE metres square (posed trees),
+    written and read back as `forest render` reads it."""
+    from forest.stand.generate import plan_stand
+    from forest.stand.recipes import load_recipe
+    from forest.usd.stand import write_stand
+    from worker.render.render_file import load_scene
+    from worker.render.stand import load_stand
+
+    area = (RECIPE_SIDE, RECIPE_SIDE)
+    stand = plan_stand(load_recipe(name), trees, area, seed)
+    write_stand(stand, path, ForestOptions(trees=trees, area=area), skinned=False)
+    return load_stand(path, load_scene)
+
+
+def _render_stand(
+    ctx: moderngl.Context, stand: StandScene, camera: Camera, size: tuple[int, int]
+) -> NDArray[np.uint8]:
+    """``(h, w, 4)`` uint8 frame 0 of every layer of ``stand`` on its terrain, staged."""
+    from worker.render.stand import stand_points
+
+    scenes = stand.scenes
+    images = [tile_images(s.manifest, None, s.tile_folder, bark=s.bark_tile_set) for s in scenes]
+    renderer = Renderer(ctx, scenes[0], size, images[0], staging=STAGED, terrain=stand.terrain)
+    try:
+        for scene, im in zip(scenes[1:], images[1:], strict=True):
+            renderer.add_layer(scene, im)
+        pts = stand_points(stand)
+        tess = auto_lod(camera, pts.min(axis=0), pts.max(axis=0), TESS_MAX)
+        renderer.draw(camera, tess, lod_pixels=DEFAULT_LOD_PIXELS)
+        raise_gl_error(ctx, "rendering the gallery")
+        return renderer.read_color()
+    finally:
+        renderer.release()
+
+
+def recipe_cameras(stand: StandScene, name: str, size: tuple[int, int]) -> tuple[Camera, Camera]:
+    """The overview (RECIPE_ELEVATION up, framing the terrain and every tree) and the eye-level
+    view (eyes on the terrain inside the wood, looking at its middle) of a recipe's stand."""
+    from worker.render.stand import stand_points, stand_view
+
+    azimuth = RECIPE_AZIMUTH.get(name, AZIMUTH)
+    pts = stand_points(stand)
+    aspect = size[0] / size[1]
+    overview = frame_points(pts, aspect, FOV, azimuth, RECIPE_ELEVATION)
+    under = float(stand.floor()(np.asarray(overview.eye[0]), np.asarray(overview.eye[2])))
+    spec = CameraSpec(
+        view="eye", fov=FOV, azimuth=azimuth, distance=RECIPE_EYE_DISTANCE * RECIPE_SIDE
+    )
+    eye, _ = stand_view(stand, size, TESS_MAX, spec=spec, ground=True)
+    return with_ground(overview, under), eye
+
+
+def make_recipe_pictures(
+    ctx: moderngl.Context,
+    options: GalleryOptions,
+    tmp: Path,
+    wrote: Callable[[Path, str], Path],
+) -> list[tuple[str, Path, Path]]:
+    """``recipe_<name>.png`` (overview) and ``recipe_<name>_eye.png`` for each recipe of
+    ``options``, at the stand size (height x width of a single tree's picture)."""
+    from PIL import Image
+
+    w, h = options.size
+    out = []
+    for name in options.recipes:
+        stand = _recipe_stand(name, options.recipe_trees, options.seed, tmp / f"{name}.usdc")
+        trees = sum(len(np.unique(s.tree)) for s in stand.scenes)
+        species = ", ".join(dict.fromkeys(n.partition("[")[0] for n in stand.names))
+        over_cam, eye_cam = recipe_cameras(stand, name, (h, w))
+        side = f"{RECIPE_SIDE:.0f} m x {RECIPE_SIDE:.0f} m"
+        paths = []
+        for cam, kind, file in ((over_cam, "overview", ""), (eye_cam, "eye level", "_eye")):
+            image = Image.fromarray(_render_stand(ctx, stand, cam, (h, w))[..., :3])
+            _caption(image, f"{name}: {trees} trees on {side}, {kind}")
+            paths.append(
+                wrote(
+                    write_png(options.output / f"recipe_{name}{file}.png", np.asarray(image)),
+                    f"recipe {name}, {trees} trees ({species}) on {side}, {kind}",
+                )
+            )
+        out.append((name, paths[0], paths[1]))
+    return out
+
+
 # -- the gallery ----------------------------------------------------------------------------------
 
 
@@ -344,7 +449,7 @@ def make_gallery(
     entries: list[GalleryEntry] = []
     # each preset's tree, close-ups and stand, then the two sheets
     grammars = {name: load_preset(name) for name in names}
-    n_images = sum(3 + bool(g.foliage) for g in grammars.values()) + 2
+    n_images = sum(3 + bool(g.foliage) for g in grammars.values()) + 2 + 2 * len(options.recipes)
     done = 0
 
     def wrote(path: Path, line: str) -> Path:
@@ -415,6 +520,7 @@ def make_gallery(
                         name, single, stand_path, shot.height, scene.n_instances, n, leaves, base
                     )
                 )
+            make_recipe_pictures(ctx, options, Path(tmp), wrote)
     finally:
         ctx.release()
     wrote(write_png(out / "contact_sheet.png", contact_sheet(entries)), f"{len(entries)} preset(s)")

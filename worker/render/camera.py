@@ -210,25 +210,32 @@ def _clip_planes(eye: F64, forward: F64, points: F64, dist: float) -> tuple[floa
     return near, far
 
 
-def with_ground(camera: Camera) -> Camera:
+def with_ground(camera: Camera, floor: float = 0.0) -> Camera:
     """``camera`` with clip planes that keep the ground quad (:data:`GROUND_SPAN`): the far
     plane past its edge, the near plane before the nearest ground point in view (no nearer
-    than the eye's height, at most the half-diagonal field off the view axis)."""
+    than the eye's height above ``floor``, at most the half-diagonal field off the view
+    axis)."""
     dist = float(np.linalg.norm(camera.target - camera.eye))
     far = max(camera.far, 1.5 * (GROUND_SPAN + 1) * dist)
     tan_v = np.tan(np.deg2rad(camera.fov_y) / 2)
     cos_diag = float(np.cos(np.arctan(tan_v * np.hypot(1.0, camera.aspect))))
-    height = abs(float(camera.eye[1]))
+    height = abs(float(camera.eye[1]) - floor)
     near = min(camera.near, max(0.9 * height * cos_diag, dist * 1e-3, 1e-3))
     return Camera(camera.eye, camera.target, camera.fov_y, camera.aspect, near, far)
 
 
 def place_camera(
-    spec: CameraSpec, points_in: ArrayLike, aspect: float, ground: bool = False
+    spec: CameraSpec,
+    points_in: ArrayLike,
+    aspect: float,
+    ground: bool = False,
+    floor: Callable[[F64, F64], F64] | None = None,
 ) -> Camera:
     """The camera ``spec`` asks for, for a scene enclosed by ``points`` (``(m, 3)`` world);
     ``ground`` fits the clip planes to the ground quad too (:func:`with_ground`). A close-up
-    (``spec.tree``, ``points`` being that tree's) is :func:`centred` on its silhouette."""
+    (``spec.tree``, ``points`` being that tree's) is :func:`centred` on its silhouette.
+    ``floor``: the ground's height under ``(x, z)`` (a mixed forest's terrain; default 0):
+    the ``eye`` view's eyes are EYE_HEIGHT above it, and the near plane keeps it in view."""
     spec.check()
     pts = np.asarray(points_in, dtype=np.float64).reshape(-1, 3)
     if spec.eye is not None and spec.target is not None:
@@ -240,7 +247,7 @@ def place_camera(
         if spec.view == "eye":
 
             def aim(target: F64 | None) -> Camera:
-                return _eye_level(spec, pts, aspect, target)
+                return _eye_level(spec, pts, aspect, target, floor)
         else:
             elevation = OVERVIEW_ELEVATION if spec.view == "overview" else 0.0
 
@@ -248,7 +255,12 @@ def place_camera(
                 return frame_points(pts, aspect, spec.fov, spec.azimuth, elevation, target)
 
         cam = aim(None) if spec.tree is None else centred(aim, pts)
-    return with_ground(cam) if ground else cam
+    if not ground:
+        return cam
+    if floor is None:
+        return with_ground(cam)
+    under = float(np.asarray(floor(np.asarray(cam.eye[0]), np.asarray(cam.eye[2]))))
+    return with_ground(cam, under)
 
 
 def centred(aim: Callable[[F64 | None], Camera], pts: F64, steps: int = 12) -> Camera:
@@ -270,7 +282,13 @@ def centred(aim: Callable[[F64 | None], Camera], pts: F64, steps: int = 12) -> C
     return cam
 
 
-def _eye_level(spec: CameraSpec, pts: F64, aspect: float, target_in: F64 | None = None) -> Camera:
+def _eye_level(
+    spec: CameraSpec,
+    pts: F64,
+    aspect: float,
+    target_in: F64 | None = None,
+    floor: Callable[[F64, F64], F64] | None = None,
+) -> Camera:
     """Eyes at :data:`EYE_HEIGHT` looking at ``target`` (default: the centre of the points'
     box) from ``azimuth``,
     at ``spec.distance`` or else the least horizontal distance (found by bisection on the
@@ -283,6 +301,8 @@ def _eye_level(spec: CameraSpec, pts: F64, aspect: float, target_in: F64 | None 
 
     def at(d: float) -> Camera:
         eye = np.array([target[0], EYE_HEIGHT, target[2]]) + d * back
+        if floor is not None:  # standing on the terrain
+            eye[1] += float(np.asarray(floor(np.asarray(eye[0]), np.asarray(eye[2]))))
         return Camera(eye, target, spec.fov, aspect)
 
     def fits(d: float) -> bool:

@@ -43,8 +43,12 @@ def render_metrics(
     warmup_frames: int = 0,
     lod_pixels: float | None = None,
 ) -> RenderMetrics:
+    """The run's figures; a mixed forest's (a renderer with ``layers``) add up over its layers:
+    piece types, instances, quads and bones of every layer, the bark sources joined."""
     scene = renderer.scene
-    n_quads = renderer.buffers.n_quads
+    members = (renderer, *renderer.layers)
+    quads = sum(int(np.asarray(m.buffers.n_quads)[m.scene.proto_indices].sum()) for m in members)
+    sources = list(dict.fromkeys(m.images.source for m in members))
     times = scene.times
     return RenderMetrics(
         scene=scene.path,
@@ -55,11 +59,11 @@ def render_metrics(
         mode="per_instance" if per_instance else "instanced",
         frustum_culling=cull,
         lod_pixels=lod_pixels,
-        piece_types=len(scene.pieces),
-        instances=scene.n_instances,
-        quads=int(np.asarray(n_quads)[scene.proto_indices].sum()),
-        bones=scene.n_bones,
-        textures=renderer.images.source,
+        piece_types=sum(len(m.scene.pieces) for m in members),
+        instances=sum(m.scene.n_instances for m in members),
+        quads=quads,
+        bones=sum(m.scene.n_bones for m in members),
+        textures="; ".join(sources),
         tessellation=tess.schema(),
         warmup_frames=warmup_frames,
         foliage=_foliage_settings(renderer),
@@ -96,15 +100,18 @@ def _foliage_frame(stats: FoliageStats | None) -> FoliageFrameMetrics | None:
 
 
 def _foliage_settings(renderer: Renderer) -> FoliageSettings | None:
-    f = renderer.foliage
-    if f is None:
+    """The foliage's settings; over a mixed forest's layers, clouds, cards of the models and
+    pass-1 runs add up."""
+    every = [m.foliage for m in (renderer, *renderer.layers) if m.foliage is not None]
+    if not every:
         return None
+    f = every[0]
     return FoliageSettings(
         mode=f.mode,
-        clouds=f.scene.n_foliage,
-        leaf_cards=f.cloud.n_cards,
+        clouds=sum(g.scene.n_foliage for g in every),
+        leaf_cards=sum(g.cloud.n_cards for g in every),
         impostor_size=f.impostor_size if f.mode == "impostor" else None,
-        impostor_renders=f.impostor_renders,
+        impostor_renders=sum(g.impostor_renders for g in every),
     )
 
 

@@ -13,6 +13,7 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -31,6 +32,7 @@ from worker.render.metrics import render_metrics, write_metrics
 from worker.render.renderer import Renderer, TessSettings, auto_lod
 from worker.render.scene_buffers import check_scene, scene_points
 from worker.render.staging import STAGED, Staging
+from worker.render.stand import StandScene, is_stand_file, load_stand, stand_view
 from worker.render.textures import tile_images
 
 MAX_SIZE = 8192
@@ -183,6 +185,17 @@ def bark_warnings(req: RenderRequest, scene: SceneArrays) -> list[str]:
     return [f"bark tiles not found: {folder}: {instead}"]
 
 
+def stand_warnings(req: RenderRequest, stand: StandScene) -> list[str]:
+    """:func:`bark_warnings` of every layer, naming it (once per layer)."""
+    out: list[str] = []
+    for name, scene in zip(stand.names, stand.scenes, strict=True):
+        layer = name.partition("[")[0]
+        for w in bark_warnings(req, scene):
+            if f"layer {layer}: {w}" not in out:
+                out.append(f"layer {layer}: {w}")
+    return out
+
+
 def scene_fps(scene: SceneArrays) -> float:
     """The rate the scene's wind was sampled at (its clip loops at it), else DEFAULT_FPS."""
     fps = scene.options.get("fps")
@@ -217,43 +230,67 @@ def render_file(
     req.check()
     if on_stage is not None:
         on_stage("read")
-    scene = load_scene(req.scene)
+    # a mixed forest's root layer: every layer's scene and the terrain (worker.render.stand)
+    stand = load_stand(req.scene, load_scene) if is_stand_file(req.scene) else None
+    if stand is not None and req.tiles is not None:
+        raise ForestError(
+            "a mixed forest's layers each use their own bark tiles: leave the tile folder out",
+            path="tiles",
+        )
+    scene = load_scene(req.scene) if stand is None else stand.scenes[0]
+    scenes = (scene,) if stand is None else stand.scenes
     if on_stage is not None:
         on_stage("render")
-    n_frames = scene.n_frames
+    n_frames = scene.n_frames if stand is None else stand.n_frames
     if req.frame >= n_frames:
         raise ForestError(
             f"the scene has {n_frames} palette sample(s): frame must be below {n_frames}",
             path="frame",
         )
-    check_scene(scene, scene.manifest.n_slices)  # before any GL or texture work
+    for s in scenes:
+        check_scene(s, s.manifest.n_slices)  # before any GL or texture work
     ctx = create_context()
     try:
-        scene_folder = scene.tile_folder if req.scene_tiles else None
-        images = tile_images(scene.manifest, req.tiles, scene_folder, bark=scene.bark_tile_set)
+        images = [
+            tile_images(
+                s.manifest,
+                req.tiles,
+                s.tile_folder if req.scene_tiles else None,
+                bark=s.bark_tile_set,
+            )
+            for s in scenes
+        ]
         n_draw, fewer = frames_to_draw(req, scene)
-        warnings = bark_warnings(req, scene) + ([] if fewer is None else [fewer])
+        warnings = bark_warnings(req, scene) if stand is None else stand_warnings(req, stand)
+        warnings += [] if fewer is None else [fewer]
         for w in warnings:
             print(f"warning: {w}", file=sys.stderr)
+        staging = STAGED if req.staged else Staging() if req.ground else None
+        if stand is not None and staging is None:  # the bare mode: the terrain alone
+            staging = Staging(ground=False, sky=False)
         renderer = Renderer(
             ctx,
             scene,
             (req.width, req.height),
-            images,
+            images[0],
             foliage=req.foliage,
             impostor_size=req.impostor_size,
-            staging=STAGED if req.staged else Staging() if req.ground else None,
+            staging=staging,
+            terrain=None if stand is None else stand.terrain,
         )
-        camera, tess = preview_view(
-            scene,
-            (req.width, req.height),
-            req.tess_max,
-            req.frame,
-            req.alpha,
-            req.lod_half,
-            foliage=req.foliage is not None,
-            spec=req.camera,
-            ground=req.ground or req.staged,
+        for s, im in zip(scenes[1:], images[1:], strict=True):
+            renderer.add_layer(s, im)
+        size = (req.width, req.height)
+        framing: dict[str, Any] = {
+            "foliage": req.foliage is not None,
+            "spec": req.camera,
+            "ground": req.ground or req.staged,
+        }
+        detail = (req.tess_max, req.frame, req.alpha, req.lod_half)
+        camera, tess = (
+            preview_view(scene, size, *detail, **framing)
+            if stand is None
+            else stand_view(stand, size, *detail, **framing)
         )
         cameras = [camera] * n_draw
         if req.orbit:
@@ -290,6 +327,8 @@ def render_file(
             warmup_frames=req.warmup,
             lod_pixels=lod if stats[0].drawn_instances is not None else None,
         ).model_copy(update={"warnings": warnings})
+        if stand is not None:
+            metrics = metrics.model_copy(update={"scene": str(stand.path)})
         # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
         if req.clip is not None:

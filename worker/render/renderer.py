@@ -18,10 +18,16 @@ from forest.gl.context import elapsed_ms, gl_info
 from forest.usd.read import SceneArrays
 from schemas.metrics import TessellationSettings
 from worker.render.camera import GROUND_SPAN, Camera
-from worker.render.foliage import IMPOSTOR_SIZE, FoliageMode, FoliageRenderer, FoliageStats
+from worker.render.foliage import (
+    IMPOSTOR_SIZE,
+    FoliageMode,
+    FoliageRenderer,
+    FoliageStats,
+    PassStats,
+)
 from worker.render.instance_cull import InstanceCuller, pixel_size
 from worker.render.scene_buffers import PATCH_ATTRIBUTES, PATCH_FORMAT, SceneBuffers, scene_points
-from worker.render.staging import StageRenderer, Staging, SunCamera, sun_camera
+from worker.render.staging import StageRenderer, Staging, SunCamera, TerrainMesh, sun_camera
 from worker.render.textures import tile_images, upload
 
 if TYPE_CHECKING:
@@ -93,6 +99,26 @@ def auto_lod(
     )
 
 
+def combine_foliage(stats: list[FoliageStats]) -> FoliageStats | None:
+    """One frame's foliage work over several scenes (a mixed forest's layers): the passes'
+    draw calls, primitives and GPU times summed; pass 1 rendered if it ran for any."""
+    if len(stats) <= 1:
+        return stats[0] if stats else None
+
+    def total(passes: list[PassStats]) -> PassStats:
+        times = [p.gpu_ms for p in passes if p.draw_calls]
+        gpu = None if any(t is None for t in times) else float(sum(t or 0.0 for t in times))
+        return PassStats(sum(p.draw_calls for p in passes), sum(p.primitives for p in passes), gpu)
+
+    return FoliageStats(
+        mode=stats[0].mode,
+        clouds=sum(s.clouds for s in stats),
+        impostor_rendered=any(s.impostor_rendered for s in stats),
+        impostor=total([s.impostor for s in stats]),
+        billboards=total([s.billboards for s in stats]),
+    )
+
+
 @dataclass(frozen=True)
 class FrameStats:
     """One frame; ``primitives`` and ``draw_calls`` count every pass, foliage included
@@ -123,6 +149,11 @@ class Renderer:
     A staged ``staging`` (shadows, MSAA, tone map) draws into a half-float (multisampled)
     buffer, resolves it and tone-maps it into ``color``; with ``ids`` it skips the MSAA (an
     integer attachment has no meaningful resolve).
+
+    A mixed forest: ``terrain`` is drawn with the staging (see :mod:`worker.render.staging`),
+    and :meth:`add_layer` adds a scene per further layer, each a Renderer of its own buffers,
+    bark tiles and foliage that draws into this one's framebuffer, shadow map and staging
+    (``layers``): :meth:`draw` draws them all in each pass, with one camera and one sun.
     """
 
     def __init__(
@@ -135,6 +166,8 @@ class Renderer:
         foliage: FoliageMode | None = "impostor",
         impostor_size: int = IMPOSTOR_SIZE,
         staging: Staging | None = None,
+        terrain: TerrainMesh | None = None,
+        share: Renderer | None = None,
     ) -> None:
         import moderngl
 
@@ -145,26 +178,46 @@ class Renderer:
         self.images = images or tile_images(scene.manifest, bark=scene.bark_tile_set)
         self.buffers = SceneBuffers(ctx, scene, self.images.n_slices)
         self.texture = upload(ctx, self.images)
+        self.layers: list[Renderer] = []  # further scenes drawn with this one (add_layer)
+        self.shared = share is not None
+        self._variants: dict[frozenset[str], tuple[Any, list[Any]]] = {}
+        self._moderngl = moderngl
+        self.query = ctx.query(time=self.info.timer_query, primitives=True)
+        self.foliage: FoliageRenderer | None = None
+        self._foliage_mode, self._impostor_size = foliage, impostor_size
+        if foliage is not None and scene.n_foliage:
+            self.foliage = FoliageRenderer(
+                ctx, scene, foliage, impostor_size, timer_query=self.info.timer_query
+            )
+        self._bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
+        # the cull passes of the main view and of the sun's, each with its own lists (made on
+        # first use: a renderer that never culls pays nothing)
+        self._cullers: dict[str, InstanceCuller] = {}
+        self._staged_objects: list[Any] = []
+        self.stage: StageRenderer | None
+        self.color: moderngl.Texture
+        self.id_texture: moderngl.Texture | None
+        self.depth: moderngl.Renderbuffer
+        self.fbo: moderngl.Framebuffer
+        self.draw_fbo: moderngl.Framebuffer
+        self.samples: int
+        self.resolve_fbo: moderngl.Framebuffer | None = None
+        self.hdr: moderngl.Texture | None = None
+        self.post_fbo: moderngl.Framebuffer | None = None
+        if share is not None:  # a layer: the framebuffers and staging are the first scene's
+            self.color, self.id_texture, self.depth = share.color, share.id_texture, share.depth
+            self.fbo, self.draw_fbo, self.resolve_fbo = share.fbo, share.draw_fbo, share.resolve_fbo
+            self.hdr, self.post_fbo, self.samples = share.hdr, share.post_fbo, share.samples
+            self.stage = share.stage
+            return
         self.color = ctx.texture(size, 4)
         self.id_texture = ctx.texture(size, 4, dtype="i4") if ids else None
         attachments = [self.color] + ([self.id_texture] if self.id_texture else [])
         self.depth = ctx.depth_renderbuffer(size)
         self.fbo = ctx.framebuffer(attachments, self.depth)
-        self.query = ctx.query(time=self.info.timer_query, primitives=True)
-        self._variants: dict[frozenset[str], tuple[Any, list[Any]]] = {}
-        self._moderngl = moderngl
-        self.foliage: FoliageRenderer | None = None
-        if foliage is not None and scene.n_foliage:
-            self.foliage = FoliageRenderer(
-                ctx, scene, foliage, impostor_size, timer_query=self.info.timer_query
-            )
-        self.stage = StageRenderer(ctx, staging) if staging is not None else None
+        self.stage = StageRenderer(ctx, staging, terrain) if staging is not None else None
         # the staged mode's targets: draw -> (resolve) -> tone map -> self.color
         self.draw_fbo = self.fbo
-        self.resolve_fbo: moderngl.Framebuffer | None = None
-        self.hdr: moderngl.Texture | None = None
-        self.post_fbo: moderngl.Framebuffer | None = None
-        self._staged_objects: list[Any] = []
         self.samples = 0
         if staging is not None and staging.hdr:
             self.hdr = ctx.texture(size, 4, dtype="f2")
@@ -183,10 +236,25 @@ class Renderer:
                 self.draw_fbo = ctx.framebuffer([self.hdr, *extra], self.depth)
                 self._staged_objects.append(self.draw_fbo)
             self._staged_objects += [self.post_fbo, self.hdr]
-        self._bounds: tuple[NDArray[np.float64], NDArray[np.float64]] | None = None
-        # the cull passes of the main view and of the sun's, each with its own lists (made on
-        # first use: a renderer that never culls pays nothing)
-        self._cullers: dict[str, InstanceCuller] = {}
+
+    def add_layer(self, scene: SceneArrays, images: TileImages | None = None) -> Renderer:
+        """A further scene (a mixed forest's layer) drawn with this one in every frame, with
+        its own bark ``images`` and foliage (this renderer's foliage mode), into this one's
+        framebuffer, shadow map and staging."""
+        if self.shared:
+            raise ValueError("add layers to the first scene's renderer")
+        layer = Renderer(
+            self.ctx,
+            scene,
+            self.size,
+            images,
+            foliage=self._foliage_mode,
+            impostor_size=self._impostor_size,
+            share=self,
+        )
+        self.layers.append(layer)
+        self._bounds = None
+        return layer
 
     def _cull(
         self, which: str, camera: Camera, height: int, alpha: float, min_pixels: float
@@ -310,7 +378,9 @@ class Renderer:
         if staged:
             camera, ground_half, fog = self.staged_view(camera)
         t0 = time.perf_counter()
-        self.buffers.use(frame)
+        members = (self, *self.layers)
+        for m in reversed(members):  # the palettes of this frame (the first scene's bound last)
+            m.buffers.use(frame)
         calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
         light = None
         if staged:
@@ -319,9 +389,10 @@ class Renderer:
                 light, tess, skinning, branches, lod_pixels
             )
             force_impostor = True  # the shadow pass left the sun's picture in the atlas
-        pass1 = None
-        if self.foliage is not None:
-            pass1 = self.foliage.prepare(camera, SUN, SKY, force=force_impostor)
+        pass1s = [
+            None if m.foliage is None else m.foliage.prepare(camera, SUN, SKY, force=force_impostor)
+            for m in members
+        ]
         fbo = self.draw_fbo
         fbo.use()
         fbo.viewport = (0, 0, *self.size)
@@ -333,24 +404,34 @@ class Renderer:
             self.id_texture.write(np.zeros((*self.size[::-1], 4), np.int32).tobytes())
         if self.stage is not None:
             self.stage.draw(camera, SUN, SKY, fog, light, ground_half)
-        self.texture.use(0)
-        self._uniforms(prog, camera, tess, skinning, cull, light, fog)
-        culler = None
-        if branches and lod_pixels is not None:
-            culler = self._cull("main", camera, self.size[1], tess.alpha, lod_pixels)
-        if branches:
-            with self.query:
-                calls += self._draw_all(prog, vaos, per_instance, culler)
-            primitives += int(self.query.primitives)
-            branch_ms = elapsed_ms(self.query)
-            gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
-        leaves = None
-        if self.foliage is not None and pass1 is not None:
-            focal_px = 1.0 / pixel_size(camera, self.size[1])[1]  # pixels per metre at 1 m
-            leaves = self.foliage.frame(camera, SUN, SKY, fog, pass1, fbo, focal_px=focal_px)
-            calls += leaves.draw_calls
-            primitives += leaves.primitives
-            gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
+        focal_px = 1.0 / pixel_size(camera, self.size[1])[1]  # pixels per metre at 1 m
+        all_leaves: list[FoliageStats] = []
+        cullers: list[InstanceCuller] = []
+        for m, pass1 in zip(members, pass1s, strict=True):
+            if m is not self:  # after the previous scene's leaves: its buffers, GL state
+                m.buffers.bind()
+                fbo.use()
+                ctx.enable_only(mgl.DEPTH_TEST)
+                ctx.patch_vertices = 4
+                prog, vaos = m._variant(*defines, *(["STAGED"] if staged else []))
+            m.texture.use(0)
+            m._uniforms(prog, camera, tess, skinning, cull, light, fog)
+            culler = None
+            if branches and lod_pixels is not None:
+                culler = m._cull("main", camera, self.size[1], tess.alpha, lod_pixels)
+                cullers.append(culler)
+            if branches:
+                with m.query:
+                    calls += m._draw_all(prog, vaos, per_instance, culler)
+                primitives += int(m.query.primitives)
+                branch_ms = elapsed_ms(m.query)
+                gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
+            if m.foliage is not None and pass1 is not None:
+                leaves = m.foliage.frame(camera, SUN, SKY, fog, pass1, fbo, focal_px=focal_px)
+                calls += leaves.draw_calls
+                primitives += leaves.primitives
+                gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
+                all_leaves.append(leaves)
         self._finish_frame()
         ctx.finish()
         cpu_ms = (time.perf_counter() - t0) * 1e3
@@ -360,22 +441,29 @@ class Renderer:
             gpu_ms=gpu_ms,
             primitives=primitives,
             draw_calls=calls,
-            instances=self.scene.n_instances,
-            foliage=leaves,
-            drawn_instances=None if culler is None else int(culler.counts().sum()),
+            instances=sum(m.scene.n_instances for m in members),
+            foliage=combine_foliage(all_leaves),
+            drawn_instances=sum(int(c.counts().sum()) for c in cullers) if cullers else None,
         )
 
     # -- the staged mode ------------------------------------------------------------------------
 
     def scene_box(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """``(lo, hi)`` the forest's box at frame 0 with its leaf clouds and the ground at
-        y = 0, grown by 5 % of its diagonal for the wind (the sun's view is fitted to it)."""
+        y = 0 (every layer's and the terrain too), grown by 5 % of its diagonal for the wind
+        (the sun's view is fitted to it)."""
         if self._bounds is None:
-            pts = scene_points(self.scene, 0)
-            if self.scene.n_foliage:
-                r = self.scene.foliage_sizes.reshape(len(self.scene.foliage_sizes), -1).max(1)
-                c = self.scene.foliage_at(0)
-                pts = np.concatenate([pts, c - r[:, None], c + r[:, None]])
+            parts = []
+            for m in (self, *self.layers):
+                scene = m.scene
+                parts.append(scene_points(scene, 0))
+                if scene.n_foliage:
+                    r = scene.foliage_sizes.reshape(len(scene.foliage_sizes), -1).max(1)
+                    c = scene.foliage_at(0)
+                    parts += [c - r[:, None], c + r[:, None]]
+            if self.stage is not None and self.stage.terrain is not None:
+                parts.append(self.stage.terrain.points)
+            pts = np.concatenate(parts)
             lo, hi = pts.min(axis=0), pts.max(axis=0)
             lo[1] = min(lo[1], 0.0)
             pad = 0.05 * float(np.linalg.norm(hi - lo))
@@ -411,30 +499,39 @@ class Renderer:
         """Branches and leaf-cloud billboards into the sun's depth map; returns draw calls,
         primitives and GPU ms of the pass."""
         assert self.stage is not None
-        prog, vaos = self._variant()
-        pass1 = None
-        if self.foliage is not None:  # the clouds' picture as the sun sees them, first
-            pass1 = self.foliage.prepare(light, SUN, SKY, force=True)
+        members = (self, *self.layers)
+        # the clouds' pictures as the sun sees them, first
+        pass1s = [
+            None if m.foliage is None else m.foliage.prepare(light, SUN, SKY, force=True)
+            for m in members
+        ]
         fbo = self.stage.begin_shadows()
         self.ctx.patch_vertices = 4
         # the sun's view needs no fine tessellation: a coarse silhouette casts the same shadow
         coarse = TessSettings(max_level=min(tess.max_level, 4.0), alpha=tess.alpha)
-        culler = None
-        if branches and lod_pixels is not None:
-            culler = self._cull("shadow", light, 0, coarse.alpha, lod_pixels)
-        self._uniforms(prog, light, coarse, skinning, cull=True)
         calls, primitives, gpu_ms = 0, 0, 0.0 if self.info.timer_query else None
-        if branches:
-            with self.query:
-                calls = self._draw_all(prog, vaos, per_instance=False, culler=culler)
-            primitives = int(self.query.primitives)
-            if gpu_ms is not None:
-                gpu_ms = elapsed_ms(self.query)
-        if self.foliage is not None and pass1 is not None:
-            leaves = self.foliage.frame(light, SUN, SKY, 0.0, pass1, fbo)
-            calls += leaves.draw_calls
-            primitives += leaves.primitives
-            gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
+        for m, pass1 in zip(members, pass1s, strict=True):
+            if m is not self:  # after the previous scene's leaves: its buffers, GL state
+                m.buffers.bind()
+                fbo.use()
+                self.ctx.enable_only(self._moderngl.DEPTH_TEST)
+                self.ctx.patch_vertices = 4
+            prog, vaos = m._variant()
+            culler = None
+            if branches and lod_pixels is not None:
+                culler = m._cull("shadow", light, 0, coarse.alpha, lod_pixels)
+            m._uniforms(prog, light, coarse, skinning, cull=True)
+            if branches:
+                with m.query:
+                    calls += m._draw_all(prog, vaos, per_instance=False, culler=culler)
+                primitives += int(m.query.primitives)
+                branch_ms = elapsed_ms(m.query)
+                gpu_ms = None if gpu_ms is None or branch_ms is None else gpu_ms + branch_ms
+            if m.foliage is not None and pass1 is not None:
+                leaves = m.foliage.frame(light, SUN, SKY, 0.0, pass1, fbo)
+                calls += leaves.draw_calls
+                primitives += leaves.primitives
+                gpu_ms = None if gpu_ms is None or leaves.gpu_ms is None else gpu_ms + leaves.gpu_ms
         self.stage.end_shadows()
         return calls, primitives, gpu_ms
 
@@ -503,6 +600,9 @@ class Renderer:
         return np.frombuffer(data, CAPTURE_DTYPE).copy()
 
     def release(self) -> None:
+        for layer in self.layers:
+            layer.release()
+        self.layers.clear()
         for prog, vaos in self._variants.values():
             for vao in vaos:
                 vao.release()
@@ -511,6 +611,12 @@ class Renderer:
         for culler in self._cullers.values():
             culler.release()
         self._cullers.clear()
+        if self.shared:  # a layer: the framebuffers and staging are the first scene's
+            if self.foliage is not None:
+                self.foliage.release()
+            self.texture.release()
+            self.buffers.release()
+            return
         # moderngl rebinds the last used framebuffer after creating one: leave GL on the
         # default framebuffer, not on a deleted name (GL_INVALID_OPERATION later)
         self.ctx.detect_framebuffer(0).use()

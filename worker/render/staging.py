@@ -13,6 +13,12 @@ and leaf-cloud billboards cast, with a slope-scaled polygon offset against acne)
 3x3 bilinear PCF by the bark and the ground (``STAGED`` in shaders ``piece.frag``,
 ``ground.frag``); the frame is drawn unclamped into a multisampled half-float buffer, resolved,
 and tone-mapped (ACES fit, shaders ``tonemap.*``) into the renderer's 8-bit colour.
+
+A mixed forest's terrain (:class:`TerrainMesh`, its root layer's /World/Terrain) is drawn
+after the ground, with the ground's shading (``TERRAIN`` in shaders ``ground.*``: its own
+normals, lit and shadowed like the ground); the ground square then lies just under the
+terrain's lowest point, so the meadow goes on past the stand's edge. It is drawn in the bare
+mode too (a :class:`Staging` without ground or sky).
 """
 
 from __future__ import annotations
@@ -21,6 +27,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from forest.geometry.transforms import F64
 from forest.gl import shaders
@@ -101,6 +108,45 @@ def sun_camera(camera: Camera, lo: F64, hi: F64, sun: F64) -> SunCamera:
     return SunCamera(eye, centre, 1.0, 1.0, near, far, (float(half[0]), float(half[1])))
 
 
+# the ground square lies this far under a terrain's lowest point (no z-fighting where they meet)
+TERRAIN_CLEARANCE = 0.05
+
+
+@dataclass(frozen=True, eq=False)
+class TerrainMesh:
+    """A terrain as triangles: world ``points`` ``(p, 3)``, unit vertex ``normals`` ``(p, 3)``
+    and ``triangles`` ``(t, 3)`` indices."""
+
+    points: F64
+    normals: F64
+    triangles: NDArray[np.int32]
+
+    @classmethod
+    def from_quads(cls, points: ArrayLike, quads: ArrayLike) -> TerrainMesh:
+        """Quads ``(q, 4)`` (counter-clockwise seen from above) split in two triangles each;
+        vertex normals are the area-weighted sum of the faces', turned to face up."""
+        pts = np.asarray(points, np.float64).reshape(-1, 3)
+        q = np.asarray(quads, np.int64).reshape(-1, 4)
+        if len(q) and (q.min() < 0 or q.max() >= len(pts)):
+            raise ValueError(f"terrain quads index outside its {len(pts)} points")
+        if not np.isfinite(pts).all():
+            raise ValueError("non-finite terrain points")
+        tris = np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int32)
+        a, b, c = pts[tris[:, 0]], pts[tris[:, 1]], pts[tris[:, 2]]
+        face = np.cross(b - a, c - a)
+        face[face[:, 1] < 0] *= -1
+        normals = np.zeros_like(pts)
+        for k in range(3):
+            np.add.at(normals, tris[:, k], face)
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+        normals = np.where(length > 0, normals / np.maximum(length, 1e-30), [0.0, 1.0, 0.0])
+        return cls(pts, normals, tris)
+
+    @property
+    def low(self) -> float:
+        return float(self.points[:, 1].min()) if len(self.points) else 0.0
+
+
 def _set(prog: moderngl.Program, values: dict[str, Any]) -> None:
     for name, value in values.items():
         if name in prog:
@@ -108,13 +154,17 @@ def _set(prog: moderngl.Program, values: dict[str, Any]) -> None:
 
 
 class StageRenderer:
-    """Draws :class:`Staging` for a camera into the bound framebuffer; attribute-less draws."""
+    """Draws :class:`Staging` for a camera into the bound framebuffer; attribute-less draws,
+    and ``terrain`` (if given) from its vertex and index buffers."""
 
-    def __init__(self, ctx: moderngl.Context, staging: Staging) -> None:
+    def __init__(
+        self, ctx: moderngl.Context, staging: Staging, terrain: TerrainMesh | None = None
+    ) -> None:
         import moderngl
 
         self.ctx = ctx
         self.staging = staging
+        self.terrain = terrain
         self._mgl = moderngl
         make: Any = ctx.program
         self.programs: dict[str, moderngl.Program] = {}
@@ -122,9 +172,23 @@ class StageRenderer:
         for name, wanted in (("sky", staging.sky), ("ground", staging.ground)):
             if wanted:
                 defines = {"STAGED": True} if name == "ground" and staging.shadows else None
+                if name == "ground" and terrain is not None:
+                    defines = {**(defines or {}), "UNDER_TERRAIN": True}
                 prog = make(**shaders.sources(name, defines))
                 self.programs[name] = prog
                 self.vaos[name] = ctx.vertex_array(prog, [])
+        self._terrain_objects: list[Any] = []
+        if terrain is not None and len(terrain.triangles):
+            variant = {"TERRAIN": True, "STAGED": staging.shadows}
+            prog = make(**shaders.sources("ground", variant))
+            vertices = np.ascontiguousarray(np.c_[terrain.points, terrain.normals], np.float32)
+            vbo = ctx.buffer(vertices.tobytes())
+            ibo = ctx.buffer(np.ascontiguousarray(terrain.triangles, np.int32).tobytes())
+            self.programs["terrain"] = prog
+            self.vaos["terrain"] = ctx.vertex_array(
+                prog, [(vbo, "3f 3f", "in_position", "in_normal")], index_buffer=ibo
+            )
+            self._terrain_objects = [vbo, ibo]
         self.shadow: moderngl.Texture | None = None
         self.shadow_fbo: moderngl.Framebuffer | None = None
         if staging.shadows:
@@ -222,10 +286,28 @@ class StageRenderer:
                     **self.shadow_uniforms(light, 2),
                 },
             )
+            if self.terrain is not None:  # under the terrain: its lowest point, a little lower
+                _set(prog, {"u_height": self.terrain.low - TERRAIN_CLEARANCE})
             self.write_light(prog, light)
             vp = camera.view_projection().T.astype("f4")
             cast("moderngl.Uniform", prog["u_view_projection"]).write(vp.tobytes())
             self.vaos["ground"].render(mgl.TRIANGLE_STRIP, vertices=4)
+        if "terrain" in self.programs:
+            prog = self.programs["terrain"]
+            _set(
+                prog,
+                {
+                    "u_camera": tuple(camera.eye),
+                    "u_sun": tuple(sun),
+                    "u_sky": tuple(sky),
+                    "u_fog": fog,
+                    **self.shadow_uniforms(light, 2),
+                },
+            )
+            self.write_light(prog, light)
+            vp = camera.view_projection().T.astype("f4")
+            cast("moderngl.Uniform", prog["u_view_projection"]).write(vp.tobytes())
+            self.vaos["terrain"].render(mgl.TRIANGLES)
 
     def release(self) -> None:
         for vao in self.vaos.values():
@@ -235,5 +317,8 @@ class StageRenderer:
         for obj in (self.shadow_fbo, self.shadow, self.tonemap_vao, self.tonemap):
             if obj is not None:
                 obj.release()
+        for obj in self._terrain_objects:
+            obj.release()
+        self._terrain_objects.clear()
         self.vaos.clear()
         self.programs.clear()
