@@ -71,6 +71,8 @@ RECIPE_SIDE = 110.0  # metres: the square a recipe's stand grows on
 RECIPE_ELEVATION = 32.0  # degrees: steeper than a stand's overview, so glades and rows show
 RECIPE_AZIMUTH = {"orchard": 0.0}  # along the orchard's rows; the others at AZIMUTH
 RECIPE_EYE_DISTANCE = 0.3  # of the side: the eye stands in the wood, looking at its middle
+# a spruce wood is dark and dense at eye level: the eye stands at its birch edge instead
+RECIPE_EYE = {"boreal": 0.62}
 
 
 @dataclass(frozen=True)
@@ -372,7 +374,10 @@ def recipe_cameras(stand: StandScene, name: str, size: tuple[int, int]) -> tuple
     overview = frame_points(pts, aspect, FOV, azimuth, RECIPE_ELEVATION)
     under = float(stand.floor()(np.asarray(overview.eye[0]), np.asarray(overview.eye[2])))
     spec = CameraSpec(
-        view="eye", fov=FOV, azimuth=azimuth, distance=RECIPE_EYE_DISTANCE * RECIPE_SIDE
+        view="eye",
+        fov=FOV,
+        azimuth=azimuth,
+        distance=RECIPE_EYE.get(name, RECIPE_EYE_DISTANCE) * RECIPE_SIDE,
     )
     eye, _ = stand_view(stand, size, TESS_MAX, spec=spec, ground=True)
     return with_ground(overview, under), eye
