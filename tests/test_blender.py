@@ -362,3 +362,27 @@ def test_explicit_skinned_is_the_small_default(small_forest: Forest, tmp_path: P
     a = write_scene(small_forest, tmp_path / "a" / "f.usdc").read_bytes()
     b = write_scene(small_forest, tmp_path / "b" / "f.usdc", skinned=True).read_bytes()
     assert a == b
+
+
+def test_blender_imports_a_mixed_forest(tmp_path: Path) -> None:
+    """A mixed forest's root layer (forest generate --recipe): Blender composes every layer's
+    scene file it references, from another folder: one armature per tree of every layer, the
+    wind on each, and the terrain with its Ground material."""
+    from forest.stand.generate import plan_stand
+    from forest.stand.recipes import load_recipe
+    from forest.usd.stand import write_stand
+
+    recipe = ROOT / "tests" / "data" / "recipes" / "small-mixed.json"
+    stand = plan_stand(load_recipe(recipe), 6, (40.0, 40.0), 1)
+    (tmp_path / "stand").mkdir()
+    (tmp_path / "elsewhere").mkdir()
+    scene = write_stand(stand, tmp_path / "stand" / "wood.usdc", ForestOptions(frames=4))
+    proc = subprocess.run(
+        [str(BLENDER_PY), str(CHECK), str(scene), "--instances", "0", "--trees", "6",
+         "--frames", "4"],
+        capture_output=True, text=True, timeout=300, cwd=tmp_path / "elsewhere",
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    report = json.loads(proc.stdout.splitlines()[-1])
+    assert report["failures"] == [] and report["armatures"] == 6
+    assert report["materials"]["Ground"]["base_color"] == pytest.approx([0.2, 0.17, 0.11])
