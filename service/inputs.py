@@ -41,13 +41,16 @@ def check_frames(req: TreeRequest, settings: ServiceSettings) -> None:
         raise field_error(["frames"], f"at most {settings.max_frames} frames", "limit_error")
 
 
+ONE_SOURCE = "give exactly one of preset (a name), grammar (an object) or recipe"
+
+
 def resolve_grammar(
     req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
 ) -> tuple[Grammar, CompiledGrammar]:
     try:
         grammar = grammar_of(req.preset, req.grammar)
-    except PresetOrGrammarError as exc:
-        raise forest_error(exc) from None
+    except PresetOrGrammarError:
+        raise field_error(["preset"], ONE_SOURCE) from None
     except GrammarError as exc:  # no such preset: named after the frame cap, as always
         check_frames(req, settings)
         raise forest_error(exc) from None
