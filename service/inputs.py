@@ -4,6 +4,7 @@ a grammar that compiles, and the service's caps. Errors name the request field (
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass
 
 from farm.requests import loaded_recipe, stand_size
@@ -15,12 +16,12 @@ from forest.growth.compile import compile_grammar
 from forest.growth.grammar import CompiledGrammar
 from forest.growth.presets import PresetOrGrammarError, grammar_of, load_preset
 from forest.settings import ForestSettings, get_settings
-from forest.stand.place import MAX_STAND_TREES, layer_counts
+from forest.stand.place import MAX_STAND_TREES, MIN_SPACING_M, crown_radius, layer_counts
 from forest.stand.recipes import LoadedRecipe
 from forest.stand.terrain import image_bytes
 from schemas.grammar import Grammar
 from schemas.jobs import TreeRequest
-from schemas.recipe import Recipe
+from schemas.recipe import SIZE_MIN, Recipe
 from service.errors import field_error, forest_error
 from service.settings import ServiceSettings
 
@@ -175,6 +176,43 @@ def _layer_grammar(
         raise field_error(loc, exc.message, kind) from None
 
 
+HEX_PACKING = math.pi / (2 * math.sqrt(3))  # the densest packing of equal discs
+
+
+def _check_room(
+    recipe: Recipe,
+    compiled: tuple[CompiledGrammar, ...],
+    counts: tuple[int, ...],
+    area: tuple[float, float],
+    where: list[str | int],
+) -> None:
+    """Refuse a stand whose trees cannot all stand on the area whatever the placement: trunks
+    keep their spacing (the larger of two trees'), so discs of half each tree's spacing (at its
+    smallest size) never overlap, and no packing covers more than the area (and a rim of the
+    largest disc) at the hexagonal density. A stand that passes may still not fit (density
+    maps, terrain and light rules): the job then fails saying how many trees found room."""
+    need, rim = 0.0, 0.0
+    for layer, cg, n in zip(recipe.layers, compiled, counts, strict=True):
+        spacing = layer.spacing if layer.spacing is not None else crown_radius(layer, cg.grammar)
+        size = layer.size.range[0] if layer.size.range is not None else SIZE_MIN
+        r = max(MIN_SPACING_M, spacing * size) * (0.98 if layer.rows is not None else 1.0) / 2
+        need += n * math.pi * r * r
+        rim = max(rim, r)
+    room = (area[0] + 2 * rim) * (area[1] + 2 * rim) * HEX_PACKING
+    if need > room:
+        raise field_error(
+            where,
+            f"{sum(counts):,} trees at their spacing need at least {need:,.0f} m2; "
+            f"{area[0]:g} x {area[1]:g} m cannot hold them: "
+            + (
+                "a larger area or lower densities"
+                if recipe.by_density
+                else "fewer trees or a larger area"
+            ),
+            "limit_error",
+        )
+
+
 def req_recipe(req: TreeRequest) -> Recipe:
     assert req.recipe is not None and not isinstance(req.recipe, str)
     return req.recipe
@@ -217,6 +255,7 @@ def resolve_recipe(
         )
     _check_images(loaded)
     compiled = tuple(_layer_grammar(req, k, settings, max_pieces) for k in range(len(counts)))
+    _check_room(recipe, compiled, counts, area, where)
     per_layer = [cg.expected_pieces * n for cg, n in zip(compiled, counts, strict=True)]
     pieces = sum(per_layer)
     if pieces > max_pieces:

@@ -164,8 +164,13 @@ BAD: list[tuple[str, str, dict[str, Any], list[Any], str]] = [
      _layer(share=None, density=400.0) | {"area": [1e6, 1e6]}, ["area"], "at most"),
     ("too many trees", "/v1/forests", _layer() | {"trees": 150_000}, ["trees"], "at most"),
     ("pieces over the cap", "/v1/forests",
-     {"recipe": {"layers": [{"name": "a", "preset": "oak", "share": 1.0}]}, "trees": 9000},
-     ["trees"], "pieces"),
+     {"recipe": {"layers": [{"name": "a", "preset": "oak", "share": 1.0}]}, "trees": 9000,
+      "area": [600.0, 600.0]}, ["trees"], "pieces"),
+    ("no room on the area", "/v1/forests", _layer() | {"trees": 500, "area": [20.0, 20.0]},
+     ["trees"], "cannot hold them"),
+    ("no room for the densities", "/v1/forests",
+     _layer(share=None, density=5000.0, spacing=3.0) | {"area": [40.0, 40.0]},
+     ["area"], "cannot hold them"),
     ("a deep inline grammar", "/v1/forests",
      {"recipe": {"layers": [{"name": "a", "grammar": BUSHY, "share": 1.0}]}, "trees": 1},
      ["recipe", "layers", 0, "grammar"], "pieces per tree"),
@@ -178,8 +183,8 @@ BAD: list[tuple[str, str, dict[str, Any], list[Any], str]] = [
      ["recipe", "layers", 0, "preset"], "unknown preset"),
     ("trees without a recipe", "/v1/trees", {"preset": "oak", "trees": 3}, ["trees"], "recipe"),
     ("too big for one file", "/v1/trees",
-     {"recipe": {"layers": [{"name": "a", "preset": "oak", "share": 1.0}]}, "trees": 400},
-     ["trees"], "pieces"),
+     {"recipe": {"layers": [{"name": "a", "preset": "oak", "share": 1.0}]}, "trees": 400,
+      "area": [200.0, 200.0]}, ["trees"], "pieces"),
 ]  # fmt: skip
 
 
