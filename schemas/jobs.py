@@ -7,15 +7,25 @@ caps (``service/settings.py``) are checked on top and answered with the same 422
 from __future__ import annotations
 
 import math
+import re
 from datetime import datetime
 from enum import StrEnum
 from typing import Annotated, Any, Literal
 
-from pydantic import Field, GetCoreSchemaHandler, model_validator
+from pydantic import (
+    Discriminator,
+    Field,
+    GetCoreSchemaHandler,
+    Tag,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
 from pydantic_core import core_schema
 
 from schemas.base import FieldValueError, StrictModel
 from schemas.grammar import Grammar
+from schemas.recipe import RECIPE_NAME_PATTERN, Recipe
 from schemas.tiles import MAX_TILED_TREES, MAX_TILES, tile_grid
 
 
@@ -110,13 +120,77 @@ class FiniteModel(StrictModel):
         return data
 
 
+def _recipe_tag(value: Any) -> str:
+    return "name" if isinstance(value, str) else "object"
+
+
+RecipeRef = Annotated[
+    Annotated[Annotated[str, Field(pattern=RECIPE_NAME_PATTERN)], Tag("name")]
+    | Annotated[Recipe, Tag("object")],
+    Discriminator(_recipe_tag),
+]
+"""A built-in recipe's name (``GET /v1/recipes``) or an inline recipe object (its images as
+``data:`` URIs)."""
+
+
+def _loc_path(loc: tuple[int | str, ...]) -> str:
+    """``("layers", 0, "share")`` -> ``layers[0].share``."""
+    out = ""
+    for p in loc:
+        out += f"[{p}]" if isinstance(p, int) else (f".{p}" if out else str(p))
+    return out
+
+
+def recipe_value(value: Any) -> Any:
+    """A request's ``recipe`` read once, its first fault a :class:`FieldValueError` at its
+    path under ``recipe`` (``recipe.layers[0].share``), not pydantic's union branches."""
+    if value is None or isinstance(value, Recipe):
+        return value
+    if isinstance(value, str):
+        if not re.fullmatch(RECIPE_NAME_PATTERN, value):
+            raise FieldValueError("recipe", "not a recipe name (GET /v1/recipes lists them)")
+        return value
+    if not isinstance(value, dict):
+        raise FieldValueError("recipe", "give a built-in recipe's name or a recipe object")
+    try:
+        return Recipe.model_validate(value)
+    except ValidationError as exc:
+        err = exc.errors(include_url=False)[0]
+        found = (err.get("ctx") or {}).get("error")
+        path, reason = _loc_path(tuple(err["loc"])), err["msg"].removeprefix("Value error, ")
+        if isinstance(found, FieldValueError):
+            inner = found.path.split(".") if found.path else []
+            parts: list[int | str] = [int(p) if p.isdigit() else p for p in inner]
+            path = _loc_path((*err["loc"], *parts))
+            reason = found.reason
+        more = exc.error_count() - 1
+        if more:
+            reason += f" (and {more} more error{'s' if more > 1 else ''})"
+        raise FieldValueError(f"recipe.{path}" if path else "recipe", reason) from None
+
+
 class TreeRequest(FiniteModel):
     """One tree from a preset name or a grammar object, answered synchronously as USD or
-    glTF (``format``)."""
+    glTF (``format``); or, from a ``recipe``, a small mixed stand as one USD file."""
 
     preset: Annotated[str, Field(min_length=1, max_length=64)] | None = None
-    """Name of a shipped grammar (``GET /v1/presets``); give this or ``grammar``."""
+    """Name of a shipped grammar (``GET /v1/presets``); give this, ``grammar`` or ``recipe``."""
     grammar: Grammar | None = None
+    recipe: RecipeRef | None = None
+    """A mixed forest: a built-in recipe's name (``GET /v1/recipes``) or a recipe object
+    (``schemas/json/recipe.schema.json``; density maps and heightfields as ``data:`` URIs).
+    A forest job writes a USD root layer and one file per layer; ``POST /v1/trees`` answers
+    the stand as one file (``usda``, ``usdc``, or a textured ``usdz``)."""
+    trees: Annotated[int, Field(ge=1, le=MAX_TILED_TREES)] | None = None
+    """With a recipe only: the stand's trees (shares of the layers; default one per layer)."""
+    area: (
+        tuple[
+            Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)],
+            Annotated[float, Field(gt=0, le=1e6, allow_inf_nan=False)],
+        ]
+        | None
+    ) = None
+    """With a recipe only: the stand's width and depth, metres (default 20 x 20)."""
     seed: Seed = 0
     format: SceneFormat = "usdc"
     frames: Annotated[int, Field(ge=0, le=10_000)] = 0
@@ -131,6 +205,27 @@ class TreeRequest(FiniteModel):
     priority: Priority = 5
     """0-9: among the tenant's own waiting jobs (and a tiled forest's tiles) higher goes first;
     every tenant still takes its turn (``docs/jobs.md``)."""
+
+    _recipe = field_validator("recipe", mode="before")(recipe_value)
+
+    @model_validator(mode="after")
+    def _source(self) -> TreeRequest:
+        given = [n for n in ("preset", "grammar", "recipe") if getattr(self, n) is not None]
+        if self.recipe is not None and len(given) > 1:
+            raise FieldValueError("recipe", "give exactly one of preset, grammar or recipe")
+        formats = self._recipe_formats()
+        if self.recipe is not None and self.format not in formats:
+            raise FieldValueError("format", f"a recipe's stand is written as {', '.join(formats)}")
+        self._stand_only()
+        return self
+
+    def _recipe_formats(self) -> tuple[str, ...]:
+        return ("usda", "usdc", "usdz")  # one file: flattened, or packaged with its pictures
+
+    def _stand_only(self) -> None:
+        for name in ("trees", "area"):
+            if getattr(self, name) is not None and self.recipe is None:
+                raise FieldValueError(name, "one tree: trees and area go with a recipe only")
 
 
 class ForestRequest(TreeRequest):
@@ -148,8 +243,16 @@ class ForestRequest(TreeRequest):
     a root layer (usda/usdc) holding every tile (``scene_tile_<i>_<j>.usdc``) as a payload.
     Placement is a seamless jittered grid (``placement`` is not used)."""
 
+    def _stand_only(self) -> None:
+        pass  # a forest has trees and an area, from any source
+
+    def _recipe_formats(self) -> tuple[str, ...]:
+        return ("usda", "usdc")  # a root layer beside its layers' files
+
     @model_validator(mode="after")
     def _tiling(self) -> ForestRequest:
+        if self.recipe is not None and self.tile_size is not None:
+            raise FieldValueError("tile_size", "a recipe's forest is not tiled (yet)")
         if self.tile_size is None:
             if self.trees > MAX_UNTILED_TREES:
                 raise ValueError(

@@ -23,6 +23,7 @@ Metres = Annotated[float, Field(ge=-1e4, le=1e4, allow_inf_nan=False)]
 # the API, a data: URI of the image's bytes; never a server path
 ImageRef = Annotated[str, Field(min_length=1, max_length=48_000_000)]
 MAX_LAYERS = 8
+RECIPE_NAME_PATTERN = r"^[a-z][a-z0-9_-]{0,63}$"
 SIZE_MIN, SIZE_MAX = 0.15, 1.25
 
 
@@ -144,7 +145,7 @@ class Terrain(StrictModel):
 class Recipe(StrictModel):
     """A forest recipe: a mixed stand of up to 8 species layers, optionally on terrain."""
 
-    name: Annotated[str, Field(pattern=r"^[a-z][a-z0-9_-]{0,63}$")] = "custom"
+    name: Annotated[str, Field(pattern=RECIPE_NAME_PATTERN)] = "custom"
     description: Annotated[str, Field(max_length=2000)] = ""
     layers: Annotated[list[RecipeLayer], Field(min_length=1, max_length=MAX_LAYERS)]
     terrain: Terrain | None = None

@@ -256,6 +256,40 @@ def read_grey(data: bytes, field: str) -> NDArray[np.float32]:
     """A greyscale map (a forest recipe's density map or heightfield) from a file's bytes:
     ``(h, w)`` float32 in [0, 1] at the file's own precision (16-bit heights stay 16-bit); the
     first channel of a colour image. Anything else is a ForestError at ``field``."""
+    with _map_file(data, field) as name:
+        return _read_grey_file(name, field)
+
+
+def check_grey(data: bytes, field: str) -> tuple[int, int]:
+    """``(width, height)`` of a map that :func:`read_grey` reads, found by decoding it a band
+    of rows at a time (memory stays a band's, whatever the image's size): the service's check
+    of a recipe's images before any job. Anything else is a ForestError at ``field``."""
+    with _map_file(data, field) as name:
+        inp, width, height = _open_map(name, field)
+        try:
+            for y in range(0, height, CHECK_ROWS):
+                with _quiet_stderr():
+                    band = inp.read_scanlines(0, 0, y, min(y + CHECK_ROWS, height), 0, 0, 1)
+                problem = inp.geterror()
+                if band is None or problem:
+                    raise ForestError(
+                        f"image data is truncated or corrupt ({_oiio_message(problem)})",
+                        path=field,
+                    )
+                if not np.isfinite(np.asarray(band, np.float32)).all():
+                    raise ForestError("the image holds NaN or infinite values", path=field)
+        finally:
+            inp.close()
+        return width, height
+
+
+CHECK_ROWS = 64
+
+
+@contextmanager
+def _map_file(data: bytes, field: str) -> Iterator[str]:
+    """The bytes of a map in a private temporary file named by their kind (OpenImageIO reads
+    files), once they are not empty, not too large and of a kind a map may be."""
     if not data:
         raise ForestError("the image is empty", path=field)
     if len(data) > MAX_MAP_BYTES:
@@ -268,17 +302,17 @@ def read_grey(data: bytes, field: str) -> NDArray[np.float32]:
         raise ForestError(
             f"is {describe(kind)}, not a PNG, JPEG, TIFF, OpenEXR or GIF image", path=field
         )
-    # OpenImageIO reads files: the bytes go to a private temporary one, named by their kind
     fd, name = tempfile.mkstemp(suffix=_SUFFIX[kind], prefix="forest-map-")
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
-        return _read_grey_file(name, field)
+        yield name
     finally:
         os.unlink(name)
 
 
-def _read_grey_file(name: str, field: str) -> NDArray[np.float32]:
+def _open_map(name: str, field: str) -> tuple[oiio.ImageInput, int, int]:
+    """The open image and its width and height, within the map caps."""
     inp = oiio.ImageInput.open(name)
     if inp is None:
         raise ForestError(f"not a readable image ({_oiio_message(oiio.geterror())})", path=field)
@@ -294,6 +328,15 @@ def _read_grey_file(name: str, field: str) -> NDArray[np.float32]:
                 f"is {width}x{height} pixels, more than the {MAX_MAP_PIXELS:,} accepted",
                 path=field,
             )
+    except BaseException:
+        inp.close()
+        raise
+    return inp, width, height
+
+
+def _read_grey_file(name: str, field: str) -> NDArray[np.float32]:
+    inp, width, height = _open_map(name, field)
+    try:
         with _quiet_stderr():
             pixels = inp.read_image(0, 0, 0, 1, "float")
         problem = inp.geterror()

@@ -68,6 +68,15 @@ def layers_folder(root: Path) -> Path:
     return root.with_name(f"{root.stem}_layers")
 
 
+def layer_file(root: Path, name: str, beside: bool) -> Path:
+    """A layer's (or a layer tile's) file: in :func:`layers_folder`, or with ``beside``
+    ``<stem>_<name>.usdc`` in the root's own folder (one folder of plain names, as a job's
+    artifacts are)."""
+    if beside:
+        return root.with_name(f"{root.stem}_{name}.usdc")
+    return layers_folder(root) / f"{name}.usdc"
+
+
 def write_stand(
     stand: Stand,
     path: str | Path,
@@ -77,13 +86,15 @@ def write_stand(
     textures: bool = True,
     tile_size: float | None = None,
     progress: Note | None = None,
+    beside: bool = False,
 ) -> Path:
-    """Grow and write every layer of ``stand`` (one at a time), then the root layer."""
+    """Grow and write every layer of ``stand`` (one at a time), then the root layer; the
+    layer files where :func:`layer_file` puts them (``beside``: next to the root)."""
     from forest.usd.scene import write_scene
 
     out = check_output_path(path, (".usda", ".usdc"))
-    folder = layers_folder(out)
-    folder.mkdir(parents=True, exist_ok=True)
+    if not beside:
+        layers_folder(out).mkdir(parents=True, exist_ok=True)
     note = progress or (lambda stage, done, total: None)
     tiles = [None] if tile_size is None else _tiles(stand.area, tile_size)
     jobs = [(k, t) for k in range(len(stand.recipe.layers)) for t in tiles]
@@ -100,7 +111,7 @@ def write_stand(
                 stand.area,
             )
         name = layer.name if tile is None else f"{layer.name}_{tile[0]}_{tile[1]}"
-        file = folder / f"{name}.usdc"
+        file = layer_file(out, name, beside)
         forest = stand.grow_layer(k, options, trees, tile)
         if forest is None:
             if tile is not None:
@@ -110,7 +121,7 @@ def write_stand(
             write_scene(forest, file, skinned=skinned, textures=textures and tile is None)
         del forest
         files.append(
-            LayerFile(k, tile, f"./{folder.name}/{file.name}", tile_extent(file), len(trees))
+            LayerFile(k, tile, f"./{file.relative_to(out.parent)}", tile_extent(file), len(trees))
         )
     note("layers", len(jobs), len(jobs))
     return write_stand_root(out, stand, files, frames=options.frames, fps=options.fps)
@@ -198,6 +209,31 @@ def write_stand_root(
         if not root.Export(str(tmp)):
             raise ForestError("cannot write the root layer", path=str(path))
     return path
+
+
+def stand_file(root: str | Path, path: str | Path) -> Path:
+    """A written stand (its root layer and layer files) as one file: ``.usda``/``.usdc``
+    flattened (every layer composed into one; no texture folder travels with it, so the
+    layers are best written without textures), or a ``.usdz`` package of the root, its layer
+    files and every picture they name."""
+    out = check_output_path(path)
+    root = Path(root)
+    if out.suffix.lower() == ".usdz":
+        from pxr import UsdUtils
+
+        with replaced_when_written(out) as tmp:
+            if not UsdUtils.CreateNewUsdzPackage(Sdf.AssetPath(str(root)), str(tmp)):
+                raise ForestError("cannot package the stand as a .usdz", path=out.name)
+        return out
+    stage = Usd.Stage.Open(str(root))
+    if stage is None:
+        raise ForestError("cannot open the stand's root layer", path=root.name)
+    flat = stage.Flatten()
+    del stage
+    with replaced_when_written(out) as tmp:
+        if not flat.Export(str(tmp)):
+            raise ForestError("cannot write the flattened stand", path=out.name)
+    return out
 
 
 def _terrain(stage: Usd.Stage, stand: Stand) -> None:

@@ -11,8 +11,8 @@ from farm.tiles import tile_count
 from schemas.jobs import ForestRequest, Job
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
-from service.inputs import check_cost, resolve_grammar
-from service.quotas import forest_job_cost
+from service.inputs import check_cost, resolve_grammar, resolve_recipe
+from service.quotas import forest_job_cost, job_cost
 from service.security import Tenant
 from service.views import ERRORS, submit
 
@@ -32,6 +32,13 @@ def create_forest(
     if per_tile > s.max_forest_trees:
         where = " per tile" if req.tile_size else ""
         raise field_error(["trees"], f"at most {s.max_forest_trees} trees{where}", "limit_error")
+    if req.recipe is not None:  # a mixed forest: a root layer and one file per layer
+        plan = resolve_recipe(req, s, s.max_forest_trees, s.max_forest_pieces)
+        cost = job_cost(plan.pieces, req.frames, 0, plan.scene_bytes)
+        params = req.model_dump(mode="json")
+        return submit(
+            services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"]
+        )
     _, cg = resolve_grammar(req, s, per_tile, s.max_forest_pieces)
     check_cost(req, s, cg, per_tile, " per tile" if req.tile_size else "")
     cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)

@@ -24,7 +24,7 @@ from farm.reaper import delete_artifacts
 from farm.store import FINISHED
 from schemas.jobs import Job, JobState, SceneFormat, TreeRequest
 from service.deps import Services, ServicesDep
-from service.inputs import check_cost, resolve_grammar
+from service.inputs import check_cost, resolve_grammar, resolve_recipe
 from service.quotas import job_cost
 from service.routes.jobs import ARTIFACT_TYPES
 from service.security import Tenant
@@ -81,6 +81,12 @@ def wait_preference(prefer: str | None, server_wait_s: float) -> float:
 def _submit(req: TreeRequest, services: Services, tenant: str) -> tuple[JobRow, str]:
     """Check the request (422 before any work) and queue its job; the job and the file name."""
     s = services.settings
+    if req.recipe is not None:  # a small mixed stand, answered as one file
+        plan = resolve_recipe(req, s, s.max_forest_trees, s.max_tree_pieces, flat=True)
+        cost = job_cost(plan.pieces, req.frames, 0, plan.scene_bytes)
+        params = req.model_dump(mode="json")
+        row = enqueue(services, "tree", params, None, tenant, cost=cost, field=["trees"])
+        return row, f"{plan.loaded.recipe.name}-{req.seed}.{req.format}"
     grammar, cg = resolve_grammar(req, s, 1, s.max_tree_pieces)
     check_cost(req, s, cg, 1)
     cost = job_cost(cg.expected_pieces, req.frames)

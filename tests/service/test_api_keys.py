@@ -208,7 +208,10 @@ def test_a_revoked_key_is_refused_once_its_cache_time_is_over(db_url: str) -> No
     assert keys.caller("fk_000000000000_guess") is None
 
 
-def test_only_the_presets_are_public(db_url: str, tmp_path: Path) -> None:
+PUBLIC = ("/v1/presets", "/v1/recipes")
+
+
+def test_only_the_presets_and_recipes_are_public(db_url: str, tmp_path: Path) -> None:
     app, _ = _app(db_url, tmp_path, api_keys="boot-key=alpha")
     routes = sorted(
         (method.upper(), path)
@@ -216,12 +219,12 @@ def test_only_the_presets_are_public(db_url: str, tmp_path: Path) -> None:
         if path.startswith("/v1/")
         for method in item
     )
-    assert ("GET", "/v1/presets") in routes and len(routes) >= 8
+    assert {("GET", p) for p in PUBLIC} <= set(routes) and len(routes) >= 9
     # every path parameter filled in ({job_id}, {name:path}): the key is checked before them
     calls = [(method, re.sub(r"\{[^}]+\}", "x", path), None) for method, path in routes]
     r = _call(app, [*calls, ("GET", "/v1/presets", "not-a-key")])
     for (method, path, _), answer in zip(calls, r, strict=False):
-        want = 200 if path == "/v1/presets" else 401
+        want = 200 if path in PUBLIC else 401
         assert answer.status_code == want, (method, path, answer.text)
     assert r[-1].status_code == 200  # a wrong key does not hide public data
     assert {"birch", "oak"} <= {p["name"] for p in r[-1].json()["items"]}

@@ -154,7 +154,7 @@ def test_client_errors_name_the_field(server: Server) -> None:
         r = server.post("/v1/trees", body)
         assert (r.status_code, r.json()["errors"]) == (422, [{
             "loc": ["body", "preset"], "pointer": "#/preset", "type": "value_error",
-            "msg": "give exactly one of preset (a name) or grammar (an object)",
+            "msg": "give exactly one of preset (a name), grammar (an object) or recipe",
         }]), r.text  # fmt: skip
     bad = json.loads((Path(__file__).parents[2] / "forest/growth/presets/hazel.json").read_text())
     first = next(iter(bad["rules"]))

@@ -174,6 +174,31 @@ try {
   const f = await pixels();
   step("forest_canvas", { drawn: f.drawn, total: f.total });
   step("forest_viewer_msg", await page.textContent("#viewer-msg"));
+
+  // -- a recipe (a mixed forest) picked instead of a preset: its 422 on the field it names, then
+  // a forest job whose root layer and layer files are listed for download
+  await page.waitForFunction(() => document.querySelectorAll(".recipe").length >= 1, null, { timeout: 15000 });
+  step("recipes", await page.$$eval(".recipe", (cards) => cards.map((c) => c.dataset.name)));
+  await page.click('.recipe[data-name="orchard"]');
+  step("recipe_source", await page.$eval("input[name=source][value=recipe]", (r) => r.checked));
+  await page.fill("#trees", "2");
+  await page.fill("#area-x", "16");
+  await page.fill("#area-y", "16");
+  await page.fill("#frames", "0");
+  await page.click("#submit-forest"); // format is still glb: refused on its field
+  await page.waitForSelector('#err-format[data-source="server"]', { timeout: 10000 });
+  step("recipe_format_error", await page.textContent("#err-format"));
+  await page.selectOption("#format", "usdc");
+  const before = await page.$$eval('tr[data-kind="forest"]', (r) => r.length);
+  await page.click("#submit-forest");
+  await page.waitForFunction((n) => document.querySelectorAll('tr[data-kind="forest"]').length > n, before, { timeout: 15000 });
+  await page.waitForFunction(
+    () => [...document.querySelectorAll('tr[data-kind="forest"][data-state="completed"]')].some((r) => r.textContent.includes("scene_almond.usdc")),
+    null,
+    { timeout: 120000 },
+  );
+  step("recipe_row", await page.$$eval('tr[data-kind="forest"][data-state="completed"]', (rows) =>
+    rows.map((r) => r.textContent).find((t) => t.includes("scene_almond.usdc"))));
   await page.screenshot({ path: `${out}/page.png`, fullPage: true });
 
   // -- the API docs from the service's own files

@@ -3,7 +3,8 @@ against ``forest serve`` on loopback with two tenants' keys. The page signs in w
 in the browser (without one it lists the public presets and says how to make a key), shows
 the presets with their gallery images, checks a grammar against the
 JSON Schema as it is typed and puts the server's 422 messages on the field they name, submits
-a forest job that reaches ``completed`` and renders its preview, downloads an artifact, shows
+a forest job that reaches ``completed`` and renders its preview, downloads an artifact, lists
+the recipes and makes a forest job of one, shows
 a tree's GLB with its wind playing on a non-empty WebGL canvas and a small forest's
 ``scene.glb`` from a glb forest job, never lists the other
 tenant's job, and serves Swagger UI and ReDoc from its own files; no request leaves loopback.
@@ -180,6 +181,16 @@ def test_viewer_shows_a_glb_forest_job(seen: dict[str, Any]) -> None:
     s = seen["steps"]
     assert s["forest_canvas"]["drawn"] > 0.02 * s["forest_canvas"]["total"], s["forest_canvas"]
     assert "animation: Wind" in s["forest_viewer_msg"]
+
+
+def test_recipe_forest_from_the_page(seen: dict[str, Any]) -> None:
+    """The page lists the built-in recipes; one picked instead of a preset makes a forest
+    job whose root layer and layer file are listed (a bad format named on its field)."""
+    s = seen["steps"]
+    assert {"boreal", "mixed-broadleaf", "orchard", "riverside"} <= set(s["recipes"])
+    assert s["recipe_source"] is True
+    assert "usda, usdc" in s["recipe_format_error"]
+    assert "scene.usdc" in s["recipe_row"] and "scene_almond.usdc" in s["recipe_row"]
 
 
 def test_api_docs_offline(seen: dict[str, Any]) -> None:

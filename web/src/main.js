@@ -1,4 +1,4 @@
-// The farm's page: presets (public), a grammar editor checked against the committed JSON Schema as
+// The farm's page: presets and recipes (public), a grammar editor checked against the committed JSON Schema as
 // you type (ajv) with the server's 422 messages on their fields, forest and render jobs with
 // a live list (polling), previews, downloads, and a three.js viewer of GLBs. Without a valid
 // API key the page says how to make one instead of showing an empty job list.
@@ -157,8 +157,49 @@ async function loadPresets() {
 
 $("#preset").addEventListener("change", (e) => choosePreset(e.target.value));
 
+// ---- recipes: mixed forests (species layers over terrain), picked instead of a preset -------
+let recipes = [];
+
+function chooseRecipe(name) {
+  if (!recipes.some((r) => r.name === name)) return;
+  $("#recipe").value = name;
+  document.querySelector("input[name=source][value=recipe]").checked = true;
+  for (const card of document.querySelectorAll(".recipe")) {
+    card.classList.toggle("selected", card.dataset.name === name);
+  }
+}
+
+async function loadRecipes() {
+  try {
+    recipes = (await api("/v1/recipes")).recipes; // public: no key needed
+  } catch (err) {
+    $("#recipes-status").textContent = err.message;
+    return;
+  }
+  $("#recipes-status").textContent = "";
+  const strip = $("#recipes");
+  const select = $("#recipe");
+  strip.replaceChildren();
+  select.replaceChildren();
+  for (const r of recipes) {
+    const card = el(
+      "button",
+      { type: "button", className: "recipe", title: r.description },
+      el("div", { className: "name", textContent: r.name }),
+      el("div", { className: "desc", textContent: r.description }),
+      el("ul", { className: "layers" }, ...r.layers.map((l) => el("li", { textContent: l }))),
+    );
+    card.dataset.name = r.name;
+    card.addEventListener("click", () => chooseRecipe(r.name));
+    strip.append(card);
+    select.append(el("option", { value: r.name, textContent: r.name }));
+  }
+}
+
+$("#recipe").addEventListener("change", (e) => chooseRecipe(e.target.value));
+
 // ---- submitting -----------------------------------------------------------------------------
-const FIELDS = ["preset", "grammar", "seed", "trees", "area", "format", "frames"];
+const FIELDS = ["preset", "grammar", "recipe", "seed", "trees", "area", "format", "frames"];
 
 function clearErrors() {
   for (const f of [...FIELDS, "general"]) {
@@ -196,6 +237,7 @@ function requestBody() {
   const source = document.querySelector("input[name=source]:checked").value;
   const body = {};
   if (source === "preset") body.preset = $("#preset").value;
+  else if (source === "recipe") body.recipe = $("#recipe").value;
   else {
     try {
       body.grammar = JSON.parse(grammarBox.value);
@@ -221,7 +263,9 @@ $("#forest-form").addEventListener("submit", async (ev) => {
   $("#form-status").textContent = "submitting…";
   try {
     const job = await api("/v1/forests", { method: "POST", body });
-    if ($("#auto-render").checked && job.params.format !== "glb") autoRender.add(job.id);
+    // a recipe's forest is a root layer over one file per layer: downloads, no preview yet
+    // (the renderer reads single forest scenes)
+    if ($("#auto-render").checked && job.params.format !== "glb" && !job.params.recipe) autoRender.add(job.id);
     $("#form-status").textContent = `forest job ${job.id.slice(0, 8)} queued`;
     refreshJobs();
   } catch (err) {
@@ -271,6 +315,10 @@ async function showGlb(fetchBuffer, title, tree = null) {
 
 $("#view-tree").addEventListener("click", () => {
   clearErrors();
+  if (document.querySelector("input[name=source]:checked").value === "recipe") {
+    $("#err-recipe").textContent = "a recipe is a forest (USD): submit it as a forest job; the viewer shows one tree of a preset or grammar";
+    return;
+  }
   const body = { ...requestBody(), format: "glb" };
   if (!body.frames) body.frames = 48; // the wind needs frames to play
   const name = body.preset ?? "grammar";
@@ -409,5 +457,6 @@ async function refreshJobs() {
 }
 
 loadPresets();
+loadRecipes();
 refreshJobs();
 setInterval(() => keyRefused || refreshJobs(), 1000);

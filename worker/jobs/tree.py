@@ -3,7 +3,12 @@ the job's memory and CPU limits), not in the API process; the API answers with i
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from worker.jobs.context import JobContext, Outcome
+
+if TYPE_CHECKING:
+    from schemas.jobs import TreeRequest
 
 
 def run_tree(ctx: JobContext) -> Outcome:
@@ -16,6 +21,8 @@ def run_tree(ctx: JobContext) -> Outcome:
     from schemas.jobs import TreeRequest
 
     req = TreeRequest.model_validate(ctx.params)
+    if req.recipe is not None:
+        return run_stand_file(ctx, req)
     grammar = grammar_of(req.preset, req.grammar)
 
     def note(stage: str, done: int, total: int) -> None:
@@ -33,4 +40,34 @@ def run_tree(ctx: JobContext) -> Outcome:
         "frames": req.frames,
         "scene": name,
     }
+    return Outcome({name: out}, result)
+
+
+def run_stand_file(ctx: JobContext, req: TreeRequest) -> Outcome:
+    """A recipe's small stand as the one file a ``POST /v1/trees`` answers: written as a
+    root layer and layer files in the scratch folder, then flattened (usda, usdc: flat
+    colours) or packaged with its pictures (usdz): ``tree.<format>``."""
+    from farm.requests import loaded_recipe, options_from_request, stand_size
+    from forest.stand.generate import plan_stand
+    from forest.usd.stand import stand_file, write_stand
+
+    ctx.report("place", 0.02)
+    loaded = loaded_recipe(req)
+    trees, area = stand_size(req, loaded.recipe)
+    stand = plan_stand(loaded, trees, area, req.seed)
+
+    def note(stage: str, done: int, total: int) -> None:
+        ctx.report(f"layers {done}/{total}", 0.05 + 0.8 * done / max(total, 1))
+
+    parts = ctx.scratch / "stand"
+    parts.mkdir()
+    textures = req.format == "usdz"
+    root = write_stand(
+        stand, parts / "stand.usdc", options_from_request(req), skinned=req.skinned,
+        textures=textures, progress=note,
+    )  # fmt: skip
+    ctx.report("one file", 0.9)
+    name = f"tree.{req.format}"
+    out = stand_file(root, ctx.scratch / name)
+    result = {"trees": stand.trees, "frames": req.frames, "scene": name}
     return Outcome({name: out}, result)
