@@ -20,6 +20,7 @@ from service_harness import Server, served
 from forest.stand.generate import plan_stand
 from forest.stand.recipes import LoadedRecipe, recipe_from_object, recipe_names
 from forest.usd.contract import STAND_LAYERS, TERRAIN
+from forest.usd.read import read_scene
 
 BUILTIN = Path(__file__).resolve().parents[2] / "forest" / "stand" / "builtin"
 GLADE = "data:image/png;base64," + base64.b64encode((BUILTIN / "glade.png").read_bytes()).decode()
@@ -77,6 +78,27 @@ def test_recipe_forest_job(server: Server, tmp_path: Path) -> None:
         assert len(list(Usd.PrimRange(prim))) > 3, layer
     layer_files = stage.GetRootLayer().GetExternalReferences()
     assert sorted(layer_files) == ["./scene_almond.usdc", "./scene_hazel.usdc"]
+
+
+def test_recipe_forest_renders(server: Server, tmp_path: Path) -> None:
+    """A render job of a recipe forest draws every layer over the terrain (the root layer's
+    references resolve beside it in the forest job's files)."""
+    r = server.post("/v1/forests", STAND)
+    assert r.status_code == 202, r.text
+    forest = server.wait(r.json()["id"], timeout=300)
+    assert forest["state"] == "completed", forest
+    r = server.post("/v1/renders", {"forest_job": forest["id"], "width": 96, "height": 72})
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=300)
+    assert job["state"] == "completed", job
+    metrics = server.get(next(a["url"] for a in job["artifacts"] if a["name"] == "metrics.json"))
+    # every layer drawn: the render's pieces are the layer files' together
+    pieces = 0
+    for a in forest["artifacts"]:
+        if a["name"] != "scene.usdc":
+            (tmp_path / a["name"]).write_bytes(server.get(a["url"]).content)
+            pieces += read_scene(tmp_path / a["name"]).n_instances
+    assert metrics.json()["instances"] == pieces > 0
 
 
 def _open_one_file(data: bytes, path: Path) -> Usd.Stage:

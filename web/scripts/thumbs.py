@@ -1,4 +1,5 @@
-"""Gallery thumbnails for the web page: docs/gallery/<species>.png (one tree each) ->
+"""Gallery thumbnails for the web page: docs/gallery/<species>.png (one tree each) and
+recipe_<name>.png (a mixed forest from above) ->
 web/src/gallery/ at a quarter of their size (120 x 160 from 480 x 640), so the wheel
 carries small copies. Run by ``make web`` before the vite build; needs OpenImageIO (a
 dependency of the package)."""
@@ -20,7 +21,7 @@ def main() -> int:
     OUT.mkdir(parents=True, exist_ok=True)
     for path in sorted(SRC.glob("*.png")):
         if path.stem in ("contact_sheet", "closeups") or path.stem.endswith(
-            ("_stand", "_leaves", "_base")
+            ("_stand", "_leaves", "_base", "_eye")
         ):
             continue
         src = oiio.ImageBuf(str(path))

@@ -185,6 +185,7 @@ async function loadRecipes() {
     const card = el(
       "button",
       { type: "button", className: "recipe", title: r.description },
+      ...(GALLERY[`recipe_${r.name}`] ? [el("img", { src: GALLERY[`recipe_${r.name}`], alt: `${r.name} (gallery)` })] : []),
       el("div", { className: "name", textContent: r.name }),
       el("div", { className: "desc", textContent: r.description }),
       el("ul", { className: "layers" }, ...r.layers.map((l) => el("li", { textContent: l }))),
@@ -263,9 +264,8 @@ $("#forest-form").addEventListener("submit", async (ev) => {
   $("#form-status").textContent = "submitting…";
   try {
     const job = await api("/v1/forests", { method: "POST", body });
-    // a recipe's forest is a root layer over one file per layer: downloads, no preview yet
-    // (the renderer reads single forest scenes)
-    if ($("#auto-render").checked && job.params.format !== "glb" && !job.params.recipe) autoRender.add(job.id);
+    // a recipe's forest renders too: the renderer draws every layer over the terrain
+    if ($("#auto-render").checked && job.params.format !== "glb") autoRender.add(job.id);
     $("#form-status").textContent = `forest job ${job.id.slice(0, 8)} queued`;
     refreshJobs();
   } catch (err) {
