@@ -415,3 +415,14 @@ class Proxy:
             with contextlib.suppress(OSError):
                 c.shutdown(socket.SHUT_RDWR)
             c.close()
+
+
+def tree_file(server: Server, body: dict[str, object]) -> httpx.Response:
+    """The tree's file: answered at once, or (202) the job's artifact once it is done."""
+    r = server.post("/v1/trees", body)
+    if r.status_code == 202:  # a slow machine: the job was not done within the wait
+        job = server.wait(r.json()["id"], timeout=300)
+        assert job["state"] == "completed", job
+        r = server.get(job["artifacts"][0]["url"])
+    assert r.status_code == 200, r.text
+    return r

@@ -15,7 +15,7 @@ from typing import Any
 import httpx
 import pytest
 from pxr import Usd, UsdGeom
-from service_harness import Server, served
+from service_harness import Server, served, tree_file
 
 from forest.stand.generate import plan_stand
 from forest.stand.recipes import LoadedRecipe, recipe_from_object, recipe_names
@@ -115,12 +115,7 @@ def _open_one_file(data: bytes, path: Path) -> Usd.Stage:
 @pytest.mark.parametrize("fmt", ["usdc", "usdz"])
 def test_tree_route_answers_a_stand_as_one_file(server: Server, tmp_path: Path, fmt: str) -> None:
     body = {"recipe": INLINE, "trees": 2, "area": [16.0, 16.0], "seed": 1, "format": fmt}
-    r = server.post("/v1/trees", body)
-    if r.status_code == 202:  # a slow machine: the job was not done within the wait
-        job = server.wait(r.json()["id"], timeout=300)
-        assert job["state"] == "completed", job
-        r = server.get(job["artifacts"][0]["url"])
-    assert r.status_code == 200, r.text
+    r = tree_file(server, body)
     if fmt == "usdc":
         assert r.headers["content-disposition"] == 'attachment; filename="tiny-mix-1.usdc"'
     stage = _open_one_file(r.content, tmp_path / f"stand.{fmt}")
@@ -135,12 +130,7 @@ def test_tree_route_answers_a_stand_as_one_file(server: Server, tmp_path: Path, 
 
 def test_builtin_recipe_by_name_on_the_tree_route(server: Server, tmp_path: Path) -> None:
     body = {"recipe": "orchard", "trees": 2, "area": [16.0, 16.0], "skinned": False}
-    r = server.post("/v1/trees", body)
-    if r.status_code == 202:
-        job = server.wait(r.json()["id"], timeout=300)
-        assert job["state"] == "completed", job
-        r = server.get(job["artifacts"][0]["url"])
-    assert r.status_code == 200, r.text
+    r = tree_file(server, body)
     (tmp_path / "orchard.usdc").write_bytes(r.content)
     stage = Usd.Stage.Open(str(tmp_path / "orchard.usdc"))
     assert stage.GetPrimAtPath(f"{STAND_LAYERS}/almond").GetAttribute("forest:trees").Get() == 2

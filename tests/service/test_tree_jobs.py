@@ -13,7 +13,7 @@ from pathlib import Path
 
 import httpx
 import pytest
-from service_harness import Server, reference_scene, served
+from service_harness import Server, reference_scene, served, tree_file
 
 SMALL = {"preset": "almond", "format": "usdc"}
 # a tree of one piece: a fraction of a second of work, so 100 of them measure the API alone
@@ -39,17 +39,6 @@ def status_kib(pid: int, field: str) -> int:
 def api_pid(server: Server) -> int:
     assert server.proc is not None and server.api_workers == 1  # the API runs in that process
     return server.proc.pid
-
-
-def tree_file(server: Server, body: dict[str, object]) -> httpx.Response:
-    """The tree's file: answered at once, or (202) the job's artifact once it is done."""
-    r = server.post("/v1/trees", body)
-    if r.status_code == 202:  # a slow machine: the job was not done within the wait
-        job = server.wait(r.json()["id"], timeout=300)
-        assert job["state"] == "completed", job
-        r = server.get(job["artifacts"][0]["url"])
-    assert r.status_code == 200, r.text
-    return r
 
 
 def test_tree_is_made_by_a_job(server: Server, tmp_path: Path) -> None:
