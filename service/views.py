@@ -42,6 +42,23 @@ def _utc(t: datetime | None) -> datetime | None:
     return t.replace(tzinfo=UTC) if t is not None else None
 
 
+DATA_URI_SHOWN = 256  # characters of an inline image a job's params show
+
+
+def shown_params(value: Any) -> Any:
+    """A job's params as answered: an inline image (a recipe's ``data:`` density map or
+    heightfield, up to a megabyte) elided to its head and size, so a page of jobs stays
+    small; the stored params, which the worker reads, keep it whole."""
+    if isinstance(value, dict):
+        return {k: shown_params(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [shown_params(v) for v in value]
+    if isinstance(value, str) and value.startswith("data:") and len(value) > DATA_URI_SHOWN:
+        head = value[: value.find(",") + 1] if "," in value[:100] else "data:"
+        return f"{head}... ({len(value):,} characters, elided)"
+    return value
+
+
 def job_model(row: JobRow, services: Services) -> Job:
     arts = [
         Artifact(
@@ -62,7 +79,7 @@ def job_model(row: JobRow, services: Services) -> Job:
         cancel_requested=row.cancel_requested,
         worker=row.lease_owner,
         error=capped(row.error),  # rows stored before errors were capped
-        params=row.params,
+        params=shown_params(row.params),
         created_at=row.created_at.replace(tzinfo=UTC),
         started_at=_utc(row.started_at),
         finished_at=_utc(row.finished_at),

@@ -56,6 +56,10 @@ def test_recipe_forest_job(server: Server, tmp_path: Path) -> None:
     assert r.status_code == 202, r.text
     job = server.wait(r.json()["id"], timeout=300)
     assert job["state"] == "completed", job
+    # the job answers its inline density map elided (the worker read it whole: it placed)
+    shown = job["params"]["recipe"]["layers"][0]["density_map"]
+    assert shown.startswith("data:image/png;base64,... (") and shown.endswith("elided)")
+    assert len(json.dumps(job["params"])) < 2_000
     names = sorted(a["name"] for a in job["artifacts"])
     assert names == ["scene.usdc", "scene_almond.usdc", "scene_hazel.usdc"]
     # the library places the same trees from the same request
