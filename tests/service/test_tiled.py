@@ -53,6 +53,25 @@ def test_tiled_forest_job(server: Server, tmp_path: Path) -> None:
         assert tile["kind"] == "forest_tile" and tile["state"] == "completed", tile
 
 
+def test_tiled_forest_renders(server: Server) -> None:
+    """A render job of a tiled forest draws every tile (their files beside the root in the
+    forest job's artifacts); it was accepted and then failed ("missing prim")."""
+    r = server.post("/v1/forests", TILED | {"seed": 6})
+    assert r.status_code == 202, r.text
+    forest = server.wait(r.json()["id"], timeout=120)
+    assert forest["state"] == "completed", forest
+    r = server.post("/v1/renders", {"forest_job": forest["id"], "width": 64, "height": 48})
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=300)
+    assert job["state"] == "completed", job
+    metrics = server.get(next(a["url"] for a in job["artifacts"] if a["name"] == "metrics.json"))
+    tiles = [
+        server.get(f"/v1/jobs/{tile_job_id(forest['id'], i, j)}").json()["result"]["pieces"]
+        for i, j in TilePlan(12, (20.0, 10.0), 10.0, 6).tiles()
+    ]
+    assert metrics.json()["instances"] == sum(tiles) > 0
+
+
 def test_cancel_stops_every_tile(server: Server) -> None:
     body = TILED | {"trees": 400, "area": [200.0, 200.0], "tile_size": 20.0, "seed": 9}
     r = server.post("/v1/forests", body)

@@ -219,3 +219,36 @@ def test_read_scene_reads_every_layer_file_alone(stand_root: Path) -> None:
     folder = stand_root.with_name(f"{stand_root.stem}_layers")
     for f in sorted(folder.glob("*.usdc")):
         assert read_scene(f).n_instances > 0
+
+
+def test_a_tiled_forest_renders_every_tile(tmp_path: Path) -> None:
+    """A tiled forest's root layer (forest generate --tile-size) renders: every tile's pieces
+    drawn in one frame on level ground, as the untiled forest's; alone, it is refused."""
+    from forest.growth.generate import generate_forest
+    from forest.growth.presets import load_preset
+    from forest.growth.tiling import TilePlan, generate_tile
+    from forest.usd.scene import write_scene
+    from forest.usd.tiled import write_root, write_tile
+
+    plan = TilePlan(6, (16.0, 8.0), 8.0, 3)
+    root = tmp_path / "tiled.usdc"
+    entries = [
+        write_tile(generate_tile(load_preset("uniform"), plan, i, j), root, i, j)
+        for i, j in plan.tiles()
+    ]
+    write_root(root, entries, meta=plan.meta())
+    out = tmp_path / "tiled.png"
+    metrics = render_file(
+        RenderRequest(scene=root, output=out, width=96, height=72, scene_tiles=False)
+    )
+    whole = generate_forest(load_preset("uniform"), 3, ForestOptions(trees=6, area=(16.0, 8.0)))
+    flat = write_scene(whole, tmp_path / "whole.usdc", skinned=False)
+    single = render_file(RenderRequest(scene=flat, output=tmp_path / "w.png", width=96, height=72))
+    assert metrics.instances == single.instances == whole.n_instances
+    lone = tmp_path / "upload"
+    lone.mkdir()
+    shutil.copy(root, lone / "scene.usdc")
+    with pytest.raises(ForestError) as err:
+        render_file(RenderRequest(scene=lone / "scene.usdc", output=tmp_path / "x.png"))
+    assert "tile" in str(err.value) and "not beside the root layer" in str(err.value)
+    assert str(tmp_path) not in str(err.value)

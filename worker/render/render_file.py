@@ -32,7 +32,14 @@ from worker.render.metrics import render_metrics, write_metrics
 from worker.render.renderer import Renderer, TessSettings, auto_lod
 from worker.render.scene_buffers import check_scene, scene_points
 from worker.render.staging import STAGED, Staging
-from worker.render.stand import StandScene, is_stand_file, load_stand, stand_view
+from worker.render.stand import (
+    StandScene,
+    is_stand_file,
+    is_tiled_file,
+    load_stand,
+    load_tiled,
+    stand_view,
+)
 from worker.render.textures import tile_images
 
 MAX_SIZE = 8192
@@ -230,8 +237,13 @@ def render_file(
     req.check()
     if on_stage is not None:
         on_stage("read")
-    # a mixed forest's root layer: every layer's scene and the terrain (worker.render.stand)
-    stand = load_stand(req.scene, load_scene) if is_stand_file(req.scene) else None
+    # a mixed forest's root layer: every layer's scene and the terrain; a tiled forest's
+    # root: every tile's scene on level ground (worker.render.stand)
+    stand = None
+    if is_stand_file(req.scene):
+        stand = load_stand(req.scene, load_scene)
+    elif is_tiled_file(req.scene):
+        stand = load_tiled(req.scene, load_scene)
     if stand is not None and req.tiles is not None:
         raise ForestError(
             "a mixed forest's layers each use their own bark tiles: leave the tile folder out",

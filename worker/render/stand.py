@@ -14,6 +14,7 @@ are absent (a root uploaded alone) is refused with a clear error that names no s
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -23,7 +24,7 @@ import numpy as np
 from forest.errors import ForestError
 from forest.geometry.transforms import F64
 from forest.stand.terrain import Heightfield
-from forest.usd.contract import FOREST
+from forest.usd.contract import FOREST, TILES, TILING
 from forest.usd.read import SceneArrays
 from worker.render.camera import Camera, CameraSpec, place_camera
 from worker.render.foliage import foliage_points
@@ -121,27 +122,102 @@ def load_stand(path: Path, read: Callable[[Path], SceneArrays]) -> StandScene:
     except ForestError as exc:
         raise ForestError(exc.message, path="scene") from None
     except READ_ERRORS as exc:
-        lines = str(exc).strip().splitlines()
-        why = f"{type(exc).__name__}: {lines[-1][:200]}" if lines else type(exc).__name__
-        raise ForestError(f"the root layer could not be read ({why})", path="scene") from None
+        raise _root_error(exc) from None
+    layers = [(layer.name, layer.files) for layer in files.layers]
+    return _load_files(path, layers, files.terrain_points, files.terrain_quads, read, "layer")
+
+
+def is_tiled_file(path: Path) -> bool:
+    """Whether ``path`` is a tiled forest's root layer (``/World/Tiles`` of payloads,
+    :mod:`forest.usd.tiled`)."""
+    from pxr import Sdf
+
+    if path.suffix.lower() not in (".usd", ".usda", ".usdc") or not path.is_file():
+        return False
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+        return layer is not None and layer.GetPrimAtPath(TILES) is not None
+    except READ_ERRORS:
+        return False
+
+
+def load_tiled(path: Path, read: Callable[[Path], SceneArrays]) -> StandScene:
+    """A tiled forest's root layer as a stand: each tile's file (its payload) read by
+    ``read`` and drawn as a layer, on level ground over the forest's area (its
+    ``forest:tiling`` plan, else the tiles' extents). Refused as :func:`load_stand` refuses:
+    a tile file outside the root's folder, or missing (a root uploaded alone)."""
+    from pxr import Sdf
+
+    try:
+        layer = Sdf.Layer.FindOrOpen(str(path))
+        group = layer.GetPrimAtPath(TILES) if layer is not None else None
+        if group is None:
+            raise ForestError("not a tiled forest's root layer", path="scene")
+        tiles = [
+            (
+                spec.name,
+                tuple(
+                    path.parent / p.assetPath for p in spec.payloadList.GetAddedOrExplicitItems()
+                ),
+            )
+            for spec in group.nameChildren
+        ]
+        plan = group.attributes[TILING].default if TILING in group.attributes else None
+        hint = [spec.attributes["extentsHint"].default for spec in group.nameChildren
+                if "extentsHint" in spec.attributes]  # fmt: skip
+    except ForestError:
+        raise
+    except READ_ERRORS as exc:
+        raise _root_error(exc) from None
+    if plan is not None:
+        w, d = (float(v) for v in json.loads(plan)["area"])
+        lo, hi = (-w / 2, -d / 2), (w / 2, d / 2)
+    elif hint:
+        box = np.array([[tuple(v) for v in h] for h in hint], np.float64).reshape(-1, 3)
+        lo, hi = (box[:, 0].min(), box[:, 2].min()), (box[:, 0].max(), box[:, 2].max())
+    else:
+        lo, hi = (-1.0, -1.0), (1.0, 1.0)
+    ground = np.array(
+        [[lo[0], 0.0, lo[1]], [hi[0], 0.0, lo[1]], [hi[0], 0.0, hi[1]], [lo[0], 0.0, hi[1]]]
+    )
+    # (0, 3, 2, 1): counter-clockwise seen from above, as a stand's terrain quads
+    return _load_files(path, tiles, ground, np.array([[0, 3, 2, 1]]), read, "tile")
+
+
+def _root_error(exc: BaseException) -> ForestError:
+    lines = str(exc).strip().splitlines()
+    why = f"{type(exc).__name__}: {lines[-1][:200]}" if lines else type(exc).__name__
+    return ForestError(f"the root layer could not be read ({why})", path="scene")
+
+
+def _load_files(
+    path: Path,
+    layers: list[tuple[str, tuple[Path, ...]]],
+    terrain_points: F64,
+    terrain_quads: np.ndarray,
+    read: Callable[[Path], SceneArrays],
+    what: str,
+) -> StandScene:
+    """Every layer's (or tile's) files read (those without trees left out) over the terrain;
+    a file outside the root's folder or missing is refused, naming the ``what``."""
     folder = path.parent.resolve()
     names: list[str] = []
     scenes: list[SceneArrays] = []
-    for layer in files.layers:
-        for k, file in enumerate(layer.files):
-            name = layer.name if len(layer.files) == 1 else f"{layer.name}[{k}]"
+    for layer_name, layer_files in layers:
+        for k, file in enumerate(layer_files):
+            name = layer_name if len(layer_files) == 1 else f"{layer_name}[{k}]"
             if not file.resolve().is_relative_to(folder):
                 raise ForestError(
-                    f"layer {layer.name!r} references a file outside the root layer's folder "
+                    f"{what} {layer_name!r} references a file outside the root layer's folder "
                     "(a path with '..', an absolute path or a link): refused",
                     path="scene",
                 )
             if not file.is_file():
                 rel = file.resolve().relative_to(folder).as_posix()
                 raise ForestError(
-                    f"layer {layer.name!r}: its scene file {rel} is not beside the root layer: "
-                    "a mixed forest renders with its layer files (the root's <name>_layers "
-                    "folder), not from its root layer alone",
+                    f"{what} {layer_name!r}: its scene file {rel} is not beside the root layer: "
+                    f"a {'mixed' if what == 'layer' else 'tiled'} forest renders with its "
+                    f"{what} files, not from its root layer alone",
                     path="scene",
                 )
             try:
@@ -149,16 +225,16 @@ def load_stand(path: Path, read: Callable[[Path], SceneArrays]) -> StandScene:
                     continue  # a layer (or tile) without trees
                 scenes.append(read(file))
             except ForestError as exc:
-                raise _layer_error(layer.name, exc) from None
+                raise _layer_error(layer_name, exc) from None
             except READ_ERRORS:
                 raise ForestError(
-                    f"layer {layer.name!r}: its scene file could not be read", path="scene"
+                    f"{what} {layer_name!r}: its scene file could not be read", path="scene"
                 ) from None
             names.append(name)
     if not scenes:
-        raise ForestError("the mixed forest has no trees in any layer", path="scene")
+        raise ForestError(f"the forest has no trees in any {what}", path="scene")
     try:
-        terrain = TerrainMesh.from_quads(files.terrain_points, files.terrain_quads)
+        terrain = TerrainMesh.from_quads(terrain_points, terrain_quads)
     except ValueError as exc:
         raise ForestError(f"the terrain mesh is malformed: {exc}", path="scene") from None
     return StandScene(path, tuple(names), tuple(scenes), terrain)
