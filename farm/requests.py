@@ -17,7 +17,11 @@ from schemas.recipe import Recipe
 def options_from_request(req: TreeRequest) -> ForestOptions:
     """The generation options of an API request (a ForestRequest adds trees, area, placement)."""
     options = ForestOptions(
-        frames=req.frames, fps=req.fps, segments=req.segments, wind=Wind(strength_deg=req.wind_deg)
+        frames=req.frames,
+        fps=req.fps,
+        segments=req.segments,
+        wind=Wind(strength_deg=req.wind_deg),
+        season=req.season,
     )
     if isinstance(req, ForestRequest):
         options = replace(options, trees=req.trees, area=req.area, placement=req.placement)

@@ -198,6 +198,9 @@ class TreeRequest(FiniteModel):
     fps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 24.0
     wind_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 4.0
     segments: Annotated[int, Field(ge=1, le=8)] = 1
+    season: Literal["summer", "autumn"] = "summer"
+    """The leaves' palette: the species' summer colours, or its autumn ones (as the CLI's
+    ``--season``)."""
     skinned: bool | None = None
     """USD only: bake each tree as a skinned mesh (the default representation where it is
     written); unset: skinned for small scenes (up to 64 trees and 20,000 pieces), posed above

@@ -41,6 +41,15 @@ def api_pid(server: Server) -> int:
     return server.proc.pid
 
 
+def test_season_reaches_the_tree(server: Server, tmp_path: Path) -> None:
+    """``season`` (the CLI's --season) colours the leaves: the library's autumn almond, not
+    its summer one."""
+    body = SMALL | {"seed": 12, "season": "autumn", "skinned": False}
+    got = tree_file(server, body).content
+    assert got == reference_scene(tmp_path, body, "tree")
+    assert got != reference_scene(tmp_path, body | {"season": "summer"}, "tree")
+
+
 def test_tree_is_made_by_a_job(server: Server, tmp_path: Path) -> None:
     body = SMALL | {"seed": 11}
     r = server.post("/v1/trees", body)
