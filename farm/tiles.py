@@ -77,6 +77,11 @@ def tile_artifact(i: int, j: int) -> str:
     return f"scene_tile_{i}_{j}.usdc"
 
 
+def stand_tile_artifact(i: int, j: int, layer: str) -> str:
+    """A recipe forest's layer tile in its forest job's artifacts."""
+    return f"scene_tile_{i}_{j}_{layer}.usdc"
+
+
 def artifact_owner(claim: Claim) -> str:
     """The job whose artifacts a job's files join: a tile's go beside its forest's root
     layer."""
@@ -180,6 +185,8 @@ def join(
     # the root layer lists the tiles in grid order (rows of z, then x), whatever order ran
     states = sorted(store.child_results(job_id), key=lambda pr: tuple(pr[0]["tile"])[::-1])
     req = ForestRequest.model_validate(params)
+    if req.recipe is not None:
+        return _join_stand(store, artifacts, claim, req, states)
     entries = [TileEntry.from_json((r or {})["tile"]) for _, r in states]
     name = f"scene.{req.format}"
     scratch = artifacts.scratch(job_id)
@@ -200,5 +207,49 @@ def join(
         "tiles": len(states),
     }
     names = sorted([name] + [tile_artifact(*p["tile"]) for p, _ in states])
+    ok = store.finish(claim, JobState.COMPLETED, artifacts=names, result=result)
+    return JobState.COMPLETED if ok else "lost"
+
+
+def _join_stand(
+    store: JobStore,
+    artifacts: ArtifactStore,
+    claim: Claim,
+    req: ForestRequest,
+    states: list[tuple[dict[str, Any], dict[str, Any] | None]],
+) -> str:
+    """A recipe's tiled forest, every tile done: the root layer over the terrain referencing
+    each layer's tiles (the stand placed again: the root names its layers and carries the
+    ground)."""
+    from farm.requests import loaded_recipe, stand_size
+    from forest.stand.generate import plan_stand
+    from forest.usd.stand import LayerFile, write_stand_root
+
+    job_id = claim.job_id
+    loaded = loaded_recipe(req)
+    trees, area = stand_size(req, loaded.recipe)
+    stand = plan_stand(loaded, trees, area, req.seed)
+    files = [LayerFile.from_json(e) for _, r in states for e in (r or {}).get("stand_tile", [])]
+    name = f"scene.{req.format}"
+    scratch = artifacts.scratch(job_id)
+    try:
+        root = write_stand_root(scratch / name, stand, files, frames=req.frames, fps=req.fps)
+        artifacts.publish(job_id, root, name)
+    finally:
+        shutil.rmtree(scratch, ignore_errors=True)
+    layers = {
+        layer.name: len(t)
+        for layer, t in zip(stand.recipe.layers, stand.placement.layers, strict=True)
+    }
+    result = {
+        "trees": stand.trees,
+        "layers": layers,
+        "pieces": sum(int((r or {}).get("pieces", 0)) for _, r in states),
+        "frames": req.frames,
+        "scene": name,
+        "tiles": len(states),
+        "recipe": stand.recipe.name,
+    }
+    names = sorted([name] + [f.asset.removeprefix("./") for f in files])
     ok = store.finish(claim, JobState.COMPLETED, artifacts=names, result=result)
     return JobState.COMPLETED if ok else "lost"

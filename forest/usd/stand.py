@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import json
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from pxr import Gf, Kind, Sdf, Usd, UsdGeom, UsdShade, Vt
@@ -61,6 +62,26 @@ class LayerFile:
     asset: str
     extent: tuple[tuple[float, float, float], tuple[float, float, float]]
     trees: int
+    pieces: int = 0
+
+    def to_json(self) -> dict[str, object]:
+        return {
+            "layer": self.layer,
+            "tile": None if self.tile is None else list(self.tile),
+            "asset": self.asset,
+            "extent": [list(self.extent[0]), list(self.extent[1])],
+            "trees": self.trees,
+            "pieces": self.pieces,
+        }
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> LayerFile:
+        (x0, y0, z0), (x1, y1, z1) = d["extent"]
+        tile = None if d["tile"] is None else (int(d["tile"][0]), int(d["tile"][1]))
+        extent = ((float(x0), float(y0), float(z0)), (float(x1), float(y1), float(z1)))
+        return cls(
+            int(d["layer"]), tile, str(d["asset"]), extent, int(d["trees"]), int(d.get("pieces", 0))
+        )
 
 
 def layers_folder(root: Path) -> Path:
@@ -90,7 +111,6 @@ def write_stand(
 ) -> Path:
     """Grow and write every layer of ``stand`` (one at a time), then the root layer; the
     layer files where :func:`layer_file` puts them (``beside``: next to the root)."""
-    from forest.usd.scene import write_scene
 
     out = check_output_path(path, (".usda", ".usdc"))
     if not beside:
@@ -101,30 +121,46 @@ def write_stand(
     files: list[LayerFile] = []
     for n, (k, tile) in enumerate(jobs):
         note("layers", n, len(jobs))
-        layer = stand.recipe.layers[k]
-        trees = stand.placement.layers[k]
-        if tile is not None:
-            assert tile_size is not None
-            trees = trees.within(
-                _rect(stand.area, tile_size, *tile),
-                _closed(stand.area, tile_size, *tile),
-                stand.area,
-            )
-        name = layer.name if tile is None else f"{layer.name}_{tile[0]}_{tile[1]}"
-        file = layer_file(out, name, beside)
-        forest = stand.grow_layer(k, options, trees, tile)
-        if forest is None:
-            if tile is not None:
-                continue  # a tile without this layer's trees: no file
-            write_empty_tile(file)
-        else:
-            write_scene(forest, file, skinned=skinned, textures=textures and tile is None)
-        del forest
-        files.append(
-            LayerFile(k, tile, f"./{file.relative_to(out.parent)}", tile_extent(file), len(trees))
-        )
+        name = stand.recipe.layers[k].name
+        file = layer_file(out, name if tile is None else f"{name}_{tile[0]}_{tile[1]}", beside)
+        made = write_layer_file(stand, k, file, options, tile, tile_size, skinned, textures)
+        if made is not None:
+            files.append(replace(made, asset=f"./{file.relative_to(out.parent)}"))
     note("layers", len(jobs), len(jobs))
     return write_stand_root(out, stand, files, frames=options.frames, fps=options.fps)
+
+
+def write_layer_file(
+    stand: Stand,
+    k: int,
+    file: Path,
+    options: ForestOptions,
+    tile: tuple[int, int] | None = None,
+    tile_size: float | None = None,
+    skinned: bool | None = None,
+    textures: bool = False,
+) -> LayerFile | None:
+    """Grow layer ``k`` (its trees in ``tile`` of ``tile_size`` metres, or all of them) and
+    write it to ``file``; its entry (asset: the file's name), or None for a tile without the
+    layer's trees (no file). An untiled layer without trees is an empty scene."""
+    from forest.usd.scene import write_scene
+
+    trees = stand.placement.layers[k]
+    if tile is not None:
+        assert tile_size is not None
+        rect = _rect(stand.area, tile_size, *tile)
+        trees = trees.within(rect, _closed(stand.area, tile_size, *tile), stand.area)
+    forest = stand.grow_layer(k, options, trees, tile)
+    pieces = 0
+    if forest is None:
+        if tile is not None:
+            return None
+        write_empty_tile(file)
+    else:
+        write_scene(forest, file, skinned=skinned, textures=textures and tile is None)
+        pieces = forest.n_instances
+    del forest
+    return LayerFile(k, tile, f"./{file.name}", tile_extent(file), len(trees), pieces)
 
 
 def _tiles(area: tuple[float, float], tile_size: float) -> list[tuple[int, int] | None]:

@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import httpx
+import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
 from service_harness import Server, served, tree_file
@@ -21,6 +22,7 @@ from forest.stand.generate import plan_stand
 from forest.stand.recipes import LoadedRecipe, recipe_from_object, recipe_names
 from forest.usd.contract import STAND_LAYERS, TERRAIN
 from forest.usd.read import read_scene
+from forest.usd.stand import read_stand
 
 BUILTIN = Path(__file__).resolve().parents[2] / "forest" / "stand" / "builtin"
 GLADE = "data:image/png;base64," + base64.b64encode((BUILTIN / "glade.png").read_bytes()).decode()
@@ -191,7 +193,6 @@ BAD: list[tuple[str, str, dict[str, Any], list[Any], str]] = [
      {"recipe": {"layers": [{"name": "a", "grammar": BUSHY, "share": 1.0}]}, "trees": 1},
      ["recipe", "layers", 0, "grammar"], "pieces per tree"),
     ("preset and recipe", "/v1/forests", _layer() | {"preset": "oak"}, ["recipe"], "exactly one"),
-    ("tiled", "/v1/forests", _layer() | {"tile_size": 10.0}, ["tile_size"], "not tiled"),
     ("glb", "/v1/forests", _layer() | {"format": "glb"}, ["format"], "written as usda, usdc"),
     ("usdz forest", "/v1/forests", _layer() | {"format": "usdz"}, ["format"], "usda, usdc"),
     ("glb file", "/v1/trees", _layer() | {"format": "glb"}, ["format"], "usda, usdc, usdz"),
@@ -243,3 +244,31 @@ def test_recipe_is_kept_in_the_job(server: Server) -> None:
     assert job["state"] == "completed", job
     assert sorted(a["name"] for a in job["artifacts"]) == ["scene.usdc", "scene_almond.usdc"]
     assert json.dumps(job).find("builtin") < 0
+
+
+def test_tiled_recipe_forest(server: Server, tmp_path: Path) -> None:
+    """A recipe's forest with tile_size: one tile job per tile writes each layer's trees in
+    it; the root layer references them over the terrain, tree for tree the untiled stand's
+    placement, and it renders."""
+    body = STAND | {"trees": 12, "area": [40.0, 30.0], "tile_size": 20.0, "seed": 4}
+    r = server.post("/v1/forests", body)
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=300)
+    assert job["state"] == "completed", job
+    assert job["result"]["tiles"] == 4 and job["result"]["trees"] == 12
+    for a in job["artifacts"]:
+        (tmp_path / a["name"]).write_bytes(server.get(a["url"]).content)
+    assert all(n.startswith("scene_tile_") for n in (a["name"] for a in job["artifacts"])
+               if n != "scene.usdc")  # fmt: skip
+    ref = plan_stand(LoadedRecipe(recipe_from_object(INLINE), None), 12, (40.0, 30.0), 4)
+    got = {}
+    for layer in read_stand(tmp_path / "scene.usdc").layers:
+        xyz = [read_scene(f).tree_transforms[:, :3, 3] for f in layer.files]
+        got[layer.name] = np.concatenate(xyz) if xyz else np.zeros((0, 3))
+    for layer, trees in zip(ref.recipe.layers, ref.placement.layers, strict=True):
+        a, b = got[layer.name], trees.positions
+        np.testing.assert_allclose(a[np.lexsort(a.T)], b[np.lexsort(b.T)], atol=1e-5)
+    r = server.post("/v1/renders", {"forest_job": job["id"], "width": 64, "height": 48})
+    assert r.status_code == 202, r.text
+    render = server.wait(r.json()["id"], timeout=300)
+    assert render["state"] == "completed", render
