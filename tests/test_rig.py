@@ -24,8 +24,16 @@ from forest.growth.rig import (
     linear_quaternions,
     quaternion_linear,
 )
-from forest.usd.contract import JOINT_ROTATIONS, PIECES
-from forest.usd.read import read_scene
+from forest.usd.contract import (
+    BONE_FORMAT,
+    BONE_FORMAT_VERSION,
+    BONE_SCALES,
+    BONE_TRANSLATIONS,
+    JOINT_ROTATIONS,
+    PIECES,
+    ROOT_ROTATIONS,
+)
+from forest.usd.read import read_scene, select_engine
 from forest.usd.scene import write_scene
 from tests.test_assembly import check_rims
 
@@ -164,8 +172,55 @@ def test_broken_rigs_name_their_attribute(windy: Windy, tmp_path: Path) -> None:
     with pytest.raises(SceneError, match="unit quaternions") as err:
         read_scene(broken(JOINT_ROTATIONS, Vt.QuatfArray.FromNumpy(rot), 1))
     assert err.value.path == f"{PIECES}.{JOINT_ROTATIONS}"
-    with pytest.raises(SceneError, match="format 3"):
-        read_scene(broken("forest:boneFormat", 3))
+    with pytest.raises(SceneError, match="format 4"):
+        read_scene(broken("forest:boneFormat", 4))
+
+
+def test_the_rig_is_stored_in_float32(windy: Windy) -> None:
+    """Bone format 3: the rig's translations, scales and root rotations are float32 (half the
+    bytes of format 2's doubles; the palette tests above hold it to PALETTE_REBUILT_REL), and
+    the engine variant keeps one orientation array, the exact quatf one."""
+    _, path = windy
+    stage = Usd.Stage.Open(str(path))
+    select_engine(stage)
+    prim = stage.GetPrimAtPath(PIECES)
+    assert prim.GetAttribute(BONE_FORMAT).Get() == BONE_FORMAT_VERSION == 3
+    types = Sdf.ValueTypeNames
+    for name, want in (
+        (BONE_TRANSLATIONS, types.Float3Array),
+        (BONE_SCALES, types.FloatArray),
+        (ROOT_ROTATIONS, types.QuatfArray),
+        (JOINT_ROTATIONS, types.QuatfArray),
+    ):
+        assert prim.GetAttribute(name).GetTypeName() == want, name
+    assert prim.GetAttribute("orientationsf").HasAuthoredValue()
+    assert not prim.GetAttribute("orientations").HasAuthoredValue()
+
+
+def test_format_2_scenes_are_refused_clearly(windy: Windy, tmp_path: Path) -> None:
+    """A scene of the previous bone format (the same rig in float64) is refused with one line
+    naming the format and how to make the scene again."""
+    f, path = windy
+    stage = edited_copy(path, tmp_path)
+    prim = stage.GetPrimAtPath(PIECES)
+    rig = forest_rig(f)
+    types = Sdf.ValueTypeNames
+    for name, typ, value in (
+        (BONE_TRANSLATIONS, types.Double3Array, Vt.Vec3dArray.FromNumpy(rig.translation)),
+        (BONE_SCALES, types.DoubleArray, Vt.DoubleArray.FromNumpy(rig.scale)),
+        (ROOT_ROTATIONS, types.QuatdArray, Vt.QuatdArray.FromNumpy(rig.root_rotation)),
+    ):
+        prim.RemoveProperty(name)
+        prim.CreateAttribute(name, typ, custom=True).Set(value)
+    prim.GetAttribute(BONE_FORMAT).Set(2)
+    stage.GetRootLayer().Export(str(tmp_path / "format2.usdc"))
+    with pytest.raises(SceneError) as err:
+        read_scene(tmp_path / "format2.usdc")
+    assert err.value.path == f"{PIECES}.{BONE_FORMAT}"
+    message = str(err.value)
+    assert "\n" not in message
+    assert "bone format 2" in message and "reads format 3" in message
+    assert "generate the scene again" in message
 
 
 def test_hierarchy_levels_put_every_parent_before_its_children() -> None:

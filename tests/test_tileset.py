@@ -30,7 +30,16 @@ from forest.bark.tileset import (
     default_classes,
     stitch_tiles,
 )
-from forest.bark.tilesets import LOWER_TRUNK, SETS, default_dir, make_set, set_dir
+from forest.bark.tilesets import (
+    LOWER_TRUNK,
+    MEAN_COLOUR_FILE,
+    SETS,
+    default_dir,
+    make_set,
+    mean_colour,
+    measured_mean_colour,
+    set_dir,
+)
 from forest.errors import ForestError, LimitError
 from forest.growth.generate import ForestOptions, generate_forest
 from forest.growth.presets import load_preset
@@ -369,6 +378,16 @@ def test_shipped_set_is_what_the_code_makes(name: str, tmp_path: Path) -> None:
         return d
 
     assert strip(m) == strip(ts.manifest), "run `python -m forest.bark.tilesets`"
+    shipped = (set_dir(name) / MEAN_COLOUR_FILE).read_text(encoding="utf-8")
+    assert shipped == (tmp_path / MEAN_COLOUR_FILE).read_text(encoding="utf-8")
+
+
+@pytest.mark.parametrize("name", SETS)
+def test_stored_mean_colour_is_the_tiles_mean(name: str) -> None:
+    """A scene's flat bark colour comes from the set's stored mean, exactly the one measured
+    from its texture array (a rebuild writes both)."""
+    assert (set_dir(name) / MEAN_COLOUR_FILE).is_file()
+    assert mean_colour(name) == measured_mean_colour(name)
 
 
 def test_same_seed_same_tiles_other_seed_other_tiles() -> None:

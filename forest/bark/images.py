@@ -16,14 +16,31 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import OpenImageIO as oiio
 from numpy.typing import NDArray
 
 from forest.atomic import replaced_when_written
 from forest.errors import ForestError, OutputError
 from forest.sniff import HEAD_BYTES, NOT_IMAGE_KINDS, describe, sniff_bytes
+
+
+class _OnFirstUse:
+    """OpenImageIO, imported when an image is first read or written: its 40-70 ms would
+    otherwise be paid by every command that imports this module for :func:`srgb_to_linear`
+    (growing a forest) without touching a picture."""
+
+    def __getattr__(self, name: str) -> Any:
+        import OpenImageIO
+
+        return getattr(OpenImageIO, name)
+
+
+if TYPE_CHECKING:
+    import OpenImageIO as oiio
+else:
+    oiio = _OnFirstUse()
 
 U8 = NDArray[np.uint8]
 # An example larger than this is almost surely a mistake (a 64 Mpx photo is 192 MB as RGB

@@ -25,21 +25,23 @@ similarity that best fits its skinned vertices, time-sampled; :data:`SKINNED` on
 tree per SkelRoot (when written, then the default; ``Pieces`` and ``Foliage`` inactive).
 
 ``/World/Forest/Pieces`` (:data:`PIECES`, PointInstancer): every piece of every tree, ``n``
-instances. ``protoIndices`` and ``ids``; ``positions``, ``orientations`` (quath), ``scales``
-and ``extent`` in the ``engine`` variant (the topological transforms, with ``orientationsf``
-quatf) and in the ``posed`` one (time-sampled). Vertex primvars, int[] ``(n,)``:
-:data:`TREE_ID`, :data:`BONE_OFFSET` (the instance's first bone in the palette),
+instances. ``protoIndices`` and ``ids``; ``positions``, ``orientationsf`` (quatf: the exact
+topological transforms; no quath ``orientations`` beside it since bone format 3),
+``scales`` and ``extent`` in the ``engine`` variant, and ``positions``, ``orientations``
+(quath), ``scales`` and ``extent`` in the ``posed`` one (time-sampled). Vertex primvars,
+int[] ``(n,)``: :data:`TREE_ID`, :data:`BONE_OFFSET` (the instance's first bone in the palette),
 :data:`PARENT` (-1 at a tree's root), :data:`PARENT_RIM`, :data:`TWIST`, :data:`DEPTH`,
 :data:`SYMBOL` (an index into :data:`SYMBOLS`); :data:`TILE_INDICES` int[] ``(n, q_max)``
 (elementSize ``q_max``, the most quads of any piece; -1 past a piece's quads). Attributes:
 :data:`SYMBOLS` token[] the grammar's symbols; the compact bone rig (``b`` bones,
 :mod:`forest.growth.rig`): :data:`BONE_FORMAT` int (:data:`BONE_FORMAT_VERSION`),
 :data:`BONE_PARENTS` int[] ``(b,)`` (-1 for a tree's root), :data:`BONE_TRANSLATIONS`
-double3[] ``(b,)``, :data:`BONE_SCALES` double[] ``(b,)``, :data:`ROOT_ROTATIONS` quatd[]
+float3[] ``(b,)``, :data:`BONE_SCALES` float[] ``(b,)``, :data:`ROOT_ROTATIONS` quatf[]
 ``(n,)`` (each instance's root bone), and :data:`JOINT_ROTATIONS` quatf[] ``(b - n,)``
 time-sampled with wind: every hub and terminal, in palette order without the roots. A scene
-of format 1 has :data:`LEGACY_BONE_PALETTE` instead (matrix4d[] per bone per frame), which
-the reader refuses.
+of format 2 stored the translations, scales and root rotations in double precision
+(double3[], double[], quatd[]); one of format 1 has :data:`LEGACY_BONE_PALETTE` instead
+(matrix4d[] per bone per frame). The reader refuses both.
 
 ``/World/Forest/Pieces/Prototypes/<piece>`` (:data:`PIECE_PROTOTYPES`, Mesh, one per piece
 type: ``v`` points, ``q`` quads, ``r`` leaf rims, ``j = 2 + r`` joints): points, vertex
@@ -188,9 +190,11 @@ DEPTH = "forest:depth"
 SYMBOL = "forest:symbol"
 SYMBOLS = "forest:symbols"
 BONE_FORMAT = "forest:boneFormat"
-# the value of BONE_FORMAT: 2 is the compact rig of forest.growth.rig; 1 (no attribute) was
-# one matrix4d per bone per frame, LEGACY_BONE_PALETTE
-BONE_FORMAT_VERSION = 2
+# the value of BONE_FORMAT: 3 is the compact rig of forest.growth.rig in float32 (float3[]
+# translations, float[] scales, quatf[] root rotations); 2 was the same rig in float64
+# (double3[], double[], quatd[]); 1 (no attribute) was one matrix4d per bone per frame,
+# LEGACY_BONE_PALETTE
+BONE_FORMAT_VERSION = 3
 BONE_PARENTS = "forest:boneParents"
 BONE_TRANSLATIONS = "forest:boneTranslations"
 BONE_SCALES = "forest:boneScales"

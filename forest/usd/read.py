@@ -363,6 +363,13 @@ def _read_rig(
             "generate it again (its grammar, seed and options are in /World/Forest)",
             path=f"{where}.{LEGACY_BONE_PALETTE}",
         )
+    if fmt == 2:  # the rig before 0.7: translations, scales, root rotations in float64
+        raise SceneError(
+            f"bone format 2 (an older version's, its rig in double precision); this version "
+            f"reads format {BONE_FORMAT_VERSION}: generate the scene again (its grammar, seed "
+            "and options are in /World/Forest)",
+            path=f"{where}.{BONE_FORMAT}",
+        )
     if fmt != BONE_FORMAT_VERSION:
         raise SceneError(
             f"bone format {fmt!r}: this version reads format {BONE_FORMAT_VERSION}",

@@ -24,6 +24,7 @@ the shipped files differ from what the code makes.
 from __future__ import annotations
 
 import functools
+import json
 import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -40,6 +41,8 @@ if TYPE_CHECKING:  # the image and quilting modules load OpenImageIO: only when 
     from forest.bark.tileset import ClassSpec, TileSet
 
 DEFAULT_SET = "default"
+MEAN_COLOUR_FILE = "mean_colour.json"
+"""Beside a shipped set's tiles: its :func:`mean_colour`, ``[r, g, b]`` linear."""
 SETS: tuple[str, ...] = (DEFAULT_SET, *SPECIES)
 """Names of the shipped tile sets (the values a grammar's ``bark`` may take)."""
 DEFAULT_TILE_SIZE = 128
@@ -156,17 +159,39 @@ def make_set(name: str, folder: Path) -> TileSet:
             )
             ts = stack_lower(up, low, LOWER_TRUNK[name])
     write_tileset(ts, folder)
+    colour = tiles_mean_colour(ts.tiles, ts.manifest)
+    (folder / MEAN_COLOUR_FILE).write_text(json.dumps(colour) + "\n", encoding="utf-8")
     return ts
 
 
 @functools.cache
 def mean_colour(name: str) -> tuple[float, float, float]:
     """Linear RGB (0 to 1) mean of shipped set ``name``'s tiles: the flat bark colour for
-    viewers that do not read the tiles (the lower trunk's left out: most of a tree is not)."""
+    viewers that do not read the tiles (the lower trunk's left out: most of a tree is not).
+    Read from the set's :data:`MEAN_COLOUR_FILE`, which :func:`make_set` writes beside the
+    tiles (a test holds it equal to the tiles' mean): every scene write wants this colour, and
+    reading and decoding the texture array for it took 30-50 ms of a one-tree run. A set
+    without the file is measured from its texture array."""
+    stored = set_dir(name) / MEAN_COLOUR_FILE
+    if stored.is_file():
+        r, g, b = (float(c) for c in json.loads(stored.read_text(encoding="utf-8")))
+        return (r, g, b)
+    return measured_mean_colour(name)
+
+
+def measured_mean_colour(name: str) -> tuple[float, float, float]:
+    """:func:`mean_colour` measured from the set's texture array (what its file stores)."""
     from forest.bark.images import read_texture_array
 
-    tiles = read_texture_array(set_dir(name) / "bark_array.tif")[..., :3]
-    lower = [c.first for c in shipped_manifest(name).classes if c.stands_for is not None]
+    tiles = read_texture_array(set_dir(name) / "bark_array.tif")
+    return tiles_mean_colour(tiles, shipped_manifest(name))
+
+
+def tiles_mean_colour(tiles: np.ndarray, manifest: TileSetManifest) -> tuple[float, float, float]:
+    """The linear mean colour of the ``(n, h, w, c)`` sRGB bytes ``tiles`` of a set with
+    ``manifest``, its lower trunk's slices left out."""
+    tiles = tiles[..., :3]
+    lower = [c.first for c in manifest.classes if c.stands_for is not None]
     tiles = tiles[: min(lower, default=len(tiles))]
     # sRGB decoded through a table of the 256 byte values: the same numbers as decoding each
     # texel, a tenth of the time (every small scene's write waits on this)
