@@ -94,8 +94,12 @@ class SprayForm:
     shoot's start above the horizontal, degrees; stem: stem card width; sides: range of the
     side shoots of the last order on the spray's shoot (so a spray is a branchlet of the
     last two orders), side: their length range; rosette: every shoot ends in a cluster of
-    leaves (one card showing ROSETTE leaves from above). Leaf counts are per shoot, besides
-    the rosette's."""
+    leaves (one card showing ROSETTE leaves from above); tilt: habit ``spread``, the largest
+    angle in degrees by which a blade rolls out of level about its own axis (a cluster leans
+    out over its shoot's heading by 35-70 % of it): the sun leaves of a crown's outer shell
+    stand at many angles, so a crown seen from the side reads as leafy, not as level blades
+    seen edge-on (0: level blades, clusters leaning about 27 degrees). Leaf counts are per
+    shoot, besides the rosette's."""
 
     length: tuple[float, float]
     aspect: float
@@ -110,11 +114,14 @@ class SprayForm:
     sides: tuple[int, int] = (0, 0)
     side: tuple[float, float] = (0.1, 0.2)
     rosette: bool = False
+    tilt: float = 0.0
+    spurs: tuple[int, int] = (0, 0)
 
 
 FORMS: dict[str, SprayForm] = {
-    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (3, 5), (0.5, 0.9), crowd=1.8,
-                     sides=(3, 5), side=(0.12, 0.3), rosette=True),
+    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (5, 7), (0.8, 1.3), crowd=1.8,
+                     sides=(4, 7), side=(0.25, 0.55), rosette=True, tilt=40.0, spurs=(1, 1),
+                     rise=(-15.0, 45.0)),
     "birch": SprayForm((0.05, 0.08), 0.62, 0.32, "spiral", (5, 8), (0.4, 0.8),
                        habit="hanging", rise=(0.0, 25.0), stem=0.003, sides=(2, 4),
                        side=(0.15, 0.3)),
@@ -352,6 +359,13 @@ def _leafy(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
     return cards.cloud(family)
 
 
+def _lean(v: F64, angle: F64) -> F64:
+    """``v`` (n, 3) turned about +x by ``angle`` (n,) radians: +y towards +z (a level blade
+    facing up then faces up and out along +z, the spray's heading)."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([v[:, 0], c * v[:, 1] - s * v[:, 2], s * v[:, 1] + c * v[:, 2]], axis=1)
+
+
 def _leaves_on(
     cards: _Cards, rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
     phyllotaxis: Phyllotaxis, path: F64, hanging: bool,
@@ -381,17 +395,35 @@ def _leaves_on(
         along[:, 1] = 0.25 * along[:, 1] - rng.uniform(0.0, 0.25, n)
         along = _unit(along)
         across = _side(along) + rng.normal(0, 0.25, (n, 3)) * np.array([0.0, 1.0, 0.0])
+        if form.tilt:  # lean each blade out towards the spray's heading (+z), off level
+            t = np.radians(rng.uniform(0.3, 1.0, n) * form.tilt)
+            along, across = _lean(along, t), _lean(_unit(across), t)
     _stem_cards(cards, path, form.stem)
     # a stalk begins at the shoot's surface
     cards.add(at + 0.5 * form.stem * radial, along, across, size, form.aspect * size)
     if form.rosette:  # the cluster at the shoot's end, facing up and a little forwards
-        end = _unit(path[-1] - path[-2])
-        normal = _unit(UP + 0.5 * end * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
-        a = _unit(end - (end @ normal) * normal + 0.3 * rng.normal(size=3))
-        a = _unit(a - (a @ normal) * normal)
-        r = rng.uniform(*lengths) / ROSETTE_LEAF
-        cards.add((path[-1] - r * a)[None], a[None], np.cross(a, normal)[None],
-                  np.array([2 * r]), np.array([2 * r]), ROSETTE_ST, CLUSTER)  # fmt: skip
+        _cluster(cards, rng, form, lengths, path[-1], _unit(path[-1] - path[-2]))
+    spurs = int(rng.integers(form.spurs[0], form.spurs[1] + 1)) if form.spurs[1] else 0
+    if spurs:  # clusters on short spur shoots along the shoot, a few cm above it
+        s = length * (np.linspace(0.3, 0.8, spurs) + rng.uniform(-0.08, 0.08, spurs))
+        at, tangent = _along(path, s)
+        for i in range(spurs):
+            _cluster(cards, rng, form, lengths, at[i] + 0.04 * UP, tangent[i])
+
+
+def _cluster(
+    cards: _Cards, rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+    centre: F64, heading: F64,
+) -> None:  # fmt: skip
+    """One card of ROSETTE leaves round ``centre``, facing up and leaning over ``heading``
+    (about 27 degrees, or by the form's tilt)."""
+    lean = np.tan(np.radians(rng.uniform(0.35, 0.7) * form.tilt)) if form.tilt else 0.5
+    normal = _unit(UP + lean * heading * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
+    a = _unit(heading - (heading @ normal) * normal + 0.3 * rng.normal(size=3))
+    a = _unit(a - (a @ normal) * normal)
+    r = rng.uniform(*lengths) / ROSETTE_LEAF
+    cards.add((centre - r * a)[None], a[None], np.cross(a, normal)[None],
+              np.array([2 * r]), np.array([2 * r]), ROSETTE_ST, CLUSTER)  # fmt: skip
 
 
 def _tuft(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
