@@ -32,10 +32,9 @@ from forest.errors import ForestError
 @click.option(
     "--recipes",
     "recipes_text",
-    default="all",
-    show_default=True,
     help="Comma-separated built-in recipes (`forest recipes`) to draw as a mixed forest, from "
-    "above and at eye level; 'none' for none.",
+    "above and at eye level; 'all' or 'none'. Default: all for the whole gallery, none when "
+    "--presets picks some (a recipe's stand takes minutes on a CPU).",
 )
 @click.option(
     "--recipe-trees",
@@ -52,7 +51,7 @@ def gallery(
     size_text: str,
     seed: int,
     stand_trees: int,
-    recipes_text: str = "none",
+    recipes_text: str | None = None,
     recipe_trees: int = 200,
     quiet: bool = False,
 ) -> None:
@@ -70,6 +69,8 @@ def gallery(
             raise ForestError("name at least one preset", path="presets")
     from forest.stand.recipes import recipe_names
 
+    if recipes_text is None:
+        recipes_text = "all" if presets is None else "none"
     recipes = tuple(r.strip() for r in recipes_text.split(",") if r.strip())
     if recipes == ("all",):
         recipes = tuple(recipe_names())
