@@ -73,6 +73,7 @@ RECIPE_AZIMUTH = {"orchard": 0.0}  # along the orchard's rows; the others at AZI
 RECIPE_EYE_DISTANCE = 0.3  # of the side: the eye stands in the wood, looking at its middle
 # a spruce wood is dark and dense at eye level: the eye stands at its birch edge instead
 RECIPE_EYE = {"boreal": 0.62}
+EYE_CLEARANCE = 4.0  # metres from the eye to the nearest trunk
 
 
 @dataclass(frozen=True)
@@ -373,12 +374,21 @@ def recipe_cameras(stand: StandScene, name: str, size: tuple[int, int]) -> tuple
     aspect = size[0] / size[1]
     overview = frame_points(pts, aspect, FOV, azimuth, RECIPE_ELEVATION)
     under = float(stand.floor()(np.asarray(overview.eye[0]), np.asarray(overview.eye[2])))
-    spec = CameraSpec(
-        view="eye",
-        fov=FOV,
-        azimuth=azimuth,
-        distance=RECIPE_EYE.get(name, RECIPE_EYE_DISTANCE) * RECIPE_SIDE,
-    )
+    # the eye stands in a gap of the wood: the first spot out along the view's azimuth with
+    # no trunk within EYE_CLEARANCE (a bush or a crown right before the lens hides the wood)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    az = np.deg2rad(azimuth)
+    back = np.array([np.sin(az), np.cos(az)])
+    trunks = np.concatenate([s.tree_transforms[:, [0, 2], 3] for s in stand.scenes])
+    first = RECIPE_EYE.get(name, RECIPE_EYE_DISTANCE) * RECIPE_SIDE
+    distance = first
+    for d in np.arange(first, RECIPE_SIDE, 1.0):
+        spot = centre[[0, 2]] + d * back
+        if np.linalg.norm(trunks - spot, axis=1).min() >= EYE_CLEARANCE:
+            distance = float(d)
+            break
+    spec = CameraSpec(view="eye", fov=FOV, azimuth=azimuth, distance=distance)
     eye, _ = stand_view(stand, size, TESS_MAX, spec=spec, ground=True)
     return with_ground(overview, under), eye
 
