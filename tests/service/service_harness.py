@@ -426,3 +426,22 @@ def tree_file(server: Server, body: dict[str, object]) -> httpx.Response:
         r = server.get(job["artifacts"][0]["url"])
     assert r.status_code == 200, r.text
     return r
+
+
+def forest_then_render(
+    server: Server, body: dict[str, Any], size: tuple[int, int] = (64, 48)
+) -> tuple[dict[str, Any], dict[str, Any]]:
+    """A forest job of ``body``, then a render job of it, both completed; both jobs and the
+    render's metrics (``job["metrics"]``)."""
+    r = server.post("/v1/forests", body)
+    assert r.status_code == 202, r.text
+    forest = server.wait(r.json()["id"], timeout=300)
+    assert forest["state"] == "completed", forest
+    r = server.post(
+        "/v1/renders", {"forest_job": forest["id"], "width": size[0], "height": size[1]}
+    )
+    assert r.status_code == 202, r.text
+    job = server.wait(r.json()["id"], timeout=300)
+    assert job["state"] == "completed", job
+    url = next(a["url"] for a in job["artifacts"] if a["name"] == "metrics.json")
+    return forest, job | {"metrics": server.get(url).json()}

@@ -16,7 +16,7 @@ import httpx
 import numpy as np
 import pytest
 from pxr import Usd, UsdGeom
-from service_harness import Server, served, tree_file
+from service_harness import Server, forest_then_render, served, tree_file
 
 from forest.stand.generate import plan_stand
 from forest.stand.recipes import LoadedRecipe, recipe_from_object, recipe_names
@@ -89,22 +89,14 @@ def test_recipe_forest_job(server: Server, tmp_path: Path) -> None:
 def test_recipe_forest_renders(server: Server, tmp_path: Path) -> None:
     """A render job of a recipe forest draws every layer over the terrain (the root layer's
     references resolve beside it in the forest job's files)."""
-    r = server.post("/v1/forests", STAND)
-    assert r.status_code == 202, r.text
-    forest = server.wait(r.json()["id"], timeout=300)
-    assert forest["state"] == "completed", forest
-    r = server.post("/v1/renders", {"forest_job": forest["id"], "width": 96, "height": 72})
-    assert r.status_code == 202, r.text
-    job = server.wait(r.json()["id"], timeout=300)
-    assert job["state"] == "completed", job
-    metrics = server.get(next(a["url"] for a in job["artifacts"] if a["name"] == "metrics.json"))
+    forest, job = forest_then_render(server, STAND, (96, 72))
     # every layer drawn: the render's pieces are the layer files' together
     pieces = 0
     for a in forest["artifacts"]:
         if a["name"] != "scene.usdc":
             (tmp_path / a["name"]).write_bytes(server.get(a["url"]).content)
             pieces += read_scene(tmp_path / a["name"]).n_instances
-    assert metrics.json()["instances"] == pieces > 0
+    assert job["metrics"]["instances"] == pieces > 0
 
 
 def _open_one_file(data: bytes, path: Path) -> Usd.Stage:

@@ -12,7 +12,7 @@ from pathlib import Path
 import httpx
 import pytest
 from pxr import Usd
-from service_harness import Server, served
+from service_harness import Server, forest_then_render, served
 
 from farm.tiles import tile_job_id
 from forest.growth.presets import load_preset
@@ -56,20 +56,12 @@ def test_tiled_forest_job(server: Server, tmp_path: Path) -> None:
 def test_tiled_forest_renders(server: Server) -> None:
     """A render job of a tiled forest draws every tile (their files beside the root in the
     forest job's artifacts); it was accepted and then failed ("missing prim")."""
-    r = server.post("/v1/forests", TILED | {"seed": 6})
-    assert r.status_code == 202, r.text
-    forest = server.wait(r.json()["id"], timeout=120)
-    assert forest["state"] == "completed", forest
-    r = server.post("/v1/renders", {"forest_job": forest["id"], "width": 64, "height": 48})
-    assert r.status_code == 202, r.text
-    job = server.wait(r.json()["id"], timeout=300)
-    assert job["state"] == "completed", job
-    metrics = server.get(next(a["url"] for a in job["artifacts"] if a["name"] == "metrics.json"))
+    forest, job = forest_then_render(server, TILED | {"seed": 6})
     tiles = [
         server.get(f"/v1/jobs/{tile_job_id(forest['id'], i, j)}").json()["result"]["pieces"]
         for i, j in TilePlan(12, (20.0, 10.0), 10.0, 6).tiles()
     ]
-    assert metrics.json()["instances"] == sum(tiles) > 0
+    assert job["metrics"]["instances"] == sum(tiles) > 0
 
 
 def test_cancel_stops_every_tile(server: Server) -> None:
