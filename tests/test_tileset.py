@@ -510,9 +510,9 @@ def test_shipped_set_is_package_data(name: str) -> None:
     root = Path(__file__).parents[1] / "forest"
     files = sorted(set_dir(name).iterdir())
     m = manifest_for(set_dir(name))
-    # slices, one pattern per edge colour, the array, the corner (and the lower trunk's) and
-    # the manifest
-    assert len(files) == m.n_slices + len(m.edge_patterns) + 3 + (m.lower_corner is not None)
+    # slices, one pattern per edge colour, the array, the corner (and the lower trunk's), the
+    # manifest and the mean bark colour
+    assert len(files) == m.n_slices + len(m.edge_patterns) + 4 + (m.lower_corner is not None)
     for f in files:
         rel = f.relative_to(root).as_posix()
         assert any(fnmatch.fnmatch(rel, p) for p in patterns), rel

@@ -61,7 +61,8 @@ def make_golden_scene() -> Path:
         load_preset("almond"), 3, ForestOptions(trees=3, frames=2, area=(3.0, 3.0))
     )
     DATA.mkdir(exist_ok=True)
-    return write_scene(forest, GOLDEN_SCENE)
+    # posed, flat colours: a small fixed file (the renderer's bark comes from the tile set)
+    return write_scene(forest, GOLDEN_SCENE, skinned=False, textures=False)
 
 
 def test_golden_preview(gl43: Any) -> None:
@@ -134,7 +135,10 @@ def test_render_writes_preview_and_metrics(gl_session: Any, tmp_path: Path) -> N
     assert all(f.draw_calls == n_types + 1 for f in m.frames)
     assert m.foliage is not None and m.foliage.mode == "impostor"
     assert all(f.instances == m.instances > 0 for f in m.frames)
-    assert m.median.primitives >= 2 * m.quads
+    # tessellated: at least two triangles per quad of the pieces drawn (the cull pass keeps
+    # the thick ones: at 64 x 48 px, 122 of the almonds' 2,660 pieces)
+    drawn = min(f.drawn_instances or 0 for f in m.frames)
+    assert m.median.primitives >= 2 * m.quads * drawn / m.instances > 0
     assert m.tessellation.max_level == 4.0
     # the cull pass ran (sub-pixel LOD at its default) and says what it kept
     assert m.lod_pixels == 0.5
@@ -269,7 +273,7 @@ def test_scene_breaking_the_contract_gets_one_line(gl_session: Any, tmp_path: Pa
     assert res.exit_code == 2
     assert res.output == (
         "error: /World/Forest/Pieces.primvars:forest:tileIndices: instance 0 has tile index "
-        "99 outside the tile set's 12 slices\n"
+        "99 outside the tile set's 27 slices\n"
     )
     assert not (tmp_path / "p.png").exists()
 
