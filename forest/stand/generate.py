@@ -10,7 +10,6 @@ the tile's index when tiled).
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -73,13 +72,6 @@ class Stand:
                 settings or get_settings(),
                 progress,
             )
-
-    def layers(
-        self, options: ForestOptions, settings: ForestSettings | None = None
-    ) -> Iterator[tuple[int, Forest | None]]:
-        """Every layer in the recipe's order, grown one at a time."""
-        for k in range(len(self.recipe.layers)):
-            yield k, self.grow_layer(k, options, settings=settings)
 
 
 def layer_grammars(recipe: Recipe) -> tuple[Grammar, ...]:

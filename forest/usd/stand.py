@@ -194,10 +194,9 @@ def write_stand_root(
         )
         if frames > 0:
             set_frames(stage, frames, fps)
-        _terrain(stage, stand)
+        ground = _terrain(stage, stand)
         refs: list[tuple[Sdf.Path, str]] = []
         whole = Gf.Range3d()
-        ground = stand.ground.mesh()[0]
         lo_g, hi_g = ground.min(axis=0), ground.max(axis=0)
         whole.UnionWith(Gf.Range3d(Gf.Vec3d(*lo_g.tolist()), Gf.Vec3d(*hi_g.tolist())))
         for k, layer in enumerate(stand.recipe.layers):
@@ -272,7 +271,8 @@ def stand_file(root: str | Path, path: str | Path) -> Path:
     return out
 
 
-def _terrain(stage: Usd.Stage, stand: Stand) -> None:
+def _terrain(stage: Usd.Stage, stand: Stand) -> np.ndarray:
+    """The terrain's Mesh and its Ground material; its points (for the root's extent)."""
     points, quads, st, normals = stand.ground.mesh()
     mesh = UsdGeom.Mesh.Define(stage, TERRAIN)
     mesh.CreatePointsAttr(Vt.Vec3fArray.FromNumpy(points.astype(np.float32)))
@@ -297,6 +297,7 @@ def _terrain(stage: Usd.Stage, stand: Stand) -> None:
     pbr.CreateInput("roughness", Sdf.ValueTypeNames.Float).Set(0.95)
     mat.CreateSurfaceOutput().ConnectToSource(pbr.ConnectableAPI(), "surface")
     UsdShade.MaterialBindingAPI.Apply(mesh.GetPrim()).Bind(mat)
+    return points
 
 
 @dataclass(frozen=True)
