@@ -379,19 +379,26 @@ class Proxy:
         self.port = self.sock.getsockname()[1]
         self.conns: list[socket.socket] = []
         self.open = True
+        # a connection being set up when the test cuts is either closed by the cut or refused
+        self.lock = threading.Lock()
         threading.Thread(target=self._accept, daemon=True).start()
 
     def _accept(self) -> None:
-        while self.open:
+        while True:
             try:
                 client, _ = self.sock.accept()
             except OSError:
                 return
-            if not self.open:
-                client.close()
-                return
-            upstream = socket.create_connection(self.target)
-            self.conns += [client, upstream]
+            with self.lock:
+                if not self.open:
+                    client.close()
+                    return
+                try:
+                    upstream = socket.create_connection(self.target)
+                except OSError:
+                    client.close()
+                    continue
+                self.conns += [client, upstream]
             for a, b in ((client, upstream), (upstream, client)):
                 threading.Thread(target=self._pipe, args=(a, b), daemon=True).start()
 
@@ -408,13 +415,17 @@ class Proxy:
                     s.shutdown(socket.SHUT_RDWR)
 
     def cut(self) -> None:
-        self.open = False
-        self.sock.close()
-        for c in list(self.conns):
-            # a pipe thread may have shut it down already: close it whatever shutdown says
+        with self.lock:
+            self.open = False
+            # shutdown wakes a thread blocked in accept (close alone leaves it listening)
             with contextlib.suppress(OSError):
-                c.shutdown(socket.SHUT_RDWR)
-            c.close()
+                self.sock.shutdown(socket.SHUT_RDWR)
+            self.sock.close()
+            for c in self.conns:
+                # a pipe thread may have shut it down already: close it whatever shutdown says
+                with contextlib.suppress(OSError):
+                    c.shutdown(socket.SHUT_RDWR)
+                c.close()
 
 
 def tree_file(server: Server, body: dict[str, object]) -> httpx.Response:

@@ -247,8 +247,8 @@ def test_database_outage_is_503(backend: dict[str, str], tmp_path: Path) -> None
 def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path: Path) -> None:
     """The broker goes away (a proxy the test cuts): a job POST answers 503 with Retry-After
     and the job it made is failed at once, saying so (not left for the reaper to send after
-    the client, told to retry, made it again); a job accepted before the outage completes,
-    and once the broker is back the retry is accepted and completes."""
+    the client, told to retry, made it again); a job accepted before the outage completes
+    during it, and once the broker is back the retry is accepted and completes."""
     broker = backend.get("FOREST_BROKER_URL")
     if broker is None:
         pytest.skip("the embedded broker is a file: it cannot go away")
@@ -264,13 +264,21 @@ def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path
         # sent later, which is right but not what this test is about)
         "FOREST_MAX_TILES_IN_FLIGHT": "1000",
         "FOREST_MAX_TENANT_TILES_IN_FLIGHT": "1000",
+        # no other pump may take a refused job between its POST's failed send and the POST
+        # failing it (it would be held and sent once the broker is back: 202, also right, but
+        # not what this test is about): no reaper round in the test's minute, and the job
+        # accepted before the outage has ended (its worker's pump ran) before the POSTs
+        "FOREST_REAPER_INTERVAL_S": "120",
     }
     try:
         for server in served(tmp_path / "broker-outage", env):
             server.headers = dict(A)
             before = server.post("/v1/forests", {"preset": "almond", "seed": 11})
             assert before.status_code == 202, before.text
+            server.wait(before.json()["id"], ("running", "completed"))  # the worker has it
             proxy.cut()
+            done = server.wait(before.json()["id"], timeout=120)  # completes in the outage
+            assert (done["state"], done["attempts"]) == ("completed", 1), done
             retry = {"Idempotency-Key": "outage-12"}
             body = {"preset": "almond", "seed": 12}
             for _ in range(2):
