@@ -25,4 +25,4 @@ RUN python3 -m venv /opt/venv && /opt/venv/bin/pip install '.[worker]' \
     && useradd --uid 10001 forest && mkdir -p /data && chown forest /data
 ENV PATH=/opt/venv/bin:$PATH FOREST_DATA_DIR=/data FOREST_ARTIFACTS_DIR=/data/artifacts
 USER forest
-CMD ["forest", "worker", "-Q", "gpu"]
+CMD ["forest", "worker", "-Q", "gpu,render"]

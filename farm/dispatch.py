@@ -1,8 +1,9 @@
 """Celery as delivery only: the task carries a job id; the job table holds everything else.
 
-Task kinds map to queues (CPU work on ``default``, renders on ``gpu``); the worker's registry
-(``worker/jobs/registry.py``) maps kinds to code. The service sends tasks by name and never imports
-worker code.
+Task kinds map to queues: CPU work on ``default``; a render on its pool's queue, ``gpu`` or
+``cpu`` (Mesa's llvmpipe), or on ``render``, which workers of both pools consume, so whichever
+is free takes it. The worker's registry (``worker/jobs/registry.py``) maps kinds to code. The
+service sends tasks by name and never imports worker code.
 """
 
 from __future__ import annotations
@@ -17,11 +18,22 @@ from farm.settings import FarmSettings
 TASK_NAME = "forest.run_job"
 KIND_QUEUES: dict[str, str] = {
     "forest": "default",
-    "render": "gpu",
+    "render": "render",
     "forest_tile": "default",
     "tree": "default",
 }
-QUEUES = ("default", "gpu")
+QUEUES = ("default", "render", "gpu", "cpu")
+POOLS = ("any", "gpu", "cpu")
+"""A render job's ``pool``: the queue it goes to (``any``: ``render``)."""
+
+
+def queue_for(kind: str, pool: str | None = None) -> str:
+    """The queue (without the prefix) a job of ``kind`` goes to; a render's ``pool`` picks."""
+    if kind == "render" and pool in ("gpu", "cpu"):
+        return pool
+    return KIND_QUEUES[kind]
+
+
 SQLA_POLL_S = 0.1
 
 
@@ -75,8 +87,10 @@ class Dispatcher:
         self.settings = settings
         self.app = make_celery(settings)
 
-    def send(self, job_id: str, kind: str, countdown: float | None = None) -> None:
-        queue = self.settings.queue(KIND_QUEUES[kind])
+    def send(
+        self, job_id: str, kind: str, countdown: float | None = None, pool: str | None = None
+    ) -> None:
+        queue = self.settings.queue(queue_for(kind, pool))
         self.app.send_task(TASK_NAME, args=[job_id], queue=queue, countdown=countdown)
 
     def ping(self) -> None:

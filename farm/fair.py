@@ -24,7 +24,7 @@ from farm.dispatch import Dispatcher
 from farm.settings import FarmSettings
 from farm.store import TILE_KIND, JobStore
 
-__all__ = ["TILE_KIND", "pump", "pump_quietly"]
+__all__ = ["TILE_KIND", "pump", "pump_quietly", "render_pool"]
 
 log = logging.getLogger(__name__)
 
@@ -54,12 +54,20 @@ def pump(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> int
             total += 1
     for k, (job_id, kind) in enumerate(taken):
         try:
-            dispatcher.send(job_id, kind)
+            dispatcher.send(job_id, kind, pool=render_pool(store, job_id, kind))
         except Exception:
             for unsent, _ in taken[k:]:
                 store.hold_again(unsent)  # the next pump tries again
             raise
     return len(taken)
+
+
+def render_pool(store: JobStore, job_id: str, kind: str) -> str | None:
+    """A render job's pool (its queue), read only for renders: other kinds have one queue."""
+    if kind != "render":
+        return None
+    row = store.get(job_id)
+    return None if row is None else (row.params or {}).get("pool")
 
 
 def pump_quietly(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> None:

@@ -30,7 +30,7 @@ def reap_once(
     lost with its process)."""
     resend, failed = store.reap(requeue_after_s)
     for row in resend:
-        dispatcher.send(row.id, row.kind)
+        dispatcher.send(row.id, row.kind, pool=(row.params or {}).get("pool"))
         log.info("re-enqueued job %s (%s)", row.id, row.stage)
     for row in failed:
         log.warning("job %s failed: lease expired after %d attempt(s)", row.id, row.attempts)

@@ -294,6 +294,10 @@ class RenderRequest(FiniteModel):
     """Eye view: metres from the forest's centre (default: the least that shows it all)."""
     tree: Annotated[int, Field(ge=0, le=10_000_000)] | None = None
     """The view frames this tree of the scene alone (a close-up), not the forest."""
+    pool: Literal["any", "gpu", "cpu"] = "any"
+    """Which render workers may take it: ``gpu`` (an NVIDIA EGL worker), ``cpu`` (Mesa's
+    llvmpipe: slower, runs anywhere) or ``any`` (whichever is free). Same pictures either way,
+    within the golden-image tolerance."""
     staged: bool = True
     """Ground, sky, sun shadows, 4x MSAA and a filmic tone map; false: the bare mode (the
     paper's measurement set-up: none of these)."""

@@ -30,7 +30,9 @@ def _die_with_parent() -> None:
 class Workers:
     """Keeps ``n`` ``python -m worker`` processes alive; pid files in ``<data>/run/``."""
 
-    def __init__(self, settings: ServiceSettings, n: int, queues: str = "default,gpu") -> None:
+    def __init__(
+        self, settings: ServiceSettings, n: int, queues: str = "default,render,gpu,cpu"
+    ) -> None:
         self.settings, self.n, self.queues = settings, n, queues
         self.procs: list[subprocess.Popen[bytes] | None] = [None] * n
         self.run_dir = settings.data_dir.resolve() / "run"

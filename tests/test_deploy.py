@@ -30,6 +30,29 @@ def test_compose_services_wait_for_healthy_dependencies() -> None:
         assert (DEPLOY.parent / services[name]["build"]["dockerfile"]).is_file()
 
 
+def _consumed(services: dict[str, Any], profile: str | None) -> set[str]:
+    """The queues the workers `docker compose [--profile P] up` starts consume."""
+    queues: set[str] = set()
+    for svc in services.values():
+        command = svc.get("command") or []
+        if "worker" in command and set(svc.get("profiles", [])) <= {profile}:
+            queues |= set(command[command.index("-Q") + 1].split(","))
+    return queues
+
+
+def test_compose_renders_without_a_gpu_and_with_one() -> None:
+    """Plain `docker compose up` (no GPU on the host) consumes every queue a job without a
+    pool goes to, renders included (CPU workers, llvmpipe); the GPU worker comes only with
+    the `gpu` profile and takes the `gpu` pool's renders and any pool's."""
+    from farm.dispatch import KIND_QUEUES, QUEUES
+
+    services = yaml.safe_load((DEPLOY / "compose.yaml").read_text())["services"]
+    assert services["gpu-worker"]["profiles"] == ["gpu"]
+    assert set(KIND_QUEUES.values()) | {"cpu"} <= _consumed(services, None)
+    assert _consumed(services, "gpu") == set(QUEUES)
+    assert "libegl-mesa0" in (DEPLOY / "worker.Dockerfile").read_text()
+
+
 class _ComposeLoader(yaml.SafeLoader):
     """YAML with Compose's merge tags: ``!override`` marks a value that replaces, not merges."""
 
@@ -97,7 +120,11 @@ def test_kubernetes_manifests() -> None:
     limits = gpu["spec"]["template"]["spec"]["containers"][0]["resources"]["limits"]
     assert limits["nvidia.com/gpu"] == 1
     scaled = [d for d in docs if d["kind"] == "ScaledObject"]
-    assert {d["spec"]["triggers"][0]["metadata"]["queueName"] for d in scaled} == {"default", "gpu"}
+    queues = {
+        d["metadata"]["name"]: [t["metadata"]["queueName"] for t in d["spec"]["triggers"]]
+        for d in scaled
+    }
+    assert queues == {"forest-worker": ["default"], "forest-gpu-worker": ["gpu", "render"]}
 
 
 def _pod_specs() -> list[tuple[str, dict[str, Any]]]:

@@ -1,4 +1,5 @@
-"""``python -m worker -Q default,gpu``: what ``forest worker`` runs (used by ``forest serve``)."""
+"""``python -m worker -Q default,render,gpu,cpu``: what ``forest worker`` runs (used by
+``forest serve``)."""
 
 from worker.jobs.main import worker_command
 

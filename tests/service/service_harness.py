@@ -76,7 +76,7 @@ def delete_rabbit_queues(prefix: str) -> None:
 
     with Connection(RABBIT_URL) as conn:
         channel = conn.channel()
-        for q in ("default", "gpu"):
+        for q in ("default", "render", "gpu", "cpu"):
             try:
                 channel.queue_delete(prefix + q)
                 channel.exchange_delete(prefix + q)
@@ -155,13 +155,20 @@ class HookedWorkers:
     ``forest serve`` keeps its own (one that dies is started again); pid files and logs in
     ``<data>/run/`` as ``forest serve`` writes them."""
 
-    def __init__(self, run_dir: Path, n: int, env: dict[str, str], hooks: dict[str, float]):
+    def __init__(
+        self,
+        run_dir: Path,
+        n: int,
+        env: dict[str, str],
+        hooks: dict[str, float],
+        queues: str = "default,render,gpu,cpu",
+    ) -> None:
         import job_hooks
 
         here = str(Path(__file__).parent)
         path = os.pathsep.join(p for p in (here, env.get("PYTHONPATH", "")) if p)
         self.env = env | {"PYTHONPATH": path, job_hooks.HOOKS_ENV: json.dumps(hooks)}
-        self.run_dir, self.n = run_dir, n
+        self.run_dir, self.n, self.queues = run_dir, n, queues
         self.procs: list[subprocess.Popen[bytes]] = []
         self.stopping = threading.Event()
         self.thread = threading.Thread(target=self._watch, daemon=True)
@@ -171,7 +178,7 @@ class HookedWorkers:
         with open(self.run_dir / f"worker-{i}.log", "ab") as log:
             proc = subprocess.Popen(
                 [sys.executable, "-c", "import job_hooks; job_hooks.main()",
-                 "-Q", "default,gpu", "--name", f"w{i}-{time.time_ns()}@%h"],
+                 "-Q", self.queues, "--name", f"w{i}-{time.time_ns()}@%h"],
                 env=self.env, stdout=log, stderr=subprocess.STDOUT,
                 preexec_fn=_die_with_parent,
             )  # fmt: skip
@@ -220,9 +227,12 @@ class Server:
         workers: int = 2,
         api_workers: int = 1,
         hooks: dict[str, float] | None = None,
+        queues: str | None = None,
     ) -> None:
         self.data, self.workers, self.api_workers = data, workers, api_workers
-        self.hooks = hooks
+        # workers of other queues than ``forest serve``'s own (all): started as hooked ones
+        self.hooks = {} if hooks is None and queues is not None else hooks
+        self.queues = queues or "default,render,gpu,cpu"
         self.pool: HookedWorkers | None = None
         self.env = {k: v for k, v in os.environ.items() if not k.startswith("FOREST_")}
         self.env |= {"FOREST_DATA_DIR": str(data)} | FAST | env
@@ -252,7 +262,9 @@ class Server:
 
             db = self.env.get("FOREST_DATABASE_URL")
             migrate(FarmSettings(data_dir=self.data, database_url=db).db_url)
-            self.pool = HookedWorkers(self.data / "run", self.workers, self.env, self.hooks)
+            self.pool = HookedWorkers(
+                self.data / "run", self.workers, self.env, self.hooks, self.queues
+            )
             self.pool.start()
         log = open(self.data / "serve.log", "ab")  # noqa: SIM115
         self.proc = subprocess.Popen(

@@ -21,7 +21,7 @@ from service_harness import (
     require_server,
 )
 
-from farm.dispatch import Dispatcher, make_celery
+from farm.dispatch import QUEUES, Dispatcher, make_celery
 from farm.settings import FarmSettings
 
 
@@ -38,7 +38,7 @@ def test_redis_broker_options(tmp_path: Path, url: str) -> None:
     }
     assert app.conf.task_acks_late and app.conf.task_reject_on_worker_lost
     assert app.conf.worker_prefetch_multiplier == 1
-    assert [q.name for q in app.conf.task_queues] == ["blue.default", "blue.gpu"]
+    assert [q.name for q in app.conf.task_queues] == [f"blue.{q}" for q in QUEUES]
     unprefixed = make_celery(FarmSettings(data_dir=tmp_path, broker_url=url))
     assert unprefixed.conf.broker_transport_options == {"visibility_timeout": 3600.0}
 
@@ -76,12 +76,15 @@ def test_each_kind_reaches_its_own_queue_only(tmp_path: Path, broker: str) -> No
         with d.app.connection_for_write() as conn:
             channel = conn.default_channel
             # the queues as Celery completes them, which a worker declares when it starts
-            queues = [d.app.amqp.queues[prefix + name](channel) for name in ("default", "gpu")]
+            queues = [d.app.amqp.queues[prefix + name](channel) for name in QUEUES]
             for q in queues:
                 q.declare()
             d.send("a" * 32, "forest")
             d.send("b" * 32, "forest")
-            d.send("c" * 32, "render")
+            d.send("c" * 32, "render")  # any pool: whichever render worker is free
+            d.send("d" * 32, "render", pool="gpu")
+            d.send("e" * 32, "render", pool="cpu")
+            d.send("f" * 32, "render", pool="cpu")
 
             # (Redis has no empty queue to find passively: declare again, which counts too)
             def counts() -> dict[str, int]:
@@ -94,9 +97,10 @@ def test_each_kind_reaches_its_own_queue_only(tmp_path: Path, broker: str) -> No
             # RabbitMQ orders a channel's frames only: the count, on another connection than
             # the publishes (unconfirmed), may come before the last is routed
             deadline = time.monotonic() + 5
-            while counts() != {"default": 2, "gpu": 1} and time.monotonic() < deadline:
+            want = {"default": 2, "render": 1, "gpu": 1, "cpu": 2}
+            while counts() != want and time.monotonic() < deadline:
                 time.sleep(0.05)
-            assert counts() == {"default": 2, "gpu": 1}
+            assert counts() == want
     finally:
         d.close()
         if broker == "Redis":

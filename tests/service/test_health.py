@@ -38,10 +38,10 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
     assert listed.exit_code == 0
     assert listed.output.splitlines() == [
         "forest\tqueue default",
-        "render\tqueue gpu",
+        "render\tqueue render (pool gpu: gpu, pool cpu: cpu)",
         "forest_tile\tqueue default",
         "tree\tqueue default",
     ]
-    bad = runner.invoke(main, ["worker", "-Q", "default,cpu"])
+    bad = runner.invoke(main, ["worker", "-Q", "default,tpu"])
     assert bad.exit_code == 2
-    assert "error: queues: unknown queue(s) cpu" in bad.output
+    assert "error: queues: unknown queue(s) tpu" in bad.output

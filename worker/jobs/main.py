@@ -70,7 +70,14 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
 
 
 @click.command("worker", context_settings={"help_option_names": ["-h", "--help"]})
-@click.option("-Q", "--queues", default="default,gpu", show_default=True, help="Queues to consume.")
+@click.option(
+    "-Q",
+    "--queues",
+    default="default,render,cpu",
+    show_default=True,
+    help="Queues to consume: default (trees, forests, tiles), render (renders of any pool), "
+    "gpu or cpu (renders of that pool). A GPU worker: -Q gpu,render.",
+)
 @click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
 @click.option("--loglevel", default="info", show_default=True)
 @click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
@@ -85,7 +92,8 @@ def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: boo
             from worker.jobs.registry import KINDS
 
             for kind in KINDS:
-                click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}")
+                pools = " (pool gpu: gpu, pool cpu: cpu)" if kind == "render" else ""
+                click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}{pools}")
             return
         run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
     except ForestError as exc:  # the same one-line answer and exit code as the forest command

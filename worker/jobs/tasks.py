@@ -210,7 +210,12 @@ def retry_or_fail(rt: Runtime, claim: Claim, error: str) -> str:
     attempts are left, else failed with ``error``."""
     if claim.attempt < claim.max_attempts:
         if rt.store.retry(claim, error):
-            rt.dispatcher.send(claim.job_id, claim.kind, countdown=rt.settings.retry_delay_s)
+            rt.dispatcher.send(
+                claim.job_id,
+                claim.kind,
+                countdown=rt.settings.retry_delay_s,
+                pool=claim.params.get("pool"),
+            )
         return "retry"
     rt.store.finish(claim, JobState.FAILED, error=error)
     return JobState.FAILED
