@@ -20,6 +20,7 @@ from sqlalchemy import (
     String,
     Text,
     create_engine,
+    false,
     text,
 )
 from sqlalchemy import event as sa_event
@@ -75,6 +76,14 @@ class JobRow(Base):
     """Tile jobs this job makes (0: not tiled): what the tenant's tile quota sums."""
     estimate: Mapped[dict[str, Any] | None] = mapped_column(JSON, nullable=True)
     """The cost estimate made before it was queued (:class:`schemas.jobs.JobCost`)."""
+    after: Mapped[list[str] | None] = mapped_column(JSON, nullable=True)
+    """Jobs this one waits for (:mod:`farm.graph`): it is held until all have completed."""
+    then: Mapped[list[str] | None] = mapped_column(JSON, nullable=True)
+    """Jobs that wait for this one."""
+    blocked: Mapped[bool] = mapped_column(
+        Boolean, default=False, server_default=false(), index=True
+    )
+    """Still waiting for a job of ``after``: the fair window does not send it."""
 
     __table_args__ = (Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),)
 

@@ -21,6 +21,7 @@ import logging
 from collections import Counter
 
 from farm.dispatch import Dispatcher
+from farm.graph import settle
 from farm.settings import FarmSettings
 from farm.store import TILE_KIND, JobStore
 
@@ -36,6 +37,7 @@ def pump(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> int
     send fails, what was not sent is held again and the error raised."""
     taken: list[tuple[str, str]] = []
     with store.exclusive() as s:
+        settle(s)  # jobs whose jobs have ended join the window (or fail, or cancel)
         waiting = store.waiting(s)
         flying: Counter[str] = Counter(store.in_flight(s))
         total = sum(flying.values())

@@ -33,6 +33,11 @@ HELD = "waiting for a turn"
 """The stage of a job (or tile) that is queued but not sent yet (:mod:`farm.fair`)."""
 
 
+def waiting_for(after: list[str]) -> str:
+    """The stage of a job that waits for others (:mod:`farm.graph`)."""
+    return f"waiting for {len(after)} job(s)"
+
+
 class IdempotencyConflict(Exception):
     """The idempotency key was used before with a different request."""
 
@@ -86,11 +91,13 @@ class JobStore:
         tenant: str = "local",
         priority: int = 5,
         estimate: dict[str, Any] | None = None,
+        after: list[str] | None = None,
     ) -> tuple[JobRow, bool]:
         """Insert a queued job of ``tenant``, held until the fair window sends it
         (:func:`farm.fair.pump`); with an idempotency key the tenant already used
         for the same request, answer that job instead (``created`` False). ``estimate``
-        (:class:`schemas.jobs.JobCost`) is what the tenant's quotas sum while it is unfinished."""
+        (:class:`schemas.jobs.JobCost`) is what the tenant's quotas sum while it is unfinished.
+        ``after``: jobs it waits for (:mod:`farm.graph`); each lists it in its ``then``."""
         digest = request_hash(kind, params)
         stored = scoped_key(tenant, key) if key is not None else None
         if key is not None and stored is not None:
@@ -120,10 +127,18 @@ class JobStore:
             cost=int((estimate or {}).get("units", 0)),
             tiles=int((estimate or {}).get("tiles", 0)),
             estimate=estimate,
+            after=list(after) if after else None,
+            blocked=bool(after),
         )
+        if after:
+            row.stage = waiting_for(after)
         try:
             with self.session() as s, s.begin():
                 s.add(row)
+                for parent in s.scalars(
+                    select(JobRow).where(JobRow.id.in_(after or [])).with_for_update()
+                ):
+                    parent.then = [*(parent.then or []), row.id]
         except IntegrityError:  # a concurrent request with the same key won the insert
             if key is None or stored is None:
                 raise
@@ -411,6 +426,7 @@ class JobStore:
                 JobRow.enqueued_at.is_(None),
                 JobRow.parent.is_(None),
                 JobRow.cancel_requested.is_(False),
+                JobRow.blocked.is_(False),
             )
             .group_by(JobRow.tenant)
         ).all()
@@ -455,6 +471,7 @@ class JobStore:
                 JobRow.enqueued_at.is_(None),
                 JobRow.parent.is_(None),
                 JobRow.cancel_requested.is_(False),
+                JobRow.blocked.is_(False),
             )
             .order_by(JobRow.priority.desc(), JobRow.created_at, JobRow.id)
             .limit(1)

@@ -234,6 +234,13 @@ class TreeRequest(FiniteModel):
 class ForestRequest(TreeRequest):
     """A forest job: ``trees`` trees scattered over ``area`` (metres)."""
 
+    after: Annotated[list[JobId], Field(max_length=16)] = []
+    """Jobs to wait for (:mod:`farm.graph`): the forest runs once all have completed; if one
+    fails or is canceled, so is it, saying which."""
+    render: RenderSettings | None = None
+    """Also a render job of this forest, made now and run once the forest has completed: the
+    forest job's ``then`` names it (one request for a forest and its picture)."""
+
     trees: Annotated[int, Field(ge=1, le=MAX_TILED_TREES)] = 1
     """At most 200,000 in one scene; up to 10 million with ``tile_size``."""
     area: tuple[
@@ -270,11 +277,10 @@ class ForestRequest(TreeRequest):
         return self
 
 
-class RenderRequest(FiniteModel):
-    """A render job of a finished forest job's scene (the camera frames the forest itself)."""
+class RenderSettings(FiniteModel):
+    """How a render draws (``POST /v1/renders`` without the forest job it draws; a forest
+    request's ``render``)."""
 
-    forest_job: JobId
-    """Id of a completed forest job whose scene is rendered."""
     width: Annotated[int, Field(ge=1, le=8192)] = 640
     height: Annotated[int, Field(ge=1, le=8192)] = 480
     tess_max: Annotated[float, Field(ge=1, le=64, allow_inf_nan=False)] = 8.0
@@ -314,7 +320,7 @@ class RenderRequest(FiniteModel):
     """0-9, as a tree's or forest's: among the tenant's own waiting jobs, higher first."""
 
     @model_validator(mode="after")
-    def _camera_and_clip(self) -> RenderRequest:
+    def _camera_and_clip(self) -> RenderSettings:
         if (self.eye is None) != (self.target is None):
             raise ValueError(
                 f"{'eye' if self.eye is None else 'target'}: give eye and target together"
@@ -327,6 +333,21 @@ class RenderRequest(FiniteModel):
             name = "width" if self.width % 2 else "height"
             raise ValueError(f"{name}: {self.clip} needs an even width and height")
         return self
+
+
+After = Annotated[list[JobId], Field(max_length=16)]
+"""Jobs a job waits for (:mod:`farm.graph`): it runs once all have completed; if one fails
+or is canceled, so is it, saying which."""
+
+
+class RenderRequest(RenderSettings):
+    """A render job of a forest job's scene (the camera frames the forest itself). A forest
+    job still queued or running is waited for: the render runs once it has completed."""
+
+    forest_job: JobId
+    """Id of the forest job whose scene is rendered."""
+    after: After = []
+    """Other jobs to wait for (the forest job is always waited for)."""
 
 
 class TileJob(ForestRequest):
@@ -394,6 +415,12 @@ class Job(StrictModel):
     result: dict[str, Any] | None
     priority: Priority = 5
     cost: JobCost | None = None
+    after: list[str] = []
+    """Jobs this one waits for (it is held, stage ``waiting for N job(s)``, until all have
+    completed)."""
+    then: list[str] = []
+    """Jobs that wait for this one (a forest request's ``render``, a render of a forest
+    still running)."""
     """The estimate its tenant's quotas counted (none for a tile: its forest job counts it)."""
 
 

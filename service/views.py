@@ -17,9 +17,9 @@ from farm.db import JobRow
 from farm.error_text import capped
 from farm.fair import pump
 from farm.store import IdempotencyConflict, scoped_key
-from schemas.jobs import Artifact, Job, JobCost
+from schemas.jobs import Artifact, Job, JobCost, JobState
 from service.deps import Services
-from service.errors import RETRY_AFTER_S
+from service.errors import RETRY_AFTER_S, field_error
 from service.quotas import over_quota
 
 log = logging.getLogger(__name__)
@@ -89,6 +89,8 @@ def job_model(row: JobRow, services: Services) -> Job:
         result=row.result,
         priority=row.priority,
         cost=JobCost.model_validate(row.estimate) if row.estimate else None,
+        after=row.after or [],
+        then=row.then or [],
     )
 
 
@@ -111,12 +113,27 @@ def submit(
     inputs: dict[str, bytes] | None = None,
     cost: JobCost | None = None,
     field: list[str | int] | None = None,
+    after: list[str] | None = None,
 ) -> JSONResponse:
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it, answer
     202 + the job. A new job must fit the tenant's quotas with its ``cost``
-    (:mod:`service.quotas`; ``field``: the request field a 422 names)."""
-    row = enqueue(services, kind, params, key, tenant, inputs, cost=cost, field=field)
+    (:mod:`service.quotas`; ``field``: the request field a 422 names); ``after``: the jobs
+    it waits for (:func:`check_after` checked them)."""
+    row = enqueue(services, kind, params, key, tenant, inputs, cost=cost, field=field, after=after)
     return accepted(row, services)
+
+
+def check_after(services: Services, ids: list[str], scope: str | None) -> list[str]:
+    """The jobs a new job may wait for: each one the caller's (``scope``: its tenant, None
+    for an admin) and neither failed nor canceled; 422 naming the first that is not."""
+    for k, job_id in enumerate(ids):
+        row = services.store.get(job_id, scope)
+        if row is None:
+            raise field_error(["after", k], "no such job")
+        if row.state in (JobState.FAILED, JobState.CANCELED) or row.cancel_requested:
+            state = JobState.CANCELED if row.cancel_requested else row.state
+            raise field_error(["after", k], f"the job is {state}: nothing would ever run")
+    return list(dict.fromkeys(ids))
 
 
 def enqueue(
@@ -128,6 +145,7 @@ def enqueue(
     inputs: dict[str, bytes] | None = None,
     cost: JobCost | None = None,
     field: list[str | int] | None = None,
+    after: list[str] | None = None,
 ) -> JobRow:
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it: the
     job's row (429/422 over a quota, 503 if the broker is away and the job was not sent)."""
@@ -148,6 +166,7 @@ def enqueue(
             tenant,
             priority=int(params.get("priority", 5)),
             estimate=cost.model_dump(),
+            after=after,
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None

@@ -13,8 +13,9 @@ from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
 from service.inputs import check_cost, resolve_grammar, resolve_recipe
 from service.quotas import forest_job_cost, job_cost
-from service.security import Tenant
-from service.views import ERRORS, submit
+from service.routes.renders import check_caps, check_renderable
+from service.security import CallerDep, Tenant
+from service.views import ERRORS, accepted, check_after, enqueue
 
 router = APIRouter(prefix="/v1/forests", tags=["forests"])
 
@@ -24,9 +25,15 @@ def create_forest(
     req: ForestRequest,
     services: ServicesDep,
     tenant: Tenant,
+    who: CallerDep,
     idempotency_key: IdempotencyKey = None,
 ) -> JSONResponse:
+    """A forest job; with ``render``, also its render job, which waits for it."""
     s = services.settings
+    after = check_after(services, req.after, who.scope) or None
+    if req.render is not None:
+        check_renderable(req.model_dump(mode="json"), "render")
+        check_caps(s, req.render.width, req.render.height, req.render.frames, ["render"])
     # a tiled forest: the caps hold per tile (each tile is a job of its own), on average
     per_tile = math.ceil(req.trees / tile_count(req))
     if per_tile > s.max_forest_trees:
@@ -35,12 +42,26 @@ def create_forest(
     if req.recipe is not None:  # a mixed forest: a root layer and one file per layer
         plan = resolve_recipe(req, s, s.max_forest_trees, s.max_forest_pieces)
         cost = job_cost(plan.pieces, req.frames, 0, plan.scene_bytes)
-        params = req.model_dump(mode="json")
-        return submit(
-            services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"]
-        )
-    _, cg = resolve_grammar(req, s, per_tile, s.max_forest_pieces)
-    check_cost(req, s, cg, per_tile, " per tile" if req.tile_size else "")
-    cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)
+    else:
+        _, cg = resolve_grammar(req, s, per_tile, s.max_forest_pieces)
+        check_cost(req, s, cg, per_tile, " per tile" if req.tile_size else "")
+        cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)
     params = req.model_dump(mode="json")
-    return submit(services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"])
+    row = enqueue(
+        services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"], after=after
+    )
+    if req.render is not None and not row.then:  # (a repeated request has its render)
+        render = req.render.model_dump(mode="json")
+        render |= {"forest_job": row.id, "after": [], "scene": None}  # schemas.jobs.RenderJob
+        enqueue(
+            services,
+            "render",
+            render,
+            None,
+            tenant,
+            cost=job_cost(cost.pieces, req.render.frames),
+            field=["render", "frames"],
+            after=[row.id],
+        )
+        row = services.store.get(row.id) or row
+    return accepted(row, services)

@@ -15,18 +15,25 @@ from service.errors import field_error
 from service.quotas import job_cost
 from service.security import CallerDep, Tenant
 from service.settings import ServiceSettings
-from service.views import ERRORS, UPLOAD_ERRORS, submit
+from service.views import ERRORS, UPLOAD_ERRORS, check_after, submit
 
 router = APIRouter(prefix="/v1/renders", tags=["renders"])
 
 
-def _check_caps(s: ServiceSettings, width: int, height: int, frames: int) -> None:
-    """The service's caps on image size and frame count (beyond the request schema's)."""
+def check_caps(
+    s: ServiceSettings, width: int, height: int, frames: int, at: list[str | int] | None = None
+) -> None:
+    """The service's caps on image size and frame count (beyond the request schema's);
+    ``at``: where the settings sit in the request (a forest request's ``render``)."""
     for name, value in (("width", width), ("height", height)):
         if value > s.max_image_size:
-            raise field_error([name], f"at most {s.max_image_size} pixels", "limit_error")
+            raise field_error(
+                [*(at or []), name], f"at most {s.max_image_size} pixels", "limit_error"
+            )
     if frames > s.max_render_frames:
-        raise field_error(["frames"], f"at most {s.max_render_frames} frames", "limit_error")
+        raise field_error(
+            [*(at or []), "frames"], f"at most {s.max_render_frames} frames", "limit_error"
+        )
 
 
 @router.post("", status_code=202, response_model=Job, responses=ERRORS)
@@ -37,24 +44,57 @@ def create_render(
     who: CallerDep,
     idempotency_key: IdempotencyKey = None,
 ) -> JSONResponse:
-    _check_caps(services.settings, req.width, req.height, req.frames)
+    check_caps(services.settings, req.width, req.height, req.frames)
     # another tenant's forest is no such job, except to an admin (the render is the admin's)
     row = services.store.get(req.forest_job, who.scope)
     if row is None or row.kind != "forest":
         raise field_error(["forest_job"], "no such forest job")
+    after = check_after(services, req.after, who.scope)
+    if row.state in (JobState.QUEUED, JobState.ACTIVE) and not row.cancel_requested:
+        # not drawn yet: the render waits for it and learns its scene then (farm.graph)
+        check_renderable(row.params)
+        params = req.model_dump(mode="json") | {"scene": None}
+        pieces = int((row.estimate or {}).get("pieces", 0))
+        return submit(
+            services,
+            "render",
+            params,
+            idempotency_key,
+            tenant,
+            cost=job_cost(pieces, req.frames),
+            field=["frames"],
+            after=[row.id, *(a for a in after if a != row.id)],
+        )
     if row.state != JobState.COMPLETED:
-        raise field_error(["forest_job"], f"the forest job is {row.state}, not completed")
+        state = JobState.CANCELED if row.cancel_requested else row.state
+        raise field_error(["forest_job"], f"the forest job is {state}, not completed")
     scene = (row.result or {}).get("scene")
     if not scene or services.artifacts.path(row.id, scene) is None:
         raise field_error(["forest_job"], "the forest job has no scene artifact")
     if scene.endswith(".glb"):
-        raise field_error(
-            ["forest_job"], "the forest job wrote glTF (.glb); the renderer reads USD formats"
-        )
+        raise field_error(["forest_job"], GLB)
     params = req.model_dump(mode="json") | {"scene": scene}  # schemas.jobs.RenderJob
     # the estimate: the forest's pieces drawn once per frame
     cost = job_cost(int((row.result or {}).get("pieces", 0)), req.frames)
-    return submit(services, "render", params, idempotency_key, tenant, cost=cost, field=["frames"])
+    return submit(
+        services,
+        "render",
+        params,
+        idempotency_key,
+        tenant,
+        cost=cost,
+        field=["frames"],
+        after=after or None,
+    )
+
+
+GLB = "the forest job wrote glTF (.glb); the renderer reads USD formats"
+
+
+def check_renderable(forest_params: dict[str, object], field: str = "forest_job") -> None:
+    """422 unless the forest a render waits for will write a scene the renderer reads."""
+    if forest_params.get("format") == "glb":
+        raise field_error([field], GLB.replace("wrote", "writes"))
 
 
 USD_MAGIC = {b"#usda": ".usda", b"PXR-USDC": ".usdc", b"PK\x03\x04": ".usdz"}
@@ -75,7 +115,7 @@ def upload_render(
 ) -> JSONResponse:
     """A render job of an uploaded USD scene (multipart form: ``scene`` file + the same
     settings as ``POST /v1/renders``); the scene must follow the forest scene contract."""
-    _check_caps(services.settings, width, height, frames)
+    check_caps(services.settings, width, height, frames)
     data = scene.file.read()
     suffix = next((sfx for magic, sfx in USD_MAGIC.items() if data.startswith(magic)), None)
     if suffix is None:

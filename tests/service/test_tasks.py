@@ -90,7 +90,7 @@ def test_retries_then_fails_with_the_error(
     monkeypatch.setattr(
         tasks.runtime().dispatcher,
         "send",
-        lambda job_id, kind, countdown=None: sent.append((job_id, kind)),
+        lambda job_id, kind, countdown=None, pool=None: sent.append((job_id, kind)),
     )
     row, _ = store.create("forest", {}, max_attempts=2)
     assert execute(row.id, {"forest": broken}) == "retry"
