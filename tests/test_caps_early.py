@@ -203,8 +203,9 @@ def test_stand_refused_before_its_first_layer_grows(monkeypatch: pytest.MonkeyPa
 
 
 def test_cli_refuses_a_stand_before_growing(tmp_path: Path) -> None:
-    """``forest generate --recipe``: a .glb over the vertex cap (summed over the layers) and
-    a scene whose oak layer is over the palette cap, refused before any layer grows."""
+    """``forest generate --recipe``: a .glb over the vertex cap (summed over the layers), a
+    scene whose oak layer is over the palette cap and a tiled one whose fullest oak tile is,
+    refused before any layer (or tile) grows."""
     hook = tmp_path / "hook"
     hook.mkdir()
     (hook / "sitecustomize.py").write_text(
@@ -217,6 +218,11 @@ def test_cli_refuses_a_stand_before_growing(tmp_path: Path) -> None:
     for args, said in (
         (["--trees", "200", "-o", "st.glb"], "glTF cap"),
         (["--trees", "3000", "--frames", "24", "-o", "st.usdc"], "max_palette_matrices"),
+        # tiled: the fullest tile of its oak layer (251 of its 900 oaks in a 200 m tile)
+        (
+            ["--trees", "3000", "--frames", "80", "--tile-size", "200", "-o", "st.usdc"],
+            "max_palette_matrices",
+        ),
     ):
         out = subprocess.run(
             [sys.executable, "-m", "cli", "generate", "--recipe", "mixed-broadleaf", "-q",
@@ -226,3 +232,24 @@ def test_cli_refuses_a_stand_before_growing(tmp_path: Path) -> None:
         assert out.returncode == 2, out.stderr
         assert "expanded" not in out.stderr and said in out.stderr, out.stderr
     assert not list(tmp_path.glob("st*"))
+
+
+def test_largest_tile_counts_as_the_tiles_cut_the_layers() -> None:
+    """A tiled stand's layers are checked on their fullest tile, counted as the tiles cut
+    them (:meth:`forest.stand.place.LayerTrees.within`)."""
+    from forest.usd import stand as usd_stand
+
+    stand = _mixed_stand(200, 150.0)
+    size = 40.0  # 4 x 4 tiles, the last row and column narrower
+    nx, nz = 4, 4
+    tiles = [(i, j) for i in range(nx) for j in range(nz)]
+    want = []
+    for t in stand.placement.layers:
+        cut = [
+            t.within(usd_stand._rect(stand.area, size, i, j),
+                     usd_stand._closed(stand.area, size, i, j), stand.area)
+            for i, j in tiles
+        ]  # fmt: skip
+        want.append(max(len(c) for c in cut))
+    assert usd_stand.largest_tile_counts(stand, size) == want
+    assert 0 < max(want) < max(len(t) for t in stand.placement.layers)
