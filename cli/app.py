@@ -4,6 +4,7 @@ modules, one per concern, and register themselves on import (progress: cli.progr
 from __future__ import annotations
 
 import functools
+import importlib
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -46,7 +47,54 @@ def needs(extra: str, *modules: str) -> None:
     require(extra, *modules, path=" ".join(["forest", *reversed(names)]))
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class LazyGroup(click.Group):
+    """A group whose commands live in modules imported only when a command is looked up
+    (click's documented lazy-loading pattern, "Advanced Groups"): ``forest generate`` does not
+    import the renderer's, the service's or the gallery's command modules. Each module
+    registers its commands on import, by decorator, as before; ``modules`` names the module of
+    every command (``tests/test_cli_startup.py`` checks the map against the registrations)."""
+
+    def __init__(self, *args: Any, modules: dict[str, str] | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.modules = modules or {}
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *self.modules})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name not in self.commands and cmd_name in self.modules:
+            importlib.import_module(self.modules[cmd_name])
+        return super().get_command(ctx, cmd_name)
+
+
+COMMANDS = {
+    "demo": "cli.trees",
+    "gallery": "cli.gallery",
+    "generate": "cli.trees",
+    "inspect": "cli.render",
+    "keys": "cli.keys",
+    "presets": "cli.trees",
+    "recipes": "cli.trees",
+    "render": "cli.render",
+    "serve": "cli.service",
+    "tiles": "cli.tiles",
+    "worker": "cli.service",
+}
+BENCH_COMMANDS = {
+    "export": "cli.trees",
+    "forest": "cli.trees",
+    "generate": "cli.trees",
+    "render": "cli.render",
+    "service": "cli.service",
+    "tiles": "cli.tiles",
+}
+
+
+@click.group(
+    cls=LazyGroup,
+    modules=COMMANDS,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
 # the running code's version, not the installed distribution's metadata (which an editable
 # install keeps from when it was installed)
 @click.version_option(__version__, prog_name="forest")
@@ -57,7 +105,7 @@ def main() -> None:
     keep_freed_memory()
 
 
-@main.group()
+@main.group(cls=LazyGroup, modules=BENCH_COMMANDS)
 def bench() -> None:
     """Benchmarks: figures and ratios against a baseline run side by side."""
 

@@ -382,6 +382,7 @@ def _generate_stand(
         game_lod0(lod0_triangles, "film" if profile == "film" else "game")  # before growing
     with show_progress("forest", quiet) as bar:
         stand = plan_stand(load_recipe(recipe), trees, options.area, seed)
+        _check_stand_caps(stand, options, is_glb(output), tile_size)
         if is_glb(output):
             from forest.gltf.stand import write_stand_glb
 
@@ -410,6 +411,31 @@ def _generate_stand(
     )
     where = output if is_glb(output) else f"{output} and {layers_folder(output)}/"
     click.echo(f"wrote {where}: {stand.trees} tree(s) ({counts})")
+
+
+def _check_stand_caps(stand: Any, options: Any, glb: bool, tile_size: float | None) -> None:
+    """Every layer's caps (pieces, palette; a .glb's vertices over all layers) from its
+    placed trees (tiled: its fullest tile's, each layer tile being a forest of its own) and
+    its estimate at their sizes, before the first layer grows."""
+    from forest.caps import check_layers
+    from forest.settings import get_settings
+    from forest.usd.stand import largest_tile_counts
+
+    settings = get_settings()
+    counts = (
+        [len(t) for t in stand.placement.layers]
+        if tile_size is None
+        else largest_tile_counts(stand, tile_size)
+    )
+    check_layers(
+        stand.estimates(settings),
+        counts,
+        [layer.name for layer in stand.recipe.layers],
+        options.frames,
+        settings,
+        glb=glb,
+        segments=options.segments,
+    )
 
 
 def _generate_tiled(

@@ -11,9 +11,19 @@ bones came to 0.72-0.99 of the estimate (0.87-0.93 from 10 trees on), their bake
 0.74-0.997; the level-counted ones' bones to 1.00 (alternating) and, by the spread of single
 trees, up to 1.39 (uniform, 1 tree), 1.14 (10 trees), 0.87-0.98 (100 trees), their vertices
 up to 1.02 and 1.43. A forest the estimate lets through is counted again once grown
-(:func:`forest.growth.generate.generate_forest`, :func:`forest.gltf.document.check_size`)."""
+(:func:`forest.growth.generate.generate_forest`, :func:`forest.gltf.document.check_size`).
+
+A mixed stand's layers (:mod:`forest.stand`) are estimated at their trees' sizes
+(:func:`layer_estimates`: one tree grown at each of 8 quantiles of the layer's size
+distribution) and all checked before the first layer grows (:func:`check_layers`); mixed-
+broadleaf, 20 trees, 2026-11-27: each layer's grown bones 0.80-0.96 of the estimate, the
+stand's baked vertices 0.87 (as mature trees: 0.16 for its young oaks, 0.66 for the stand)."""
 
 from __future__ import annotations
+
+from collections.abc import Sequence
+from statistics import NormalDist
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +34,13 @@ from forest.growth.foliage import cloud_models
 from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
 
+if TYPE_CHECKING:  # a forest of one species never loads the recipe schemas (start-up)
+    from schemas.recipe import Recipe, SizeDistribution
+
 MAX_VERTICES = 8_000_000  # baked vertices per .glb (bark and leaves): about 450 MB of GLB
+# trees grown per layer to estimate a mixed stand's layer, one at each of this many quantiles
+# of its size distribution: a few hundredths of a second for an oak
+LAYER_SAMPLE_TREES = 8
 
 
 def _per_tree(cg: CompiledGrammar, per_kind: NDArray[np.float64]) -> float:
@@ -80,3 +96,84 @@ def check_glb_vertices(cg: CompiledGrammar, trees: int, segments: int = 1) -> No
             path="trees",
             limit=MAX_VERTICES,
         )
+
+
+def check_forest_pieces(cg: CompiledGrammar, trees: int, settings: ForestSettings) -> None:
+    """``trees`` trees' expected pieces within ``max_pieces_per_forest``."""
+    expected = cg.expected_pieces * trees
+    if expected > settings.max_pieces_per_forest:
+        raise LimitError(
+            f"{trees} trees of about {cg.expected_pieces:.0f} pieces each "
+            f"exceed the cap of {settings.max_pieces_per_forest} pieces per forest",
+            path="max_pieces_per_forest",
+            limit=settings.max_pieces_per_forest,
+        )
+
+
+def size_quantiles(size: SizeDistribution, k: int = LAYER_SAMPLE_TREES) -> NDArray[np.float64]:
+    """``k`` sizes at the mid-quantiles of a recipe layer's size distribution (clipped as
+    :func:`forest.stand.place` clips the drawn sizes): the trees the layer's estimate grows."""
+    from schemas.recipe import SIZE_MAX, SIZE_MIN
+
+    q = (np.arange(k) + 0.5) / k
+    if size.range is not None:
+        lo, hi = size.range
+        s = lo + q * (hi - lo)
+    else:
+        mean, sd = size.normal or (1.0, 0.0)
+        s = np.array([NormalDist(mean, sd).inv_cdf(x) if sd > 0 else mean for x in q])
+    return np.clip(s, SIZE_MIN, SIZE_MAX)
+
+
+def layer_estimates(
+    recipe: Recipe, compiled: Sequence[CompiledGrammar], settings: ForestSettings
+) -> list[CompiledGrammar]:
+    """Each layer's grammar with its expected counts at the layer's sizes
+    (:func:`forest.growth.compile.at_sizes`): a mature tree's would count a recipe's young
+    oaks 10-15 times over."""
+    from forest.growth.compile import at_sizes
+
+    return [
+        at_sizes(cg, size_quantiles(layer.size), settings)
+        for cg, layer in zip(compiled, recipe.layers, strict=True)
+    ]
+
+
+def check_layers(
+    compiled: Sequence[CompiledGrammar],
+    counts: Sequence[int],
+    names: Sequence[str],
+    frames: int,
+    settings: ForestSettings,
+    *,
+    glb: bool = False,
+    segments: int = 1,
+) -> None:
+    """A mixed stand's caps before its first layer grows: each layer is a forest of its own
+    (its pieces and its palette within the per-forest caps), and a .glb holds every layer's
+    baked vertices. Layers grow one at a time, so without this a later layer over a cap was
+    refused only after the earlier ones were grown and written (and a .glb's vertices only
+    layer by layer, once grown). ``compiled``: each layer's estimate at its sizes
+    (:func:`layer_estimates`)."""
+    for cg, n, name in zip(compiled, counts, names, strict=True):
+        if n < 1:
+            continue
+        try:
+            check_forest_pieces(cg, n, settings)
+            check_palette(cg, n, frames, settings)
+        except LimitError as exc:
+            raise LimitError(
+                f"layer {name!r}: {exc.message}", path=exc.path, limit=exc.limit
+            ) from None
+    if glb:
+        total = sum(
+            expected_vertices(cg, segments) * n for cg, n in zip(compiled, counts, strict=True)
+        )
+        if total > MAX_VERTICES:
+            raise LimitError(
+                f"the stand's {sum(counts)} trees bake to about {total:.0f} vertices, over the "
+                f"glTF cap of {MAX_VERTICES}; use fewer trees (or USD, which instances the "
+                "pieces)",
+                path="trees",
+                limit=MAX_VERTICES,
+            )

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 from farm.requests import loaded_recipe, stand_size
 from forest.bark.images import check_grey
-from forest.caps import check_glb_vertices, check_palette
+from forest.caps import check_glb_vertices, check_palette, layer_estimates
 from forest.cost import BASE_MEMORY, USDA_FACTOR, forest_cost
 from forest.errors import ForestError, GrammarError, LimitError
 from forest.growth.compile import compile_grammar
@@ -256,6 +256,9 @@ def resolve_recipe(
     _check_images(loaded)
     compiled = tuple(_layer_grammar(req, k, settings, max_pieces) for k in range(len(counts)))
     _check_room(recipe, compiled, counts, area, where)
+    # each layer's counts at its trees' sizes (the CLI's estimate too): young trees grow
+    # fewer orders, and the pieces here are also the job's cost against the tenant's quota
+    compiled = tuple(layer_estimates(recipe, compiled, get_settings()))
     per_layer = [cg.expected_pieces * n for cg, n in zip(compiled, counts, strict=True)]
     pieces = sum(per_layer)
     if pieces > max_pieces:

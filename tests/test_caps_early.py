@@ -22,7 +22,7 @@ from forest.gltf.document import baked_vertices
 from forest.growth import generate
 from forest.growth.compile import compile_grammar
 from forest.growth.generate import ForestOptions, generate_forest
-from forest.growth.presets import load_preset
+from forest.growth.presets import load_preset, preset_names
 from forest.settings import ForestSettings
 from forest.usd.contract import PIECES
 from forest.usd.read import read_scene
@@ -140,3 +140,116 @@ def test_still_forest_posed_values_authored_once(
     assert scene.times == [None]
     np.testing.assert_array_equal(scene.proto_indices, f.graph.piece)
     np.testing.assert_allclose(scene.palette(0), f.palette(), atol=1e-5)
+
+
+@pytest.mark.parametrize("preset", preset_names())
+def test_every_preset_estimate_near_its_grown_counts(preset: str) -> None:
+    """Honest estimates: 10 grown trees' pieces, bones and baked vertices are 0.7-1.2 of the
+    estimate (2026-11-27, seed 3: 0.87-1.03; a grammar counted level by level, as
+    ``uniform``, spreads most between single trees)."""
+    g = load_preset(preset)
+    cg = compile_grammar(g)
+    f = generate_forest(g, 3, ForestOptions(trees=10), compiled=cg)
+    ratios = {
+        "pieces": f.n_instances / (cg.expected_pieces * 10),
+        "bones": len(f.bones) / (caps.expected_bones(cg) * 10),
+        "vertices": baked_vertices(f) / (caps.expected_vertices(cg) * 10),
+    }
+    assert all(0.7 <= r <= 1.2 for r in ratios.values()), ratios
+
+
+def _mixed_stand(trees: int, side: float) -> Any:
+    from forest.stand.generate import plan_stand
+    from forest.stand.recipes import load_recipe
+
+    return plan_stand(load_recipe("mixed-broadleaf"), trees, (side, side), 1)
+
+
+def test_stand_layers_estimated_at_their_sizes() -> None:
+    """A mixed stand's layers are estimated at their trees' sizes: each layer's grown bones
+    0.7-1.05 of its estimate, the stand's baked vertices 0.75-1.05 (a young oak, about 0.3 of
+    a mature one, grows a sixth of its bones: estimated as mature, the young layer's bones
+    came to 0.16 of the estimate and the stand's vertices to 0.66)."""
+    stand = _mixed_stand(20, 100.0)
+    grown = estimated = 0.0
+    for k, cg in enumerate(stand.estimates()):
+        n = len(stand.placement.layers[k])
+        f = stand.grow_layer(k, ForestOptions(trees=1))
+        assert f is not None
+        assert 0.7 <= len(f.bones) / (caps.expected_bones(cg) * n) <= 1.05, k
+        grown += baked_vertices(f)
+        estimated += caps.expected_vertices(cg) * n
+    assert 0.75 <= grown / estimated <= 1.05, grown / estimated
+
+
+def test_stand_refused_before_its_first_layer_grows(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every layer is checked before any grows: a cap only the last layer is over refuses
+    the stand without growing the first (it was grown and written, then the last refused)."""
+    stand = _mixed_stand(20, 100.0)
+    counts = [len(t) for t in stand.placement.layers]
+    names = [layer.name for layer in stand.recipe.layers]
+    bones = [caps.expected_bones(cg) * n for cg, n in zip(stand.estimates(), counts, strict=True)]
+    worst = int(np.argmax(bones))
+    cap = int(sorted(bones)[-2] * 24) + 1  # every layer but the largest within it
+    monkeypatch.setattr(generate, "expand_in_groups", never_expand)
+    with pytest.raises(LimitError) as err:
+        caps.check_layers(
+            stand.estimates(), counts, names, 24, ForestSettings(max_palette_matrices=cap)
+        )
+    assert err.value.path == "max_palette_matrices"
+    assert err.value.message.startswith(f"layer {names[worst]!r}: ")
+    # and within the caps it passes: 20 trees of it write a .glb (6.0 M vertices grown)
+    caps.check_layers(stand.estimates(), counts, names, 24, ForestSettings(), glb=True)
+
+
+def test_cli_refuses_a_stand_before_growing(tmp_path: Path) -> None:
+    """``forest generate --recipe``: a .glb over the vertex cap (summed over the layers), a
+    scene whose oak layer is over the palette cap and a tiled one whose fullest oak tile is,
+    refused before any layer (or tile) grows."""
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(
+        "import forest.growth.generate as g\n"
+        "def _never(*a, **k):\n"
+        "    raise SystemExit('expanded')\n"
+        "g.expand_in_groups = _never\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    for args, said in (
+        (["--trees", "200", "-o", "st.glb"], "glTF cap"),
+        (["--trees", "3000", "--frames", "24", "-o", "st.usdc"], "max_palette_matrices"),
+        # tiled: the fullest tile of its oak layer (251 of its 900 oaks in a 200 m tile)
+        (
+            ["--trees", "3000", "--frames", "80", "--tile-size", "200", "-o", "st.usdc"],
+            "max_palette_matrices",
+        ),
+    ):
+        out = subprocess.run(
+            [sys.executable, "-m", "cli", "generate", "--recipe", "mixed-broadleaf", "-q",
+             "--area", "400", "400", *args],
+            cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert out.returncode == 2, out.stderr
+        assert "expanded" not in out.stderr and said in out.stderr, out.stderr
+    assert not list(tmp_path.glob("st*"))
+
+
+def test_largest_tile_counts_as_the_tiles_cut_the_layers() -> None:
+    """A tiled stand's layers are checked on their fullest tile, counted as the tiles cut
+    them (:meth:`forest.stand.place.LayerTrees.within`)."""
+    from forest.usd import stand as usd_stand
+
+    stand = _mixed_stand(200, 150.0)
+    size = 40.0  # 4 x 4 tiles, the last row and column narrower
+    nx, nz = 4, 4
+    tiles = [(i, j) for i in range(nx) for j in range(nz)]
+    want = []
+    for t in stand.placement.layers:
+        cut = [
+            t.within(usd_stand._rect(stand.area, size, i, j),
+                     usd_stand._closed(stand.area, size, i, j), stand.area)
+            for i, j in tiles
+        ]  # fmt: skip
+        want.append(max(len(c) for c in cut))
+    assert usd_stand.largest_tile_counts(stand, size) == want
+    assert 0 < max(want) < max(len(t) for t in stand.placement.layers)

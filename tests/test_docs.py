@@ -9,7 +9,7 @@ from typing import Any
 
 import pytest
 from docs_pages import NOT_RUN, ROOT, SHELL_LANGS, blocks, pages
-from pydantic_settings import BaseSettings
+from pydantic import BaseModel
 
 from farm.settings import FarmSettings
 from forest.settings import ForestSettings
@@ -127,7 +127,7 @@ def _sections() -> dict[str, str]:
     return found
 
 
-SETTINGS: dict[str, tuple[type[BaseSettings], set[str]]] = {
+SETTINGS: dict[str, tuple[type[BaseModel], set[str]]] = {
     "forest": (ForestSettings, set(ForestSettings.model_fields)),
     "farm": (FarmSettings, set(FarmSettings.model_fields)),
     # the API's own settings: the farm's are in the farm's table

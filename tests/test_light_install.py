@@ -32,7 +32,7 @@ BLOCKED = (
     "moderngl", "glcontext", "imageio", "imageio_ffmpeg", "PIL", "matplotlib", "pyvista",
     "vtk", "vtkmodules", "celery", "kombu", "sqlalchemy", "alembic", "fastapi", "starlette",
     "uvicorn", "psycopg", "httpx", "limits", "prometheus_client", "pytest", "hypothesis",
-    "scipy", "trimesh",
+    "scipy", "trimesh", "pydantic_settings",
 )  # fmt: skip
 
 DRIVER = textwrap.dedent(

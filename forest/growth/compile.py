@@ -6,6 +6,7 @@ height, which needs :func:`forest.growth.expand.expand`)."""
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -194,6 +195,32 @@ def _sampled_pieces(
     kinds = np.bincount(graph.piece, minlength=len(PIECE_NAMES)).astype(np.float64) * per_tree
     bearers = len(foliage_bearers(cg, graph)) * per_tree
     return len(graph) * per_tree, kinds, bearers
+
+
+def at_sizes(
+    cg: CompiledGrammar, sizes: NDArray[np.float64], settings: ForestSettings | None = None
+) -> CompiledGrammar:
+    """``cg`` with its expected pieces, kinds and bearers per tree for trees of ``sizes``
+    (a mixed stand's layer, :mod:`forest.stand`: the trunk's radius and the crown's height
+    scale by the size, so a young tree ends its branches sooner and grows fewer orders): one
+    tree grown at each size, their mean x :data:`SAMPLE_MARGIN`. A grammar that ends by
+    depth alone grows the same at any size and is returned as it is."""
+    g = cg.grammar
+    if g.twig_radius is None and g.crown is None and not cg.by_thickness:
+        return cg
+    sizes = np.asarray(sizes, np.float64)
+    graph = expand(
+        cg, tree_keys(0, np.arange(len(sizes)), GROW), settings or get_settings(),
+        g.trunk_radius * sizes, sizes,
+    )  # fmt: skip
+    per_tree = SAMPLE_MARGIN / len(sizes)
+    kinds = np.bincount(graph.piece, minlength=len(PIECE_NAMES)).astype(np.float64) * per_tree
+    return dataclasses.replace(
+        cg,
+        expected_pieces=len(graph) * per_tree,
+        expected_kinds=kinds,
+        expected_bearers=len(foliage_bearers(cg, graph)) * per_tree,
+    )
 
 
 def foliage_bearers(cg: CompiledGrammar, graph: PieceGraph) -> NDArray[np.int32]:

@@ -13,7 +13,7 @@ from numpy.typing import NDArray
 from forest import __version__
 from forest.bark.tiles import draw_tile_indices, lower_trunk
 from forest.bark.tilesets import shipped_manifest
-from forest.caps import check_palette
+from forest.caps import check_forest_pieces, check_palette
 from forest.errors import LimitError
 from forest.geometry.pieces import HUB, MAX_LEAF_RIMS, PIECE_NAMES, TIP0, PieceArrays, piece_library
 from forest.geometry.transforms import F64, similarity_scale
@@ -202,15 +202,9 @@ def generate_forest(
     options = options or ForestOptions()
     options.check(settings)
     cg = compiled or compile_grammar(grammar, settings)
-    expected = cg.expected_pieces * options.trees
-    if expected > settings.max_pieces_per_forest:
-        raise LimitError(
-            f"{options.trees} trees of about {cg.expected_pieces:.0f} pieces each "
-            f"exceed the cap of {settings.max_pieces_per_forest} pieces per forest",
-            path="max_pieces_per_forest",
-            limit=settings.max_pieces_per_forest,
-        )
-    # the palette's size before any expansion (the exact count below is the backstop)
+    # the pieces and the palette's size before any expansion (the exact counts, in expand
+    # and below, are the backstop)
+    check_forest_pieces(cg, options.trees, settings)
     check_palette(cg, options.trees, options.frames, settings)
     note = progress or (lambda stage, done, total: None)
     # bark tiles draw per forest; placement, growth and pose per tree and piece, keyed on the

@@ -106,11 +106,14 @@ def draw_views(
     lit: bool = False,
     centre: F64 | None = None,
     radius: float | None = None,
+    context: Any = None,
 ) -> Views:
     """One picture of ``size`` x ``size`` pixels per direction of ``directions`` (k, 3)
     (towards the camera) of the meshes (leaf cards cut by ``leaf_picture``, the family's
     RGBA picture, row 0 at t = 0), framing ``centre`` and ``radius`` (default: the meshes'
-    bounding sphere). Albedo (``lit``: under a sun and sky), normals and depth."""
+    bounding sphere). Albedo (``lit``: under a sun and sky), normals and depth.
+    ``context``: a GL context to draw in and leave open, the objects drawn with living until
+    it is released (else one is made and released here)."""
     from forest.gl.context import create_context
     from forest.gl.shaders import sources
 
@@ -120,7 +123,7 @@ def draw_views(
         centre = (pts.min(axis=0) + pts.max(axis=0)) / 2
     if radius is None:
         radius = float(np.linalg.norm(pts - centre, axis=1).max()) * 1.01
-    ctx = create_context(GL_VERSION)
+    ctx = create_context(GL_VERSION) if context is None else context
     try:
         make: Any = ctx.program  # its stubs type the keyword arguments one by one
         prog = make(**sources("lod_view", {"ALPHA_CUT": ALPHA_CUT}))
@@ -159,7 +162,8 @@ def draw_views(
                 np.frombuffer(fbo.read(attachment=2, components=1, dtype="f4"), np.float32)
             )
     finally:
-        ctx.release()
+        if context is None:
+            ctx.release()
     k = len(out_a)
     # GL's rows run bottom-up: turn them so row 0 is the picture's top
     albedo = np.stack(out_a).reshape(k, size, size, 4)[:, ::-1]

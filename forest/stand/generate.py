@@ -10,12 +10,15 @@ the tile's index when tiled).
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from forest.caps import layer_estimates
 from forest.errors import ForestError
+from forest.growth.compile import compile_grammar
 from forest.growth.generate import Forest, ForestOptions, Progress, generate_forest
+from forest.growth.grammar import CompiledGrammar
 from forest.growth.presets import load_preset
 from forest.growth.scatter import PlacedTrees, placed
 from forest.settings import ForestSettings, get_settings
@@ -36,6 +39,20 @@ class Stand:
     placement: Placement
     area: tuple[float, float]
     seed: int
+    _estimates: dict[ForestSettings, tuple[CompiledGrammar, ...]] = field(
+        default_factory=dict, repr=False
+    )
+
+    def estimates(self, settings: ForestSettings | None = None) -> tuple[CompiledGrammar, ...]:
+        """Each layer's compiled grammar with its expected counts at its trees' sizes
+        (:func:`forest.caps.layer_estimates`), made once per settings: every cap of a layer
+        (or a layer's tile) is checked on these before it grows, not on a mature tree's
+        counts, which refused young layers many times under their caps."""
+        s = settings or get_settings()
+        if s not in self._estimates:
+            compiled = [compile_grammar(g, s) for g in self.grammars]
+            self._estimates[s] = tuple(layer_estimates(self.recipe, compiled, s))
+        return self._estimates[s]
 
     @property
     def trees(self) -> int:
@@ -62,6 +79,7 @@ class Stand:
         if len(t) == 0:
             return None
         g = self.grammars[k]
+        settings = settings or get_settings()
         layer_options = replace(options, trees=len(t), area=self.area)
         with placed(PlacedTrees(t.ids, t.transforms(g.trunk_radius), self.seed, t.sizes)):
             return generate_forest(
@@ -69,8 +87,9 @@ class Stand:
                 self.layer_seed(k, tile),
                 layer_options,
                 None,
-                settings or get_settings(),
+                settings,
                 progress,
+                compiled=self.estimates(settings)[k],
             )
 
 

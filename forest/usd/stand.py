@@ -168,6 +168,24 @@ def _tiles(area: tuple[float, float], tile_size: float) -> list[tuple[int, int] 
     return [(i, j) for j in range(nz) for i in range(nx)]
 
 
+def largest_tile_counts(stand: Stand, tile_size: float) -> list[int]:
+    """Each layer's most trees in one tile of ``tile_size`` metres (as
+    :meth:`forest.stand.place.LayerTrees.within` cuts them: half-open tiles, the last row and
+    column closed), the counts its caps are checked on before any tile grows."""
+    nx, nz = tile_grid(stand.area, tile_size)
+    out = []
+    for t in stand.placement.layers:
+        if not len(t):
+            out.append(0)
+            continue
+        x = t.positions[:, 0] + stand.area[0] / 2
+        z = t.positions[:, 2] + stand.area[1] / 2
+        i = np.clip(np.floor(x / tile_size).astype(np.int64), 0, nx - 1)
+        j = np.clip(np.floor(z / tile_size).astype(np.int64), 0, nz - 1)
+        out.append(int(np.bincount(j * nx + i).max()))
+    return out
+
+
 def _rect(area: tuple[float, float], s: float, i: int, j: int) -> tuple[float, float, float, float]:
     return i * s, min((i + 1) * s, area[0]), j * s, min((j + 1) * s, area[1])
 

@@ -114,3 +114,35 @@ def test_glb_vertex_cap_before_any_work(tmp_path: Path) -> None:
     assert r.status_code == 422, r.text
     detail = r.json()["errors"][0]
     assert detail["loc"] == ["body", "trees"] and "glTF cap" in detail["msg"], detail
+
+
+def test_recipe_layers_estimated_at_their_sizes(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A recipe's palette is checked per layer on its estimate at the layer's tree sizes: 50
+    young oaks (size about 0.3) pass a cap twice their estimate, which 50 mature oaks' count
+    is far over (each layer was estimated as mature trees, and refused here); a cap under
+    their estimate refuses them, naming the layer and the cap."""
+    from forest.caps import expected_bones, layer_estimates
+    from forest.growth.compile import compile_grammar
+    from forest.growth.presets import load_preset
+    from schemas.recipe import Recipe
+
+    layer = {"name": "young_oak", "preset": "oak", "share": 1.0, "size": {"normal": [0.3, 0.06]}}
+    recipe = {"name": "young-oaks", "layers": [layer]}
+    oak = compile_grammar(load_preset("oak"))
+    young = layer_estimates(Recipe.model_validate(recipe), [oak], ForestSettings())[0]
+    assert expected_bones(young) < expected_bones(oak) / 3
+    body = {"recipe": recipe, "trees": 50, "area": [60, 60], "frames": 2}
+
+    def with_cap(cap: float) -> httpx.Response:
+        library = ForestSettings(max_palette_matrices=int(cap))
+        monkeypatch.setattr(inputs, "get_settings", lambda: library)
+        return post(ServiceSettings(data_dir=tmp_path / str(int(cap))), "/v1/forests", body)
+
+    young_matrices = expected_bones(young) * 50 * 2
+    assert expected_bones(oak) * 50 * 2 > 2 * young_matrices  # a mature estimate: refused
+    r = with_cap(2 * young_matrices)
+    assert r.status_code == 202, r.text
+    msg = refused(with_cap(young_matrices / 2), ["frames"], "max_palette_matrices")
+    assert msg.startswith("layer 'young_oak': "), msg

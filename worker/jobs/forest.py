@@ -48,7 +48,6 @@ def run_stand(ctx: JobContext, req: TreeRequest) -> Outcome:
     the root layer, flat colours (a texture folder is no artifact): ``scene.<format>`` and
     ``scene_<layer>.usdc``, every one an artifact, so the downloaded files open together."""
     from farm.requests import loaded_recipe, options_from_request, stand_size
-    from forest.growth.compile import compile_grammar
     from forest.stand.generate import plan_stand
     from forest.usd.stand import write_stand
 
@@ -72,10 +71,11 @@ def run_stand(ctx: JobContext, req: TreeRequest) -> Outcome:
         layer.name: len(t)
         for layer, t in zip(stand.recipe.layers, stand.placement.layers, strict=True)
     }
-    # the pieces a render of it is charged for (its quota): expected, as the API estimated them
+    # the pieces a render of it is charged for (its quota): expected, as the API estimated
+    # them (each layer at its trees' sizes)
     pieces = sum(
-        compile_grammar(g).expected_pieces * len(t)
-        for g, t in zip(stand.grammars, stand.placement.layers, strict=True)
+        cg.expected_pieces * len(t)
+        for cg, t in zip(stand.estimates(), stand.placement.layers, strict=True)
     )
     result = {
         "trees": stand.trees,
