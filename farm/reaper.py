@@ -10,11 +10,13 @@ import logging
 import threading
 import time
 
+from farm import joblog
 from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
 from farm.fair import pump_quietly
 from farm.settings import FarmSettings
 from farm.store import JobStore
+from schemas.jobs import JobState
 
 log = logging.getLogger(__name__)
 
@@ -29,14 +31,28 @@ def reap_once(
     window pumped too (held jobs are sent even if the pump that should have sent them was
     lost with its process)."""
     resend, failed = store.reap(requeue_after_s)
+    cap = settings.job_log_lines if settings is not None else 1000
     for row in resend:
         dispatcher.send(row.id, row.kind)
         log.info("re-enqueued job %s (%s)", row.id, row.stage)
+        if row.state == JobState.ACTIVE:  # (the row as it was) a lease expired, not a message
+            _note(store, row.id, row.attempts, "warning", f"worker {row.lease_owner} lost "
+                  "(its lease expired): the job is queued again", cap)  # fmt: skip
     for row in failed:
         log.warning("job %s failed: lease expired after %d attempt(s)", row.id, row.attempts)
+        what = "canceled" if row.cancel_requested else f"failed after {row.attempts} attempt(s)"
+        _note(store, row.id, row.attempts, "error",
+              f"worker {row.lease_owner} lost (its lease expired): {what}", cap)  # fmt: skip
     if settings is not None:
         pump_quietly(store, dispatcher, settings)
     return len(resend)
+
+
+def _note(store: JobStore, job_id: str, attempt: int, level: str, text: str, cap: int) -> None:
+    try:
+        joblog.append(store, job_id, attempt, [joblog.Line(level, text)], cap)
+    except Exception:  # the job's state is what counts; its log line is a courtesy
+        log.exception("writing the log of job %s failed", job_id)
 
 
 def tidy_once(store: JobStore, artifacts: ArtifactStore, artifact_ttl_s: float = 0.0) -> int:

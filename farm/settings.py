@@ -72,6 +72,25 @@ class FarmSettings(BaseSettings):
     tenant's jobs and tiles. About the number of job workers."""
     max_attempts: int = Field(3, ge=1, le=100)
     retry_delay_s: float = Field(2.0, ge=0)
+    worker_heartbeat_s: float = Field(5.0, gt=0)
+    """A worker writes its row in the worker registry (last seen, current job) this often."""
+    worker_timeout_s: float = Field(30.0, gt=0)
+    """A worker not seen for this long is shown ``lost`` (killed, or its host gone); it must
+    exceed ``worker_heartbeat_s``."""
+    worker_forget_s: float = Field(86400.0, gt=0)
+    """A lost or stopped worker's row is deleted this long after it was last seen."""
+    job_log_lines: int = Field(1000, ge=10, le=100_000)
+    """Log lines kept per job (stage changes, warnings, errors, timings): past it the oldest
+    go, and the log says how many."""
+
+    @model_validator(mode="after")
+    def _timeout_after_heartbeats(self) -> FarmSettings:
+        if self.worker_timeout_s <= self.worker_heartbeat_s:
+            raise ValueError(
+                f"worker_timeout_s ({self.worker_timeout_s:g}) must exceed worker_heartbeat_s "
+                f"({self.worker_heartbeat_s:g}): a live worker would show as lost"
+            )
+        return self
 
     @model_validator(mode="after")
     def _reaper_recovers_first(self) -> FarmSettings:

@@ -364,6 +364,15 @@ class Artifact(StrictModel):
     size: Annotated[int, Field(ge=0)]
 
 
+class JobRun(StrictModel):
+    """One attempt of a job and the worker that ran it."""
+
+    attempt: Annotated[int, Field(ge=1)]
+    worker: str
+    """``host:pid:tag`` (a worker's ``id`` in ``GET /v1/workers``)."""
+    started_at: datetime
+
+
 class Job(StrictModel):
     """A job record: the SQL job table is the source of truth, the broker only delivers."""
 
@@ -391,6 +400,61 @@ class Job(StrictModel):
     priority: Priority = 5
     cost: JobCost | None = None
     """The estimate its tenant's quotas counted (none for a tile: its forest job counts it)."""
+    runs: list[JobRun] = []
+    """Which worker ran each attempt, oldest first (``worker`` names only the one running it
+    now)."""
+
+
+LogLevel = Literal["info", "warning", "error"]
+
+
+class LogLine(StrictModel):
+    id: Annotated[int, Field(ge=1)]
+    """Increasing within a job (and across jobs): ``after`` of the next read."""
+    at: datetime
+    attempt: Annotated[int, Field(ge=0)]
+    level: LogLevel
+    message: str
+
+
+class JobLog(StrictModel):
+    """A job's log lines (stage changes with the time each stage took, warnings, errors,
+    the worker of each attempt, how it ended), oldest first."""
+
+    items: list[LogLine]
+    dropped: Annotated[int, Field(ge=0)]
+    """Older lines dropped past the per-job cap (``FOREST_JOB_LOG_LINES``)."""
+    next_after: Annotated[int, Field(ge=0)]
+    """``after`` for the lines that come next (the last id here, or the one asked)."""
+
+
+WorkerState = Literal["idle", "busy", "lost", "stopped"]
+
+
+class Worker(StrictModel):
+    """A worker process as the registry last saw it."""
+
+    id: str
+    """``host:pid:tag``: what a job's ``worker`` and ``runs`` name."""
+    name: str
+    """Its node name (``forest worker --name``)."""
+    host: str
+    pid: Annotated[int, Field(ge=0)]
+    queues: list[str]
+    renderer: str | None
+    """GL_RENDERER of the context its render jobs get (probed at start), or why none."""
+    state: WorkerState
+    """``lost``: not seen for ``FOREST_WORKER_TIMEOUT_S`` (killed, or its host gone);
+    ``stopped``: shut down cleanly."""
+    current_job: str | None
+    started_at: datetime
+    last_seen: datetime
+
+
+class WorkerList(StrictModel):
+    items: list[Worker]
+    timeout_s: float
+    """A worker not seen for this long is ``lost``."""
 
 
 class JobPage(StrictModel):

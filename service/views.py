@@ -17,7 +17,7 @@ from farm.db import JobRow
 from farm.error_text import capped
 from farm.fair import pump
 from farm.store import IdempotencyConflict, scoped_key
-from schemas.jobs import Artifact, Job, JobCost
+from schemas.jobs import Artifact, Job, JobCost, JobRun
 from service.deps import Services
 from service.errors import RETRY_AFTER_S
 from service.quotas import over_quota
@@ -89,6 +89,7 @@ def job_model(row: JobRow, services: Services) -> Job:
         result=row.result,
         priority=row.priority,
         cost=JobCost.model_validate(row.estimate) if row.estimate else None,
+        runs=[JobRun.model_validate(r) for r in row.runs or []],
     )
 
 

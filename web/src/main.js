@@ -30,6 +30,7 @@ keyInput.addEventListener("change", () => {
   blobs.clear();
   keyRefused = false;
   refreshJobs();
+  refreshWorkers();
   if (!presets.length) loadPresets();
 });
 
@@ -399,6 +400,9 @@ function jobRow(job) {
     results.append(link);
   }
   const actions = el("td", { className: "actions" });
+  const logButton = el("button", { type: "button", className: "show-log", textContent: openLogs.has(job.id) ? "Hide log" : "Log" });
+  logButton.addEventListener("click", () => toggleLog(job.id));
+  actions.append(logButton);
   if (job.state === "queued" || job.state === "active") {
     const b = el("button", { type: "button", className: "cancel", textContent: "Cancel" });
     b.addEventListener("click", () => cancel(job));
@@ -421,7 +425,12 @@ function jobRow(job) {
     el("td", { className: `state state-${job.state}`, textContent: job.state + (job.cancel_requested && job.state === "active" ? " (canceling)" : "") }),
     el("td", {}, progress, ` ${Math.round(job.progress * 100)}%`),
     el("td", { className: "stage", textContent: job.stage }),
-    el("td", { className: "attempts", textContent: `${job.attempts}/${job.max_attempts}` }),
+    el("td", {
+      className: "attempts",
+      textContent: `${job.attempts}/${job.max_attempts}`,
+      // which worker ran each attempt
+      title: (job.runs || []).map((r) => `attempt ${r.attempt}: ${r.worker}`).join("\n"),
+    }),
     el("td", { className: "error", textContent: job.error ?? "" }),
     results,
     actions,
@@ -430,6 +439,83 @@ function jobRow(job) {
 }
 
 const shown = new Map(); // job id -> JSON of what its row shows (rebuild rows that changed)
+
+// ---- job logs (GET /v1/jobs/{id}/log) -------------------------------------------------------
+const openLogs = new Map(); // job id -> { lines: [LogLine], after, dropped }
+
+function logRow(jobId) {
+  const log = openLogs.get(jobId);
+  const pre = el("pre", { className: "log-lines" });
+  if (log.dropped) pre.append(el("span", { className: "hint", textContent: `(${log.dropped} older line(s) dropped)\n` }));
+  for (const line of log.lines) {
+    const at = new Date(line.at).toLocaleTimeString();
+    pre.append(el("span", { className: line.level, textContent: `${at} #${line.attempt} ${line.level.padEnd(7)} ${line.message}\n` }));
+  }
+  const tr = el("tr", { className: "log" }, el("td", { colSpan: 9 }, pre));
+  tr.dataset.logOf = jobId;
+  return tr;
+}
+
+/** New lines of an open log (from its last id on), appended to what it shows. */
+async function readLog(jobId) {
+  const log = openLogs.get(jobId);
+  if (!log || log.reading) return; // one read at a time: no line twice
+  log.reading = true;
+  try {
+    const got = await api(`/v1/jobs/${jobId}/log?after=${log.after}`);
+    log.lines.push(...got.items);
+    log.after = got.next_after;
+    log.dropped = got.dropped;
+  } finally {
+    log.reading = false;
+  }
+  placeLog(jobId);
+}
+
+function placeLog(jobId) {
+  const row = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  document.querySelector(`#jobs tr[data-log-of="${jobId}"]`)?.remove();
+  if (row && openLogs.has(jobId)) row.after(logRow(jobId));
+}
+
+function toggleLog(jobId) {
+  if (openLogs.has(jobId)) openLogs.delete(jobId);
+  else openLogs.set(jobId, { lines: [], after: 0, dropped: 0 });
+  shown.delete(jobId); // its row's button changes
+  refreshJobs();
+  if (openLogs.has(jobId)) readLog(jobId).catch((err) => ($("#jobs-status").textContent = `log: ${err.message}`));
+}
+
+// ---- workers (GET /v1/workers: an admin key's) ----------------------------------------------
+async function refreshWorkers() {
+  let list;
+  try {
+    list = await api("/v1/workers");
+  } catch (err) {
+    $("#workers tbody").replaceChildren();
+    $("#workers-status").textContent = err.status === 403 ? "an admin key shows the farm's workers here" : err.message;
+    return;
+  }
+  $("#workers-status").textContent = `${list.items.length} worker(s); lost when not seen for ${list.timeout_s} s`;
+  $("#workers tbody").replaceChildren(
+    ...list.items.map((w) => {
+      const tr = el(
+        "tr",
+        { className: "worker" },
+        el("td", { textContent: w.name, title: w.id }),
+        el("td", { textContent: w.host }),
+        el("td", { textContent: w.queues.join(", ") }),
+        el("td", { textContent: w.renderer ?? "(probing)" }),
+        el("td", { className: `worker-${w.state}`, textContent: w.state }),
+        el("td", { className: "id", textContent: w.current_job ? w.current_job.slice(0, 8) : "", title: w.current_job ?? "" }),
+        el("td", { textContent: new Date(w.last_seen).toLocaleTimeString() }),
+      );
+      tr.dataset.workerId = w.id;
+      tr.dataset.state = w.state;
+      return tr;
+    }),
+  );
+}
 
 async function refreshJobs() {
   let page;
@@ -451,6 +537,14 @@ async function refreshJobs() {
       shown.set(job.id, sig);
     }
     rows.push(row);
+    if (openLogs.has(job.id)) {
+      rows.push(logRow(job.id));
+      // a running job's log grows: read on from the last line shown
+      if (job.state === "queued" || job.state === "active" || shown.get(`log:${job.id}`) !== job.state) {
+        shown.set(`log:${job.id}`, job.state);
+        readLog(job.id).catch(() => {});
+      }
+    }
     if (job.state === "completed" && autoRender.delete(job.id)) render(job);
   }
   body.replaceChildren(...rows);
@@ -459,4 +553,6 @@ async function refreshJobs() {
 loadPresets();
 loadRecipes();
 refreshJobs();
+refreshWorkers();
 setInterval(() => keyRefused || refreshJobs(), 1000);
+setInterval(() => keyRefused || refreshWorkers(), 5000);
