@@ -89,7 +89,14 @@ def job_model(row: JobRow, services: Services) -> Job:
         result=row.result,
         priority=row.priority,
         cost=JobCost.model_validate(row.estimate) if row.estimate else None,
-        runs=[JobRun.model_validate(r) for r in row.runs or []],
+        runs=[
+            JobRun(
+                attempt=r["attempt"],
+                worker=r["worker"],
+                started_at=datetime.fromisoformat(r["started_at"]).replace(tzinfo=UTC),
+            )
+            for r in row.runs or []
+        ],
     )
 
 
