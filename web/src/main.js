@@ -1,11 +1,12 @@
 // The farm's page: presets and recipes (public), a grammar editor checked against the committed JSON Schema as
 // you type (ajv) with the server's 422 messages on their fields, forest and render jobs with
-// a live list (polling), previews, downloads, and a three.js viewer of GLBs. Without a valid
+// a live list (each running job's Server-Sent Events), previews, downloads, job logs, the
+// farm's workers, and a three.js viewer of GLBs. Without a valid
 // API key the page says how to make one instead of showing an empty job list.
 import "./style.css";
 import Ajv2020 from "ajv/dist/2020";
 import grammarSchema from "../../schemas/json/grammar.schema.json";
-import { api, ApiError, apiKey, locPath, setApiKey } from "./api.js";
+import { api, ApiError, apiKey, jobEvents, locPath, setApiKey } from "./api.js";
 import { Viewer } from "./viewer.js";
 
 // the gallery's thumbnails (scripts/thumbs.py), by preset name; emitted as assets by vite
@@ -29,6 +30,7 @@ keyInput.addEventListener("change", () => {
   setApiKey(keyInput.value.trim());
   blobs.clear();
   keyRefused = false;
+  for (const ctl of followed.values()) ctl.abort(); // another key: other jobs to follow
   refreshJobs();
   refreshWorkers();
   if (!presets.length) loadPresets();
@@ -423,7 +425,7 @@ function jobRow(job) {
     el("td", { className: "id", textContent: job.id.slice(0, 8), title: job.id }),
     el("td", { textContent: job.kind }),
     el("td", { className: `state state-${job.state}`, textContent: job.state + (job.cancel_requested && job.state === "active" ? " (canceling)" : "") }),
-    el("td", {}, progress, ` ${Math.round(job.progress * 100)}%`),
+    el("td", { className: "progress" }, progress, el("span", { className: "percent", textContent: ` ${Math.round(job.progress * 100)}%` })),
     el("td", { className: "stage", textContent: job.stage }),
     el("td", {
       className: "attempts",
@@ -539,8 +541,9 @@ async function refreshJobs() {
     rows.push(row);
     if (openLogs.has(job.id)) {
       rows.push(logRow(job.id));
-      // a running job's log grows: read on from the last line shown
-      if (job.state === "queued" || job.state === "active" || shown.get(`log:${job.id}`) !== job.state) {
+      // a running job's log grows: read on from the last line shown (a followed job's lines
+      // come with its events)
+      if ((!FINISHED.includes(job.state) && !followed.has(job.id)) || shown.get(`log:${job.id}`) !== job.state) {
         shown.set(`log:${job.id}`, job.state);
         readLog(job.id).catch(() => {});
       }
@@ -548,11 +551,78 @@ async function refreshJobs() {
     if (job.state === "completed" && autoRender.delete(job.id)) render(job);
   }
   body.replaceChildren(...rows);
+  for (const job of page.items) if (!FINISHED.includes(job.state)) follow(job.id);
+}
+
+// ---- live jobs: GET /v1/jobs/{id}/events ----------------------------------------------------
+const FINISHED = ["completed", "failed", "canceled"];
+const MAX_STREAMS = 4; // a browser opens at most 6 connections to a server over HTTP/1.1
+const followed = new Map(); // job id -> AbortController of its event stream
+
+/** The job as it is now, its row rebuilt (after a state change: attempts, error, artifacts). */
+async function updateJob(jobId) {
+  const job = await api(`/v1/jobs/${jobId}`);
+  const old = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  if (old) {
+    old.replaceWith(jobRow(job));
+    placeLog(jobId);
+  }
+  if (job.state === "completed" && autoRender.delete(job.id)) render(job);
+  return job;
+}
+
+function showProgress(jobId, { stage, progress }) {
+  const row = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  if (!row) return;
+  row.querySelector("progress").value = progress;
+  row.querySelector(".percent").textContent = ` ${Math.round(progress * 100)}%`;
+  row.querySelector(".stage").textContent = stage;
+}
+
+function appendLog(jobId, line) {
+  const log = openLogs.get(jobId);
+  if (!log || log.reading || line.id <= log.after) return; // a read under way brings it
+  log.lines.push(line);
+  log.after = line.id;
+  placeLog(jobId);
+}
+
+/** Follow an unfinished job's events (at most MAX_STREAMS at once; the rest show at the
+ * list's slower refresh) until it ends; a stream the server closed at its length cap is
+ * opened again, the log resumed after its last line. */
+function follow(jobId) {
+  if (followed.has(jobId) || followed.size >= MAX_STREAMS || keyRefused) return;
+  const ctl = new AbortController();
+  followed.set(jobId, ctl);
+  (async () => {
+    let lastEventId;
+    let ended = false;
+    try {
+      while (!ended) {
+        for await (const e of jobEvents(jobId, { lastEventId, signal: ctl.signal })) {
+          if (e.event === "log") {
+            lastEventId = e.id;
+            appendLog(jobId, e.data);
+          } else if (e.event === "progress") showProgress(jobId, e.data);
+          else if (e.event === "state") await updateJob(jobId);
+          else if (e.event === "end") ended = true;
+        }
+      }
+    } catch (err) {
+      if (ctl.signal.aborted) return;
+      keyOutcome(err);
+      await new Promise((resolve) => setTimeout(resolve, 2000)); // then the list looks again
+    } finally {
+      if (followed.get(jobId) === ctl) followed.delete(jobId);
+    }
+    if (!ctl.signal.aborted) refreshJobs(); // its end frees a stream for another job
+  })();
 }
 
 loadPresets();
 loadRecipes();
 refreshJobs();
 refreshWorkers();
-setInterval(() => keyRefused || refreshJobs(), 1000);
+// the list itself: jobs made elsewhere, and those beyond MAX_STREAMS (followed jobs update live)
+setInterval(() => keyRefused || refreshJobs(), 10000);
 setInterval(() => keyRefused || refreshWorkers(), 5000);

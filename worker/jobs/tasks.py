@@ -202,8 +202,8 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
     kind = (kinds or KINDS).get(claim.kind)
     if kind is None:
         error = f"kind: no worker code for job kind {claim.kind!r}"
-        rt.store.finish(claim, JobState.FAILED, error=error)
         alog.end("error", f"failed: {error}")
+        rt.store.finish(claim, JobState.FAILED, error=error)
         return JobState.FAILED
     try:
         scratch = rt.artifacts.scratch(job_id)
@@ -249,25 +249,27 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
                 for done_path in published:
                     done_path.unlink(missing_ok=True)
                 raise
+            # an attempt's last line is written before the job ends: whoever reads the log
+            # once the job has ended (the event stream) finds it
+            alog.end("info", f"completed: {len(files)} artifact(s)")
             done = rt.store.finish(
                 claim, JobState.COMPLETED, artifacts=sorted(files), result=end.result
             )
             if done:
-                alog.end("info", f"completed: {len(files)} artifact(s)")
                 return JobState.COMPLETED
             alog.end("warning", LEASE_LOST)
             return "lost"
         if end.status == "canceled":
-            rt.store.finish(claim, JobState.CANCELED, error="canceled on request")
             alog.end("info", "canceled on request")
+            rt.store.finish(claim, JobState.CANCELED, error="canceled on request")
             return JobState.CANCELED
         if end.status == "lost":
             alog.end("warning", LEASE_LOST)
             return "lost"
         if end.status in ("bad", "crash"):  # the input cannot work: retrying cannot help
             log.warning("job %s attempt %d failed: %s", job_id, claim.attempt, end.message)
-            rt.store.finish(claim, JobState.FAILED, error=end.message)
             alog.end("error", f"failed (not retried): {end.message}")
+            rt.store.finish(claim, JobState.FAILED, error=end.message)
             return JobState.FAILED
         error = end.message
     except Exception as exc:  # the worker's own side (publish, store): retried
@@ -288,8 +290,8 @@ def fail_full(rt: Runtime, claim: Claim, alog: AttemptLog | None = None) -> str:
     """The data volume had no room for the job's files: failed now (a retry finds none
     either, and each would fill it again)."""
     log.error("job %s attempt %d: %s", claim.job_id, claim.attempt, volume.FULL)
-    rt.store.finish(claim, JobState.FAILED, error=volume.FULL)
     (alog or AttemptLog(rt, claim)).end("error", f"failed (not retried): {volume.FULL}")
+    rt.store.finish(claim, JobState.FAILED, error=volume.FULL)
     return JobState.FAILED
 
 
@@ -298,12 +300,12 @@ def retry_or_fail(rt: Runtime, claim: Claim, error: str, alog: AttemptLog | None
     attempts are left, else failed with ``error``."""
     alog = alog or AttemptLog(rt, claim)
     if claim.attempt < claim.max_attempts:
+        alog.end("error", f"attempt failed, retrying: {error}")
         if rt.store.retry(claim, error):
             rt.dispatcher.send(claim.job_id, claim.kind, countdown=rt.settings.retry_delay_s)
-        alog.end("error", f"attempt failed, retrying: {error}")
         return "retry"
-    rt.store.finish(claim, JobState.FAILED, error=error)
     alog.end("error", f"failed after {claim.attempt} attempt(s): {error}")
+    rt.store.finish(claim, JobState.FAILED, error=error)
     return JobState.FAILED
 
 
