@@ -80,8 +80,20 @@ class JobRow(Base):
     (the lease owner is cleared when a job ends, this is not)."""
     log_dropped: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
     """Log lines dropped past the per-job cap (the oldest go first)."""
+    webhook_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
+    """Called once the job has ended (:mod:`farm.webhooks`)."""
+    webhook_pending: Mapped[bool] = mapped_column(Boolean, default=False, server_default="0")
+    """A webhook to deliver (once the job has ended); false once delivered or given up."""
+    webhook_attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    webhook_next_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    """Not before then: the next try after a failed one, or the lease of one under way."""
+    webhook_done_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    webhook_error: Mapped[str | None] = mapped_column(Text, nullable=True)
 
-    __table_args__ = (Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),)
+    __table_args__ = (
+        Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),
+        Index("ix_jobs_webhook_pending", "webhook_pending", "webhook_next_at"),
+    )
 
 
 class ApiKeyRow(Base):

@@ -1,5 +1,7 @@
 """The reaper: expired leases (a worker died) and queued jobs whose message went missing are
-sent to the broker again, and the fair window is pumped (:mod:`farm.fair`). Runs as a thread
+sent to the broker again and the fair window is pumped (:mod:`farm.fair`); beside it, a
+thread of its own calls due webhooks (:mod:`farm.webhooks`: a slow receiver never holds up
+the recovery of a lease). Runs as a thread
 in the API process and in every worker process; every ``housekeeping_s`` it also removes
 scratch folders that dead processes left behind and the artifacts of jobs finished more than
 ``artifact_ttl_s`` ago."""
@@ -16,6 +18,7 @@ from farm.dispatch import Dispatcher
 from farm.fair import pump_quietly
 from farm.settings import FarmSettings
 from farm.store import JobStore
+from farm.webhooks import Deliveries
 from schemas.jobs import JobState
 
 log = logging.getLogger(__name__)
@@ -99,8 +102,11 @@ class Reaper(threading.Thread):
         self.housekeeping_s, self.artifact_ttl_s = housekeeping_s, artifact_ttl_s
         self.settings = settings  # the fair window's, pumped each round
         self.stopped = threading.Event()
+        self.webhooks = Deliveries(store, settings, interval_s) if settings is not None else None
 
     def run(self) -> None:
+        if self.webhooks is not None:
+            self.webhooks.start()
         tidied = time.monotonic()
         while not self.stopped.wait(self.interval_s):
             try:
@@ -117,3 +123,5 @@ class Reaper(threading.Thread):
 
     def stop(self) -> None:
         self.stopped.set()
+        if self.webhooks is not None:
+            self.webhooks.stop()

@@ -83,6 +83,17 @@ class FarmSettings(BaseSettings):
     """Log lines kept per job (stage changes, warnings, errors, timings): past it the oldest
     go, and the log says how many."""
 
+    webhook_secret: str = ""
+    """The key of the HMAC-SHA256 signature of every webhook call (``X-Forest-Signature``);
+    empty: webhooks are off (a request naming one is 422)."""
+    webhook_hosts: str = ""
+    """Hosts (comma separated; ``*.example.com`` for subdomains) a job's ``webhook`` may name,
+    checked when the job is submitted and again before each call; empty: none."""
+    webhook_attempts: int = Field(5, ge=1, le=20)
+    """Calls of a webhook before it is given up (answers other than 2xx, or none)."""
+    webhook_timeout_s: float = Field(10.0, gt=0, le=120)
+    """One call's time limit (connect, send, answer)."""
+
     @model_validator(mode="after")
     def _timeout_after_heartbeats(self) -> FarmSettings:
         if self.worker_timeout_s <= self.worker_heartbeat_s:

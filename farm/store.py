@@ -120,6 +120,9 @@ class JobStore:
             cost=int((estimate or {}).get("units", 0)),
             tiles=int((estimate or {}).get("tiles", 0)),
             estimate=estimate,
+            # called once it ends (farm.webhooks); the service checked its host
+            webhook_url=params.get("webhook"),
+            webhook_pending=params.get("webhook") is not None,
         )
         try:
             with self.session() as s, s.begin():

@@ -61,6 +61,9 @@ JOB_ID_PATTERN = r"^[0-9A-Za-z_-]{1,64}$"
 without asking the store (PostgreSQL refuses a NUL in text: that was answered 503)."""
 JobId = Annotated[str, Field(min_length=1, max_length=64, pattern=JOB_ID_PATTERN)]
 Priority = Annotated[int, Field(ge=0, le=9)]
+WebhookUrl = Annotated[str, Field(min_length=8, max_length=2048, pattern=r"^https?://")]
+"""Called (POST, HMAC-signed) once the job has ended; its host must be one the server allows
+(``FOREST_WEBHOOK_HOSTS``)."""
 """0-9: among one tenant's waiting work, higher first (tenants take turns whatever it says)."""
 
 
@@ -198,6 +201,9 @@ class TreeRequest(FiniteModel):
     fps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 24.0
     wind_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 4.0
     segments: Annotated[int, Field(ge=1, le=8)] = 1
+    webhook: WebhookUrl | None = None
+    """A URL called (POST, JSON, HMAC-signed) once the job has ended; its host must be one of
+    the server's ``FOREST_WEBHOOK_HOSTS``."""
     season: Literal["summer", "autumn"] = "summer"
     """The leaves' palette: the species' summer colours, or its autumn ones (as the CLI's
     ``--season``)."""
@@ -282,6 +288,9 @@ class RenderRequest(FiniteModel):
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
     """Measured frames (wind samples from ``frame`` on); the preview is the first. A still
     scene (no wind frames) draws one, and the job's ``warnings`` and ``frames`` say so."""
+    webhook: WebhookUrl | None = None
+    """A URL called (POST, JSON, HMAC-signed) once the job has ended; its host must be one of
+    the server's ``FOREST_WEBHOOK_HOSTS``."""
     view: Literal["overview", "side", "eye"] = "overview"
     """Named camera (worker.render.camera.CameraSpec): the whole forest from 35 degrees azimuth and
     18 up, the same horizontally, or eyes 1.7 m above the ground at ``distance``."""
@@ -373,6 +382,18 @@ class JobRun(StrictModel):
     started_at: datetime
 
 
+class JobWebhook(StrictModel):
+    """A job's webhook call: made once the job has ended, tried again while it fails."""
+
+    url: str
+    pending: bool
+    """To be called (or called again); false once it answered 2xx or was given up."""
+    attempts: Annotated[int, Field(ge=0)]
+    delivered_at: datetime | None
+    error: str | None
+    """What went wrong with the last call."""
+
+
 class Job(StrictModel):
     """A job record: the SQL job table is the source of truth, the broker only delivers."""
 
@@ -403,6 +424,8 @@ class Job(StrictModel):
     runs: list[JobRun] = []
     """Which worker ran each attempt, oldest first (``worker`` names only the one running it
     now)."""
+    webhook: JobWebhook | None = None
+    """The delivery of the request's ``webhook`` (none without one)."""
 
 
 LogLevel = Literal["info", "warning", "error"]
