@@ -4,6 +4,7 @@ consuming the given queues, plus a reaper thread and its row in the worker regis
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
 import subprocess
@@ -95,7 +96,10 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
         _consume(app, settings, queues, node, loglevel)
     finally:
         beat.stop()
-        rt.registry.stopped(who)  # a clean stop: shown stopped, not lost
+        try:
+            rt.registry.stopped(who)  # a clean stop: shown stopped, not lost
+        except Exception:  # the store is away: it shows lost once its row ages
+            logging.getLogger(__name__).exception("worker registry: marking stopped failed")
 
 
 def _consume(app: Any, settings: Any, queues: list[str], node: str, loglevel: str) -> None:
