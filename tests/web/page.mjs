@@ -110,6 +110,7 @@ try {
   await page.waitForFunction(() => /completed: \d+ artifact/.test(document.querySelector("tr.log")?.textContent ?? ""), null, { timeout: 15000 });
   step("forest_log", await page.textContent("tr.log"));
   step("workers_status", await page.textContent("#workers-status"));
+  step("workers_table_shown", await page.isVisible("#workers"));
   // an artifact downloads (fetched with the key, saved by the browser)
   const [download] = await Promise.all([
     page.waitForEvent("download", { timeout: 15000 }),

@@ -159,6 +159,7 @@ def test_jobs_follow_their_events_and_show_their_log(seen: dict[str, Any]) -> No
     assert len(lists) < 30, len(lists)
     assert "attempt 1 of 3 on worker" in s["forest_log"] and "stage write" in s["forest_log"]
     assert s["workers_status"] == "an admin key shows the farm's workers here"
+    assert s["workers_table_shown"] is False
 
 
 def test_other_tenant_jobs_hidden(seen: dict[str, Any]) -> None:

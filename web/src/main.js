@@ -495,9 +495,11 @@ async function refreshWorkers() {
     list = await api("/v1/workers");
   } catch (err) {
     $("#workers tbody").replaceChildren();
+    $("#workers").hidden = true; // no empty table: the status says why
     $("#workers-status").textContent = err.status === 403 ? "an admin key shows the farm's workers here" : err.message;
     return;
   }
+  $("#workers").hidden = false;
   $("#workers-status").textContent = `${list.items.length} worker(s); lost when not seen for ${list.timeout_s} s`;
   $("#workers tbody").replaceChildren(
     ...list.items.map((w) => {
