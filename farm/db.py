@@ -84,8 +84,25 @@ class JobRow(Base):
         Boolean, default=False, server_default=false(), index=True
     )
     """Still waiting for a job of ``after``: the fair window does not send it."""
+    runs: Mapped[list[dict[str, Any]] | None] = mapped_column(JSON, nullable=True)
+    """Which worker ran each attempt: ``{"attempt", "worker", "started_at"}`` per claim
+    (the lease owner is cleared when a job ends, this is not)."""
+    log_dropped: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    """Log lines dropped past the per-job cap (the oldest go first)."""
+    webhook_url: Mapped[str | None] = mapped_column(String(2048), nullable=True)
+    """Called once the job has ended (:mod:`farm.webhooks`)."""
+    webhook_pending: Mapped[bool] = mapped_column(Boolean, default=False, server_default="0")
+    """A webhook to deliver (once the job has ended); false once delivered or given up."""
+    webhook_attempts: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    webhook_next_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    """Not before then: the next try after a failed one, or the lease of one under way."""
+    webhook_done_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    webhook_error: Mapped[str | None] = mapped_column(Text, nullable=True)
 
-    __table_args__ = (Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),)
+    __table_args__ = (
+        Index("ix_jobs_parent_state", "parent", "state", "enqueued_at"),
+        Index("ix_jobs_webhook_pending", "webhook_pending", "webhook_next_at"),
+    )
 
 
 class ApiKeyRow(Base):
@@ -100,6 +117,46 @@ class ApiKeyRow(Base):
     admin: Mapped[bool] = mapped_column(Boolean, default=False)
     created_at: Mapped[datetime] = mapped_column(DateTime)
     revoked_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+
+
+class WorkerRow(Base):
+    """A worker process (:mod:`farm.workers`): written at start and on every registry
+    heartbeat; one not seen for ``worker_timeout_s`` is lost (killed, or its host gone)."""
+
+    __tablename__ = "workers"
+
+    id: Mapped[str] = mapped_column(String(128), primary_key=True)
+    """``host:pid:tag``: the lease owner its jobs carry."""
+    name: Mapped[str] = mapped_column(String(255))
+    """The Celery node name (``--name``)."""
+    host: Mapped[str] = mapped_column(String(255))
+    pid: Mapped[int] = mapped_column(Integer)
+    queues: Mapped[list[str]] = mapped_column(JSON)
+    renderer: Mapped[str | None] = mapped_column(String(255), nullable=True)
+    """GL_RENDERER of its render jobs' context, or why there is none."""
+    current_job: Mapped[str | None] = mapped_column(String(32), nullable=True)
+    started_at: Mapped[datetime] = mapped_column(DateTime)
+    last_seen: Mapped[datetime] = mapped_column(DateTime, index=True)
+    stopped_at: Mapped[datetime | None] = mapped_column(DateTime, nullable=True)
+    """Set when it shut down cleanly (never for a killed one)."""
+
+
+class JobLogRow(Base):
+    """One line of a job's log: stage changes, warnings, errors, timings (:mod:`farm.joblog`)."""
+
+    __tablename__ = "job_logs"
+
+    # INTEGER on SQLite: only that type is its rowid (autoincrement)
+    id: Mapped[int] = mapped_column(
+        BigInteger().with_variant(Integer(), "sqlite"), primary_key=True, autoincrement=True
+    )
+    job_id: Mapped[str] = mapped_column(String(32))
+    attempt: Mapped[int] = mapped_column(Integer, default=0, server_default="0")
+    at: Mapped[datetime] = mapped_column(DateTime)
+    level: Mapped[str] = mapped_column(String(8))
+    message: Mapped[str] = mapped_column(Text)
+
+    __table_args__ = (Index("ix_job_logs_job_id", "job_id", "id"),)
 
 
 _engines: dict[str, Engine] = {}

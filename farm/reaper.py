@@ -1,5 +1,7 @@
 """The reaper: expired leases (a worker died) and queued jobs whose message went missing are
-sent to the broker again, and the fair window is pumped (:mod:`farm.fair`). Runs as a thread
+sent to the broker again and the fair window is pumped (:mod:`farm.fair`); beside it, a
+thread of its own calls due webhooks (:mod:`farm.webhooks`: a slow receiver never holds up
+the recovery of a lease). Runs as a thread
 in the API process and in every worker process; every ``housekeeping_s`` it also removes
 scratch folders that dead processes left behind and the artifacts of jobs finished more than
 ``artifact_ttl_s`` ago."""
@@ -10,11 +12,14 @@ import logging
 import threading
 import time
 
+from farm import joblog
 from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
 from farm.fair import pump_quietly
 from farm.settings import FarmSettings
 from farm.store import JobStore
+from farm.webhooks import Deliveries
+from schemas.jobs import JobState
 
 log = logging.getLogger(__name__)
 
@@ -29,14 +34,28 @@ def reap_once(
     window pumped too (held jobs are sent even if the pump that should have sent them was
     lost with its process)."""
     resend, failed = store.reap(requeue_after_s)
+    cap = settings.job_log_lines if settings is not None else 1000
     for row in resend:
         dispatcher.send(row.id, row.kind, pool=(row.params or {}).get("pool"))
         log.info("re-enqueued job %s (%s)", row.id, row.stage)
+        if row.state == JobState.ACTIVE:  # (the row as it was) a lease expired, not a message
+            _note(store, row.id, row.attempts, "warning", f"worker {row.lease_owner} lost "
+                  "(its lease expired): the job is queued again", cap)  # fmt: skip
     for row in failed:
         log.warning("job %s failed: lease expired after %d attempt(s)", row.id, row.attempts)
+        what = "canceled" if row.cancel_requested else f"failed after {row.attempts} attempt(s)"
+        _note(store, row.id, row.attempts, "error",
+              f"worker {row.lease_owner} lost (its lease expired): {what}", cap)  # fmt: skip
     if settings is not None:
         pump_quietly(store, dispatcher, settings)
     return len(resend)
+
+
+def _note(store: JobStore, job_id: str, attempt: int, level: str, text: str, cap: int) -> None:
+    try:
+        joblog.append(store, job_id, attempt, [joblog.Line(level, text)], cap)
+    except Exception:  # the job's state is what counts; its log line is a courtesy
+        log.exception("writing the log of job %s failed", job_id)
 
 
 def tidy_once(store: JobStore, artifacts: ArtifactStore, artifact_ttl_s: float = 0.0) -> int:
@@ -83,8 +102,11 @@ class Reaper(threading.Thread):
         self.housekeeping_s, self.artifact_ttl_s = housekeeping_s, artifact_ttl_s
         self.settings = settings  # the fair window's, pumped each round
         self.stopped = threading.Event()
+        self.webhooks = Deliveries(store, settings, interval_s) if settings is not None else None
 
     def run(self) -> None:
+        if self.webhooks is not None:
+            self.webhooks.start()
         tidied = time.monotonic()
         while not self.stopped.wait(self.interval_s):
             try:
@@ -101,3 +123,5 @@ class Reaper(threading.Thread):
 
     def stop(self) -> None:
         self.stopped.set()
+        if self.webhooks is not None:
+            self.webhooks.stop()

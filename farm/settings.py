@@ -72,6 +72,36 @@ class FarmSettings(BaseSettings):
     tenant's jobs and tiles. About the number of job workers."""
     max_attempts: int = Field(3, ge=1, le=100)
     retry_delay_s: float = Field(2.0, ge=0)
+    worker_heartbeat_s: float = Field(5.0, gt=0)
+    """A worker writes its row in the worker registry (last seen, current job) this often."""
+    worker_timeout_s: float = Field(30.0, gt=0)
+    """A worker not seen for this long is shown ``lost`` (killed, or its host gone); it must
+    exceed ``worker_heartbeat_s``."""
+    worker_forget_s: float = Field(86400.0, gt=0)
+    """A lost or stopped worker's row is deleted this long after it was last seen."""
+    job_log_lines: int = Field(1000, ge=10, le=100_000)
+    """Log lines kept per job (stage changes, warnings, errors, timings): past it the oldest
+    go, and the log says how many."""
+
+    webhook_secret: str = ""
+    """The key of the HMAC-SHA256 signature of every webhook call (``X-Forest-Signature``);
+    empty: webhooks are off (a request naming one is 422)."""
+    webhook_hosts: str = ""
+    """Hosts (comma separated; ``*.example.com`` for subdomains) a job's ``webhook`` may name,
+    checked when the job is submitted and again before each call; empty: none."""
+    webhook_attempts: int = Field(5, ge=1, le=20)
+    """Calls of a webhook before it is given up (answers other than 2xx, or none)."""
+    webhook_timeout_s: float = Field(10.0, gt=0, le=120)
+    """One call's time limit (connect, send, answer)."""
+
+    @model_validator(mode="after")
+    def _timeout_after_heartbeats(self) -> FarmSettings:
+        if self.worker_timeout_s <= self.worker_heartbeat_s:
+            raise ValueError(
+                f"worker_timeout_s ({self.worker_timeout_s:g}) must exceed worker_heartbeat_s "
+                f"({self.worker_heartbeat_s:g}): a live worker would show as lost"
+            )
+        return self
 
     @model_validator(mode="after")
     def _reaper_recovers_first(self) -> FarmSettings:

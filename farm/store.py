@@ -129,6 +129,9 @@ class JobStore:
             estimate=estimate,
             after=list(after) if after else None,
             blocked=bool(after),
+            # called once it ends (farm.webhooks); the service checked its host
+            webhook_url=params.get("webhook"),
+            webhook_pending=params.get("webhook") is not None,
         )
         if after:
             row.stage = waiting_for(after)
@@ -592,6 +595,13 @@ class JobStore:
                 return None
             row = s.get(JobRow, job_id)
             assert row is not None
+            # which worker ran each attempt (lease_owner says only who holds it now); the
+            # row is this claim's until it commits
+            run = {"attempt": row.attempts, "worker": owner, "started_at": now.isoformat()}
+            runs = list(row.runs or [])
+            if runs and runs[-1].get("attempt") == row.attempts:
+                runs.pop()  # a tiled forest's poll takes the same attempt again: one entry
+            row.runs = [*runs, run]
             return Claim(job_id, owner, row.attempts, row.kind, dict(row.params), row.max_attempts)
 
     def heartbeat(

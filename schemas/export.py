@@ -12,7 +12,16 @@ from pathlib import Path
 from pydantic import BaseModel
 
 from schemas.grammar import Grammar
-from schemas.jobs import ForestRequest, Job, JobPage, PresetList, RenderRequest, TreeRequest
+from schemas.jobs import (
+    ForestRequest,
+    Job,
+    JobLog,
+    JobPage,
+    PresetList,
+    RenderRequest,
+    TreeRequest,
+    WorkerList,
+)
 from schemas.metrics import RenderMetrics
 from schemas.recipe import Recipe, RecipeList
 from schemas.tileset import TileSetManifest
@@ -26,6 +35,8 @@ MODELS: dict[str, type[BaseModel]] = {
     "render-request": RenderRequest,
     "job": Job,
     "job-page": JobPage,
+    "job-log": JobLog,
+    "workers": WorkerList,
     "presets": PresetList,
     "recipe": Recipe,
     "recipes": RecipeList,

@@ -61,6 +61,9 @@ JOB_ID_PATTERN = r"^[0-9A-Za-z_-]{1,64}$"
 without asking the store (PostgreSQL refuses a NUL in text: that was answered 503)."""
 JobId = Annotated[str, Field(min_length=1, max_length=64, pattern=JOB_ID_PATTERN)]
 Priority = Annotated[int, Field(ge=0, le=9)]
+WebhookUrl = Annotated[str, Field(min_length=8, max_length=2048, pattern=r"^https?://")]
+"""Called (POST, HMAC-signed) once the job has ended; its host must be one the server allows
+(``FOREST_WEBHOOK_HOSTS``)."""
 """0-9: among one tenant's waiting work, higher first (tenants take turns whatever it says)."""
 
 
@@ -198,6 +201,9 @@ class TreeRequest(FiniteModel):
     fps: Annotated[float, Field(gt=0, le=1000, allow_inf_nan=False)] = 24.0
     wind_deg: Annotated[float, Field(ge=0, le=90, allow_inf_nan=False)] = 4.0
     segments: Annotated[int, Field(ge=1, le=8)] = 1
+    webhook: WebhookUrl | None = None
+    """A URL called (POST, JSON, HMAC-signed) once the job has ended; its host must be one of
+    the server's ``FOREST_WEBHOOK_HOSTS``."""
     season: Literal["summer", "autumn"] = "summer"
     """The leaves' palette: the species' summer colours, or its autumn ones (as the CLI's
     ``--season``)."""
@@ -288,6 +294,9 @@ class RenderSettings(FiniteModel):
     frames: Annotated[int, Field(ge=1, le=10_000)] = 1
     """Measured frames (wind samples from ``frame`` on); the preview is the first. A still
     scene (no wind frames) draws one, and the job's ``warnings`` and ``frames`` say so."""
+    webhook: WebhookUrl | None = None
+    """A URL called (POST, JSON, HMAC-signed) once the job has ended; its host must be one of
+    the server's ``FOREST_WEBHOOK_HOSTS``."""
     view: Literal["overview", "side", "eye"] = "overview"
     """Named camera (worker.render.camera.CameraSpec): the whole forest from 35 degrees azimuth and
     18 up, the same horizontally, or eyes 1.7 m above the ground at ``distance``."""
@@ -389,6 +398,27 @@ class Artifact(StrictModel):
     size: Annotated[int, Field(ge=0)]
 
 
+class JobRun(StrictModel):
+    """One attempt of a job and the worker that ran it."""
+
+    attempt: Annotated[int, Field(ge=1)]
+    worker: str
+    """``host:pid:tag`` (a worker's ``id`` in ``GET /v1/workers``)."""
+    started_at: datetime
+
+
+class JobWebhook(StrictModel):
+    """A job's webhook call: made once the job has ended, tried again while it fails."""
+
+    url: str
+    pending: bool
+    """To be called (or called again); false once it answered 2xx or was given up."""
+    attempts: Annotated[int, Field(ge=0)]
+    delivered_at: datetime | None
+    error: str | None
+    """What went wrong with the last call."""
+
+
 class Job(StrictModel):
     """A job record: the SQL job table is the source of truth, the broker only delivers."""
 
@@ -422,6 +452,63 @@ class Job(StrictModel):
     """Jobs that wait for this one (a forest request's ``render``, a render of a forest
     still running)."""
     """The estimate its tenant's quotas counted (none for a tile: its forest job counts it)."""
+    runs: list[JobRun] = []
+    """Which worker ran each attempt, oldest first (``worker`` names only the one running it
+    now)."""
+    webhook: JobWebhook | None = None
+    """The delivery of the request's ``webhook`` (none without one)."""
+
+
+LogLevel = Literal["info", "warning", "error"]
+
+
+class LogLine(StrictModel):
+    id: Annotated[int, Field(ge=1)]
+    """Increasing within a job (and across jobs): ``after`` of the next read."""
+    at: datetime
+    attempt: Annotated[int, Field(ge=0)]
+    level: LogLevel
+    message: str
+
+
+class JobLog(StrictModel):
+    """A job's log lines (stage changes with the time each stage took, warnings, errors,
+    the worker of each attempt, how it ended), oldest first."""
+
+    items: list[LogLine]
+    dropped: Annotated[int, Field(ge=0)]
+    """Older lines dropped past the per-job cap (``FOREST_JOB_LOG_LINES``)."""
+    next_after: Annotated[int, Field(ge=0)]
+    """``after`` for the lines that come next (the last id here, or the one asked)."""
+
+
+WorkerState = Literal["idle", "busy", "lost", "stopped"]
+
+
+class Worker(StrictModel):
+    """A worker process as the registry last saw it."""
+
+    id: str
+    """``host:pid:tag``: what a job's ``worker`` and ``runs`` name."""
+    name: str
+    """Its node name (``forest worker --name``)."""
+    host: str
+    pid: Annotated[int, Field(ge=0)]
+    queues: list[str]
+    renderer: str | None
+    """GL_RENDERER of the context its render jobs get (probed at start), or why none."""
+    state: WorkerState
+    """``lost``: not seen for ``FOREST_WORKER_TIMEOUT_S`` (killed, or its host gone);
+    ``stopped``: shut down cleanly."""
+    current_job: str | None
+    started_at: datetime
+    last_seen: datetime
+
+
+class WorkerList(StrictModel):
+    items: list[Worker]
+    timeout_s: float
+    """A worker not seen for this long is ``lost``."""
 
 
 class JobPage(StrictModel):

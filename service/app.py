@@ -22,7 +22,18 @@ from service.limits import BodyLimitMiddleware
 from service.methods import AllowedMethods
 from service.metrics import Metrics, MetricsMiddleware
 from service.openapi import document_shared_responses
-from service.routes import forests, health, jobs, presets, recipes, renders, trees, web
+from service.routes import (
+    events,
+    forests,
+    health,
+    jobs,
+    presets,
+    recipes,
+    renders,
+    trees,
+    web,
+    workers,
+)
 from service.security import AuthThrottle, KeyFirst, Keys, RateLimit, SameSiteWrites
 from service.settings import ServiceSettings
 
@@ -84,7 +95,7 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     )
     app.state.services = services
     install_handlers(app)
-    for module in (presets, recipes, trees, forests, renders, jobs, health):
+    for module in (presets, recipes, trees, forests, renders, jobs, events, workers, health):
         app.include_router(module.router)
     web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
     document_shared_responses(app)

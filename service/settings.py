@@ -42,6 +42,11 @@ class ServiceSettings(FarmSettings):
     """Tiles of one tenant's queued and running tiled forests together (429/422 as above)."""
     max_image_size: int = Field(4096, gt=0)
     max_render_frames: int = Field(240, gt=0)
+    events_max_s: float = Field(300.0, gt=0)
+    """``GET /v1/jobs/{id}/events`` ends after this long even while the job runs (a client
+    reconnects with ``Last-Event-ID``): no stream holds a connection and a thread for ever."""
+    events_poll_s: float = Field(0.5, gt=0)
+    """How often an event stream reads its job (and new log lines) from the store."""
     min_free_mb: int = Field(64, ge=0)
     """``/readyz`` answers 503 while the data volume (the artifacts folder's file system) has
     less than this free (MiB; 0: never): a full volume fails every job that writes."""

@@ -17,7 +17,8 @@ from farm.db import JobRow
 from farm.error_text import capped
 from farm.fair import pump
 from farm.store import IdempotencyConflict, scoped_key
-from schemas.jobs import Artifact, Job, JobCost, JobState
+from farm.webhooks import refusal
+from schemas.jobs import Artifact, Job, JobCost, JobRun, JobState, JobWebhook
 from service.deps import Services
 from service.errors import RETRY_AFTER_S, field_error
 from service.quotas import over_quota
@@ -91,6 +92,23 @@ def job_model(row: JobRow, services: Services) -> Job:
         cost=JobCost.model_validate(row.estimate) if row.estimate else None,
         after=row.after or [],
         then=row.then or [],
+        runs=[
+            JobRun(
+                attempt=r["attempt"],
+                worker=r["worker"],
+                started_at=datetime.fromisoformat(r["started_at"]).replace(tzinfo=UTC),
+            )
+            for r in row.runs or []
+        ],
+        webhook=JobWebhook(
+            url=row.webhook_url,
+            pending=row.webhook_pending,
+            attempts=row.webhook_attempts,
+            delivered_at=_utc(row.webhook_done_at),
+            error=row.webhook_error,
+        )
+        if row.webhook_url
+        else None,
     )
 
 
@@ -150,6 +168,10 @@ def enqueue(
     """Insert (or find, by idempotency key) the job, store its input files, enqueue it: the
     job's row (429/422 over a quota, 503 if the broker is away and the job was not sent)."""
     cost = cost or JobCost(pieces=0, frames=0, tiles=0, scene_bytes=0, units=0)
+    webhook = params.get("webhook")
+    refused_hook = refusal(webhook, services.settings) if webhook else None
+    if refused_hook is not None:  # before any work: the farm calls only hosts it allows
+        raise field_error(["webhook"], refused_hook)
     known = key is not None and services.store.by_key(scoped_key(tenant, key)) is not None
     if not known:  # a repeat of an accepted request answers its job, quota or not
         refused = over_quota(

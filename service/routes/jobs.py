@@ -1,17 +1,19 @@
-"""``/v1/jobs``: list (paged, filtered), read, cancel, and fetch artifacts."""
+"""``/v1/jobs``: list (paged, filtered), read, cancel, fetch artifacts, read the log."""
 
 from __future__ import annotations
 
 import re
+from datetime import UTC
 from typing import Annotated
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query
 from fastapi.responses import FileResponse
 
-from farm import tiles
+from farm import joblog, tiles
+from farm.db import JobLogRow
 from farm.reaper import delete_artifacts
 from farm.store import FINISHED
-from schemas.jobs import JOB_ID_PATTERN, Job, JobKind, JobPage, JobState
+from schemas.jobs import JOB_ID_PATTERN, Job, JobKind, JobLog, JobPage, JobState, LogLine
 from service.deps import ServicesDep
 from service.security import CallerDep
 from service.views import ERRORS, job_model
@@ -64,6 +66,37 @@ def get_job(services: ServicesDep, caller: CallerDep, job_id: JobIdDep) -> Job:
     if row is None:
         raise HTTPException(404, "no such job")
     return job_model(row, services)
+
+
+@router.get("/{job_id}/log", response_model=JobLog, responses=ERRORS)
+def get_job_log(
+    services: ServicesDep,
+    caller: CallerDep,
+    job_id: JobIdDep,
+    after: Annotated[int, Query(ge=0, le=2**62)] = 0,
+    limit: Annotated[int, Query(ge=1, le=1000)] = 1000,
+) -> JobLog:
+    """The job's log lines with an id above ``after``, oldest first: each attempt's worker,
+    stage changes with the time each stage took, warnings, errors and how it ended. At most
+    ``FOREST_JOB_LOG_LINES`` are kept per job (the oldest go; ``dropped`` counts them)."""
+    if services.store.get(job_id, caller.scope) is None:
+        raise HTTPException(404, "no such job")
+    rows, dropped = joblog.read(services.store, job_id, after, limit)
+    return JobLog(
+        items=[log_line(r) for r in rows],
+        dropped=dropped,
+        next_after=rows[-1].id if rows else after,
+    )
+
+
+def log_line(row: JobLogRow) -> LogLine:
+    return LogLine(
+        id=row.id,
+        at=row.at.replace(tzinfo=UTC),
+        attempt=row.attempt,
+        level=row.level,
+        message=row.message,
+    )
 
 
 @router.delete("/{job_id}", response_model=Job, responses=ERRORS)

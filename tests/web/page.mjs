@@ -105,6 +105,12 @@ try {
   step("render_links", await page.$$eval('tr[data-kind="render"] a.artifact', (as) => as.map((a) => a.textContent)));
   step("job_ids", await page.$$eval("tr.job", (rows) => rows.map((r) => r.dataset.jobId)));
   step("other_tenant_job_shown", (await page.$(`tr[data-job-id="${otherJob}"]`)) !== null);
+  // the forest job's log, under its row; a tenant's key shows no workers
+  await page.click('tr[data-kind="forest"][data-state="completed"] button.show-log');
+  await page.waitForFunction(() => /completed: \d+ artifact/.test(document.querySelector("tr.log")?.textContent ?? ""), null, { timeout: 15000 });
+  step("forest_log", await page.textContent("tr.log"));
+  step("workers_status", await page.textContent("#workers-status"));
+  step("workers_table_shown", await page.isVisible("#workers"));
   // an artifact downloads (fetched with the key, saved by the browser)
   const [download] = await Promise.all([
     page.waitForEvent("download", { timeout: 15000 }),

@@ -3,7 +3,8 @@ against ``forest serve`` on loopback with two tenants' keys. The page signs in w
 in the browser (without one it lists the public presets and says how to make a key), shows
 the presets with their gallery images, checks a grammar against the
 JSON Schema as it is typed and puts the server's 422 messages on the field they name, submits
-a forest job that reaches ``completed`` and renders its preview, downloads an artifact, lists
+a forest job that reaches ``completed`` (its row following the job's events) and renders its
+preview, shows the job's log, downloads an artifact, lists
 the recipes and makes a forest job of one, shows
 a tree's GLB with its wind playing on a non-empty WebGL canvas and a small forest's
 ``scene.glb`` from a glb forest job, never lists the other
@@ -148,6 +149,17 @@ def test_forest_job_completes_and_preview_shows(seen: dict[str, Any]) -> None:
     assert s["preview_size"] == [640, 480]
     assert any(link.startswith("preview.png") for link in s["render_links"])
     assert s["download_name"] == "scene.usdc"
+
+
+def test_jobs_follow_their_events_and_show_their_log(seen: dict[str, Any]) -> None:
+    s = seen["steps"]
+    # live rows from each job's Server-Sent Events, not a poll of the list every second
+    assert any("/events" in url for url in seen["requests"])
+    lists = [url for url in seen["requests"] if url.split("?")[0].endswith("/v1/jobs")]
+    assert len(lists) < 30, len(lists)
+    assert "attempt 1 of 3 on worker" in s["forest_log"] and "stage write" in s["forest_log"]
+    assert s["workers_status"] == "an admin key shows the farm's workers here"
+    assert s["workers_table_shown"] is False
 
 
 def test_other_tenant_jobs_hidden(seen: dict[str, Any]) -> None:

@@ -1,11 +1,12 @@
 // The farm's page: presets and recipes (public), a grammar editor checked against the committed JSON Schema as
 // you type (ajv) with the server's 422 messages on their fields, forest and render jobs with
-// a live list (polling), previews, downloads, and a three.js viewer of GLBs. Without a valid
+// a live list (each running job's Server-Sent Events), previews, downloads, job logs, the
+// farm's workers, and a three.js viewer of GLBs. Without a valid
 // API key the page says how to make one instead of showing an empty job list.
 import "./style.css";
 import Ajv2020 from "ajv/dist/2020";
 import grammarSchema from "../../schemas/json/grammar.schema.json";
-import { api, ApiError, apiKey, locPath, setApiKey } from "./api.js";
+import { api, ApiError, apiKey, jobEvents, locPath, setApiKey } from "./api.js";
 import { Viewer } from "./viewer.js";
 
 // the gallery's thumbnails (scripts/thumbs.py), by preset name; emitted as assets by vite
@@ -29,7 +30,9 @@ keyInput.addEventListener("change", () => {
   setApiKey(keyInput.value.trim());
   blobs.clear();
   keyRefused = false;
+  for (const ctl of followed.values()) ctl.abort(); // another key: other jobs to follow
   refreshJobs();
+  refreshWorkers();
   if (!presets.length) loadPresets();
 });
 
@@ -399,6 +402,9 @@ function jobRow(job) {
     results.append(link);
   }
   const actions = el("td", { className: "actions" });
+  const logButton = el("button", { type: "button", className: "show-log", textContent: openLogs.has(job.id) ? "Hide log" : "Log" });
+  logButton.addEventListener("click", () => toggleLog(job.id));
+  actions.append(logButton);
   if (job.state === "queued" || job.state === "active") {
     const b = el("button", { type: "button", className: "cancel", textContent: "Cancel" });
     b.addEventListener("click", () => cancel(job));
@@ -419,9 +425,14 @@ function jobRow(job) {
     el("td", { className: "id", textContent: job.id.slice(0, 8), title: job.id }),
     el("td", { textContent: job.kind }),
     el("td", { className: `state state-${job.state}`, textContent: job.state + (job.cancel_requested && job.state === "active" ? " (canceling)" : "") }),
-    el("td", {}, progress, ` ${Math.round(job.progress * 100)}%`),
+    el("td", { className: "progress" }, progress, el("span", { className: "percent", textContent: ` ${Math.round(job.progress * 100)}%` })),
     el("td", { className: "stage", textContent: job.stage }),
-    el("td", { className: "attempts", textContent: `${job.attempts}/${job.max_attempts}` }),
+    el("td", {
+      className: "attempts",
+      textContent: `${job.attempts}/${job.max_attempts}`,
+      // which worker ran each attempt
+      title: (job.runs || []).map((r) => `attempt ${r.attempt}: ${r.worker}`).join("\n"),
+    }),
     el("td", { className: "error", textContent: job.error ?? "" }),
     results,
     actions,
@@ -430,6 +441,85 @@ function jobRow(job) {
 }
 
 const shown = new Map(); // job id -> JSON of what its row shows (rebuild rows that changed)
+
+// ---- job logs (GET /v1/jobs/{id}/log) -------------------------------------------------------
+const openLogs = new Map(); // job id -> { lines: [LogLine], after, dropped }
+
+function logRow(jobId) {
+  const log = openLogs.get(jobId);
+  const pre = el("pre", { className: "log-lines" });
+  if (log.dropped) pre.append(el("span", { className: "hint", textContent: `(${log.dropped} older line(s) dropped)\n` }));
+  for (const line of log.lines) {
+    const at = new Date(line.at).toLocaleTimeString();
+    pre.append(el("span", { className: line.level, textContent: `${at} #${line.attempt} ${line.level.padEnd(7)} ${line.message}\n` }));
+  }
+  const tr = el("tr", { className: "log" }, el("td", { colSpan: 9 }, pre));
+  tr.dataset.logOf = jobId;
+  return tr;
+}
+
+/** New lines of an open log (from its last id on), appended to what it shows. */
+async function readLog(jobId) {
+  const log = openLogs.get(jobId);
+  if (!log || log.reading) return; // one read at a time: no line twice
+  log.reading = true;
+  try {
+    const got = await api(`/v1/jobs/${jobId}/log?after=${log.after}`);
+    log.lines.push(...got.items);
+    log.after = got.next_after;
+    log.dropped = got.dropped;
+  } finally {
+    log.reading = false;
+  }
+  placeLog(jobId);
+}
+
+function placeLog(jobId) {
+  const row = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  document.querySelector(`#jobs tr[data-log-of="${jobId}"]`)?.remove();
+  if (row && openLogs.has(jobId)) row.after(logRow(jobId));
+}
+
+function toggleLog(jobId) {
+  if (openLogs.has(jobId)) openLogs.delete(jobId);
+  else openLogs.set(jobId, { lines: [], after: 0, dropped: 0 });
+  shown.delete(jobId); // its row's button changes
+  refreshJobs();
+  if (openLogs.has(jobId)) readLog(jobId).catch((err) => ($("#jobs-status").textContent = `log: ${err.message}`));
+}
+
+// ---- workers (GET /v1/workers: an admin key's) ----------------------------------------------
+async function refreshWorkers() {
+  let list;
+  try {
+    list = await api("/v1/workers");
+  } catch (err) {
+    $("#workers tbody").replaceChildren();
+    $("#workers").hidden = true; // no empty table: the status says why
+    $("#workers-status").textContent = err.status === 403 ? "an admin key shows the farm's workers here" : err.message;
+    return;
+  }
+  $("#workers").hidden = false;
+  $("#workers-status").textContent = `${list.items.length} worker(s); lost when not seen for ${list.timeout_s} s`;
+  $("#workers tbody").replaceChildren(
+    ...list.items.map((w) => {
+      const tr = el(
+        "tr",
+        { className: "worker" },
+        el("td", { textContent: w.name, title: w.id }),
+        el("td", { textContent: w.host }),
+        el("td", { textContent: w.queues.join(", ") }),
+        el("td", { textContent: w.renderer ?? "(probing)" }),
+        el("td", { className: `worker-${w.state}`, textContent: w.state }),
+        el("td", { className: "id", textContent: w.current_job ? w.current_job.slice(0, 8) : "", title: w.current_job ?? "" }),
+        el("td", { textContent: new Date(w.last_seen).toLocaleTimeString() }),
+      );
+      tr.dataset.workerId = w.id;
+      tr.dataset.state = w.state;
+      return tr;
+    }),
+  );
+}
 
 async function refreshJobs() {
   let page;
@@ -451,12 +541,90 @@ async function refreshJobs() {
       shown.set(job.id, sig);
     }
     rows.push(row);
+    if (openLogs.has(job.id)) {
+      rows.push(logRow(job.id));
+      // a running job's log grows: read on from the last line shown (a followed job's lines
+      // come with its events)
+      if ((!FINISHED.includes(job.state) && !followed.has(job.id)) || shown.get(`log:${job.id}`) !== job.state) {
+        shown.set(`log:${job.id}`, job.state);
+        readLog(job.id).catch(() => {});
+      }
+    }
     if (job.state === "completed" && autoRender.delete(job.id)) render(job);
   }
   body.replaceChildren(...rows);
+  for (const job of page.items) if (!FINISHED.includes(job.state)) follow(job.id);
+}
+
+// ---- live jobs: GET /v1/jobs/{id}/events ----------------------------------------------------
+const FINISHED = ["completed", "failed", "canceled"];
+const MAX_STREAMS = 4; // a browser opens at most 6 connections to a server over HTTP/1.1
+const followed = new Map(); // job id -> AbortController of its event stream
+
+/** The job as it is now, its row rebuilt (after a state change: attempts, error, artifacts). */
+async function updateJob(jobId) {
+  const job = await api(`/v1/jobs/${jobId}`);
+  const old = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  if (old) {
+    old.replaceWith(jobRow(job));
+    placeLog(jobId);
+  }
+  if (job.state === "completed" && autoRender.delete(job.id)) render(job);
+  return job;
+}
+
+function showProgress(jobId, { stage, progress }) {
+  const row = document.querySelector(`#jobs tr[data-job-id="${jobId}"]`);
+  if (!row) return;
+  row.querySelector("progress").value = progress;
+  row.querySelector(".percent").textContent = ` ${Math.round(progress * 100)}%`;
+  row.querySelector(".stage").textContent = stage;
+}
+
+function appendLog(jobId, line) {
+  const log = openLogs.get(jobId);
+  if (!log || log.reading || line.id <= log.after) return; // a read under way brings it
+  log.lines.push(line);
+  log.after = line.id;
+  placeLog(jobId);
+}
+
+/** Follow an unfinished job's events (at most MAX_STREAMS at once; the rest show at the
+ * list's slower refresh) until it ends; a stream the server closed at its length cap is
+ * opened again, the log resumed after its last line. */
+function follow(jobId) {
+  if (followed.has(jobId) || followed.size >= MAX_STREAMS || keyRefused) return;
+  const ctl = new AbortController();
+  followed.set(jobId, ctl);
+  (async () => {
+    let lastEventId;
+    let ended = false;
+    try {
+      while (!ended) {
+        for await (const e of jobEvents(jobId, { lastEventId, signal: ctl.signal })) {
+          if (e.event === "log") {
+            lastEventId = e.id;
+            appendLog(jobId, e.data);
+          } else if (e.event === "progress") showProgress(jobId, e.data);
+          else if (e.event === "state") await updateJob(jobId);
+          else if (e.event === "end") ended = true;
+        }
+      }
+    } catch (err) {
+      if (ctl.signal.aborted) return;
+      keyOutcome(err);
+      await new Promise((resolve) => setTimeout(resolve, 2000)); // then the list looks again
+    } finally {
+      if (followed.get(jobId) === ctl) followed.delete(jobId);
+    }
+    if (!ctl.signal.aborted) refreshJobs(); // its end frees a stream for another job
+  })();
 }
 
 loadPresets();
 loadRecipes();
 refreshJobs();
-setInterval(() => keyRefused || refreshJobs(), 1000);
+refreshWorkers();
+// the list itself: jobs made elsewhere, and those beyond MAX_STREAMS (followed jobs update live)
+setInterval(() => keyRefused || refreshJobs(), 10000);
+setInterval(() => keyRefused || refreshWorkers(), 5000);

@@ -1,16 +1,41 @@
 """``forest worker``: one Celery worker process (solo pool: one task at a time, one GL context)
-consuming the given queues, plus a reaper thread. Scale with more processes or replicas."""
+consuming the given queues, plus a reaper thread and its row in the worker registry
+(:mod:`farm.workers`). Scale with more processes or replicas."""
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
+import subprocess
 import sys
+from typing import Any
 
 import click
 
 from forest.errors import ForestError
 from forest.extras import require
+
+# run in a fresh interpreter: the worker process itself never makes a GL context (its jobs'
+# children do), and a driver that crashes on the probe takes only the probe down
+PROBE = (
+    "from forest.gl.context import create_context, gl_info\n"
+    "print(gl_info(create_context()).renderer)"
+)
+
+
+def probe_renderer(timeout_s: float = 60.0) -> str:
+    """GL_RENDERER of the context a render job would get, or why there is none."""
+    try:
+        done = subprocess.run(
+            [sys.executable, "-c", PROBE], capture_output=True, text=True, timeout=timeout_s
+        )
+    except (OSError, subprocess.TimeoutExpired) as exc:
+        return f"unavailable: {type(exc).__name__}"
+    if done.returncode == 0 and done.stdout.strip():
+        return done.stdout.strip().splitlines()[-1][:200]
+    last = (done.stderr.strip().splitlines() or [f"exit status {done.returncode}"])[-1]
+    return f"unavailable: {last}"[:200]
 
 
 def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info") -> None:
@@ -20,6 +45,7 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     from farm.dispatch import QUEUES
     from farm.reaper import Reaper, tidy_once
     from farm.settings import get_settings
+    from farm.workers import Heartbeat, Identity
 
     unknown = [q for q in queues if q not in QUEUES]
     if unknown or not queues:
@@ -28,8 +54,9 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
         )
     import forest.usd.scene  # noqa: F401  (heavy imports, pxr above all, before the first job)
     from forest.geometry.pieces import piece_library
+    from worker.jobs import tasks
     from worker.jobs.supervise import preload
-    from worker.jobs.tasks import app, runtime
+    from worker.jobs.tasks import OWNER, app, runtime
 
     piece_library(1)  # built once per process (about a second): not inside the first job
     preload()  # each job runs in a child of a fork server that imported pxr and forest once
@@ -51,6 +78,32 @@ def run_worker(queues: list[str], name: str | None = None, loglevel: str = "info
     )
     reaper.start()
     node = name or f"forest-{os.getpid()}@{socket.gethostname()}"
+    host = socket.gethostname()
+    # the registry's row: %h as Celery expands it in the node name
+    who = Identity(OWNER, node.replace("%h", host), host, os.getpid(), queues)
+    tasks.identity = who
+    renders = bool({"render", "gpu", "cpu"} & set(queues))  # farm.dispatch: the render pools
+    rt.registry.register(who, None if renders else "none: no render queue")
+    beat = Heartbeat(
+        rt.registry,
+        who,
+        lambda: tasks.current_job,
+        settings.worker_heartbeat_s,
+        settings.worker_forget_s,
+        renderer=probe_renderer if renders else None,
+    )
+    beat.start()
+    try:
+        _consume(app, settings, queues, node, loglevel)
+    finally:
+        beat.stop()
+        try:
+            rt.registry.stopped(who)  # a clean stop: shown stopped, not lost
+        except Exception:  # the store is away: it shows lost once its row ages
+            logging.getLogger(__name__).exception("worker registry: marking stopped failed")
+
+
+def _consume(app: Any, settings: Any, queues: list[str], node: str, loglevel: str) -> None:
     app.worker_main(
         [
             "worker",

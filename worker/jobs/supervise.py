@@ -14,11 +14,16 @@ reads how the child ended:
 
 Resource limits (``RLIMIT_AS``, ``RLIMIT_CPU``) are set in the child before it runs anything, so
 a time-sample bomb ends as a MemoryError of one child, not an OOM of the worker.
+
+The child also sends events on a second pipe, read as they come: each stage change with its
+time, and its warnings and errors (Python's ``logging`` at WARNING and up, and ``warnings``),
+at most :data:`CHILD_EVENTS` an attempt; the worker writes them into the job's log.
 """
 
 from __future__ import annotations
 
 import contextlib
+import logging
 import multiprocessing as mp
 import re
 import resource
@@ -39,6 +44,9 @@ PRELOAD = [
     "worker.jobs.tasks",
 ]
 STAGE_BYTES = 64
+CHILD_EVENTS = 500  # events one attempt's child sends at most (the log is capped anyway)
+Event = tuple[str, float, str, str]
+"""A child's event: ``("stage", time, name, "")`` or ``("log", time, level, message)``."""
 _CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
 # an absolute path in a message: /a/b/c -> c (job errors never show server paths)
 _ABS_PATH = re.compile(r"(?:(?<=[\s@'\"(=:])|^)/(?:[^\s@'\"(),:]+/)*([^\s@'\"(),:/]*)")
@@ -112,6 +120,42 @@ def _set_limits(limits: Limits) -> None:
         resource.setrlimit(resource.RLIMIT_CPU, (limits.cpu_s, limits.cpu_s + 5))
 
 
+class _Events:
+    """The child's side of the event pipe: at most :data:`CHILD_EVENTS`, then one saying so."""
+
+    def __init__(self, conn: Connection | None) -> None:
+        self.conn, self.sent, self.stage = conn, 0, ""
+
+    def send(self, kind: str, a: str, b: str = "") -> None:
+        if self.conn is None or self.sent > CHILD_EVENTS:
+            return
+        self.sent += 1
+        if self.sent > CHILD_EVENTS:
+            kind, a, b = (
+                "log",
+                "warning",
+                f"further events of this attempt dropped ({CHILD_EVENTS} sent)",
+            )
+        with contextlib.suppress(OSError, ValueError):
+            self.conn.send((kind, time.time(), a, b))
+
+
+class _ToParent(logging.Handler):
+    """The child's warnings and errors (its libraries' included) as events."""
+
+    def __init__(self, events: _Events) -> None:
+        super().__init__(logging.WARNING)
+        self.events = events
+
+    def emit(self, record: logging.LogRecord) -> None:
+        try:
+            text = record.getMessage()
+        except Exception:
+            text = str(record.msg)
+        level = "error" if record.levelno >= logging.ERROR else "warning"
+        self.events.send("log", level, scrub_paths(f"{record.name}: {text}"))
+
+
 def _child_main(
     target: Callable[..., Any],
     args: tuple[Any, ...],
@@ -119,20 +163,31 @@ def _child_main(
     progress: Any,
     stage: Any,
     conn: Connection,
+    events_conn: Connection | None = None,
 ) -> None:
-    """Runs in the child: limits, then ``target(report, *args)``; one message to the parent."""
+    """Runs in the child: limits, then ``target(report, *args)``; one message to the parent
+    (and events on ``events_conn``)."""
     _die_with_parent()
     _set_limits(limits)
+    events = _Events(events_conn)
+    if events_conn is not None:
+        logging.captureWarnings(True)  # warnings.warn -> logging "py.warnings"
+        logging.getLogger().addHandler(_ToParent(events))
 
     def report(name: str, fraction: float) -> None:
         progress.value = float(fraction)
         stage.value = name.encode("utf-8", "replace")[: STAGE_BYTES - 1]
+        if name != events.stage:  # a stage change, with its time: the log's timings
+            events.stage = name
+            events.send("stage", name)
 
     try:
         files, result = target(report, *args)
         msg: tuple[Any, ...] = ("ok", files, result)
     except Exception as exc:
         msg = failure(exc, limits)
+    if events_conn is not None:
+        events_conn.close()
     conn.send(msg)
     conn.close()
 
@@ -171,25 +226,36 @@ def supervise(
     limits: Limits,
     heartbeat: Callable[[float, str], bool | None],
     heartbeat_s: float,
+    on_event: Callable[[Event], None] | None = None,
 ) -> ChildEnd:
     """Run ``target(report, *args) -> (files, result)`` in a child; call
     ``heartbeat(progress, stage)`` every ``heartbeat_s`` (True: cancel asked, None: lease lost)
-    until it ends. The child is killed on cancel or a lost lease."""
+    until it ends, and ``on_event`` with each of the child's events as it comes. The child is
+    killed on cancel or a lost lease."""
     ctx = context()
     progress = ctx.Value("d", 0.0, lock=False)
     stage = ctx.Array("c", STAGE_BYTES, lock=False)
     recv, send = ctx.Pipe(duplex=False)
+    events_recv, events_send = ctx.Pipe(duplex=False) if on_event else (None, None)
     proc = ctx.Process(  # type: ignore[attr-defined]
-        target=_child_main, args=(target, args, limits, progress, stage, send), daemon=True
+        target=_child_main,
+        args=(target, args, limits, progress, stage, send, events_send),
+        daemon=True,
     )
     proc.start()
     send.close()
+    if events_send is not None:
+        events_send.close()
+    watched: list[Any] = [recv, proc.sentinel] + ([events_recv] if events_recv else [])
     msg: tuple[Any, ...] | None = None
     end: ChildEnd | None = None
     next_beat = time.monotonic()  # at once: starting the child may have taken a while
     try:
         while True:
-            ready = wait([recv, proc.sentinel], timeout=max(0.0, next_beat - time.monotonic()))
+            ready = wait(watched, timeout=max(0.0, next_beat - time.monotonic()))
+            # the child closed its end (it is ending): no more waiting on it
+            if events_recv in ready and not _drain(events_recv, on_event):
+                watched.remove(events_recv)
             if recv in ready:
                 with contextlib.suppress(EOFError, OSError):
                     msg = recv.recv()
@@ -213,6 +279,9 @@ def supervise(
             proc.kill()
             proc.join(5)
         recv.close()
+        if events_recv is not None:
+            _drain(events_recv, on_event, block=False)  # what came after the last wait
+            events_recv.close()
     if end is not None:
         return end
     last_stage = stage.value.decode("utf-8", "replace")
@@ -224,6 +293,20 @@ def supervise(
     if code < 0:
         return ChildEnd("crash", crash_message(code, last_stage, limits))
     return ChildEnd("error", f"the job's process exited with status {code} during {last_stage}")
+
+
+def _drain(conn: Connection, on_event: Callable[[Event], None] | None, block: bool = True) -> bool:
+    """Read the events waiting on ``conn`` (at least one when ``block``); False once the
+    child closed its end."""
+    try:
+        while block or conn.poll():
+            block = False
+            event = conn.recv()
+            if on_event is not None:
+                on_event(event)
+    except (EOFError, OSError):
+        return False
+    return True
 
 
 def job_limits(memory_mb: int, cpu_s: int) -> Limits:

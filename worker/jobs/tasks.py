@@ -9,6 +9,11 @@ reaper re-enqueues the job after the lease and another worker runs it from the s
 are written into a scratch folder and renamed into the artifact store, so a half-written file
 never shows. A tiled forest job runs no kind: it joins its tiles (:mod:`farm.tiles`). A write
 that finds the data volume full fails the job at once (:mod:`farm.volume`): no retry.
+
+Each attempt writes the job's log (:mod:`farm.joblog`): its start and worker, the child's
+stage changes with the time each stage took, its warnings and errors, and how it ended,
+batched with the heartbeat; and the worker's row in the registry (:mod:`farm.workers`) names
+the job it runs.
 """
 
 from __future__ import annotations
@@ -17,22 +22,25 @@ import logging
 import os
 import shutil
 import socket
+import time
 import uuid
 from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from farm import tiles, volume
+from farm import joblog, tiles, volume
 from farm.artifacts import ArtifactStore
 from farm.dispatch import TASK_NAME, Dispatcher, make_celery
 from farm.fair import TILE_KIND, pump_quietly
 from farm.settings import FarmSettings, get_settings
 from farm.store import Claim, JobStore
+from farm.workers import Identity, Registry
 from schemas.jobs import JobState
 from worker.jobs.context import JobContext, TaskKind
 from worker.jobs.registry import KINDS
 from worker.jobs.scene_guard import UploadCaps
-from worker.jobs.supervise import job_limits, scrub_paths, supervise, under
+from worker.jobs.supervise import Event, job_limits, scrub_paths, supervise, under
 
 log = logging.getLogger(__name__)
 OWNER = f"{socket.gethostname()}:{os.getpid()}:{uuid.uuid4().hex[:8]}"
@@ -46,9 +54,15 @@ class Runtime:
         self.store = JobStore(settings.db_url)
         self.artifacts = ArtifactStore(settings.artifacts)
         self.dispatcher = Dispatcher(settings)
+        self.registry = Registry(self.store)
 
 
 _runtime: Runtime | None = None
+identity: Identity | None = None
+"""This worker in the registry (set by ``forest worker``; None: no registry, e.g. a test
+calling :func:`execute`)."""
+current_job: str | None = None
+"""The job this process runs now (the registry's heartbeat reads it)."""
 
 
 def runtime() -> Runtime:
@@ -94,16 +108,72 @@ def run_attempt(
     return {name: str(path) for name, path in outcome.files.items()}, outcome.result
 
 
+class AttemptLog:
+    """An attempt's lines of the job's log, kept until the next heartbeat (or the end)
+    writes them: a line per stage change with the time the stage before took."""
+
+    def __init__(self, rt: Runtime, claim: Claim) -> None:
+        self.rt, self.claim = rt, claim
+        self.lines: list[joblog.Line] = []
+        self.started = self.stage_at = time.time()
+        self.stage: str | None = None
+
+    def add(self, level: str, message: str, at: float | None = None) -> None:
+        when = datetime.fromtimestamp(at or time.time(), UTC).replace(tzinfo=None)
+        self.lines.append(joblog.Line(level, message, when))
+
+    def event(self, event: Event) -> None:
+        kind, at, a, b = event
+        if kind != "stage":
+            self.add(a, b, at)
+            return
+        took = f" ({self.stage} took {at - self.stage_at:.2f} s)" if self.stage else ""
+        self.add("info", f"stage {a}{took}", at)
+        self.stage, self.stage_at = a, at
+
+    def end(self, level: str, message: str) -> None:
+        now = time.time()
+        last = f"; {self.stage} took {now - self.stage_at:.2f} s" if self.stage else ""
+        self.add(
+            level, f"{message} (attempt {self.claim.attempt}: {now - self.started:.2f} s{last})"
+        )
+        self.flush()
+
+    def flush(self) -> None:
+        lines, self.lines = self.lines, []
+        try:
+            joblog.append(
+                self.rt.store, self.claim.job_id, self.claim.attempt, lines,
+                self.rt.settings.job_log_lines,
+            )  # fmt: skip
+        except Exception:  # the database is away: the job runs on without these lines
+            log.exception("writing the log of job %s failed", self.claim.job_id)
+
+
+def _registry_beat(rt: Runtime) -> None:
+    if identity is None:
+        return
+    try:
+        rt.registry.beat(identity, current_job)
+    except Exception:  # the registry heartbeat writes it again within seconds
+        log.exception("worker registry update failed")
+
+
 def execute(job_id: str, kinds: dict[str, TaskKind] | None = None) -> str:
     """Run one delivery of a job; answers what happened (for logs and tests). A job or tile
     that ends frees a place in the fair window: the next is sent (:mod:`farm.fair`)."""
+    global current_job
     rt = runtime()
     claim = rt.store.claim(job_id, OWNER, rt.settings.lease_s)
     if claim is None:
         return "skipped"  # finished, canceled, or leased by a live worker
+    current_job = job_id
+    _registry_beat(rt)  # the registry names the job now, not at the next heartbeat
     try:
         return run_claim(rt, claim, kinds)
     finally:
+        current_job = None
+        _registry_beat(rt)
         pump_quietly(rt.store, rt.dispatcher, rt.settings)
 
 
@@ -125,19 +195,25 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
             if volume.is_full(exc):
                 return fail_full(rt, claim)
             return retry_or_fail(rt, claim, scrub_paths(f"{type(exc).__name__}: {exc}"))
+    alog = AttemptLog(rt, claim)
+    who = f" ({identity.name})" if identity is not None else ""
+    alog.add("info", f"attempt {claim.attempt} of {claim.max_attempts} on worker {OWNER}{who}")
+    alog.flush()  # at once: a client following the job sees who took it
     kind = (kinds or KINDS).get(claim.kind)
     if kind is None:
         error = f"kind: no worker code for job kind {claim.kind!r}"
+        alog.end("error", f"failed: {error}")
         rt.store.finish(claim, JobState.FAILED, error=error)
         return JobState.FAILED
     try:
         scratch = rt.artifacts.scratch(job_id)
     except OSError as exc:
         if volume.is_full(exc):
-            return fail_full(rt, claim)
+            return fail_full(rt, claim, alog)
         raise
 
     def heartbeat(progress: float, stage: str) -> bool | None:
+        alog.flush()  # the lines since the last beat: one insert every heartbeat_s at most
         try:
             return rt.store.heartbeat(claim, s.lease_s, progress, stage)
         except Exception:  # the database is away: the lease may expire, the reaper decides
@@ -158,6 +234,7 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
             job_limits(s.job_memory_mb, s.job_cpu_s),
             heartbeat,
             s.heartbeat_s,
+            on_event=alog.event,
         )
         if end.status == "ok":
             files = {n: Path(p) for n, p in (end.files or {}).items()}
@@ -172,43 +249,58 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
                 for done_path in published:
                     done_path.unlink(missing_ok=True)
                 raise
+            # an attempt's last line is written before the job ends: whoever reads the log
+            # once the job has ended (the event stream) finds it
+            alog.end("info", f"completed: {len(files)} artifact(s)")
             done = rt.store.finish(
                 claim, JobState.COMPLETED, artifacts=sorted(files), result=end.result
             )
-            return JobState.COMPLETED if done else "lost"
+            if done:
+                return JobState.COMPLETED
+            alog.end("warning", LEASE_LOST)
+            return "lost"
         if end.status == "canceled":
+            alog.end("info", "canceled on request")
             rt.store.finish(claim, JobState.CANCELED, error="canceled on request")
             return JobState.CANCELED
         if end.status == "lost":
+            alog.end("warning", LEASE_LOST)
             return "lost"
         if end.status in ("bad", "crash"):  # the input cannot work: retrying cannot help
             log.warning("job %s attempt %d failed: %s", job_id, claim.attempt, end.message)
+            alog.end("error", f"failed (not retried): {end.message}")
             rt.store.finish(claim, JobState.FAILED, error=end.message)
             return JobState.FAILED
         error = end.message
     except Exception as exc:  # the worker's own side (publish, store): retried
         log.exception("job %s attempt %d", job_id, claim.attempt)
         if volume.is_full(exc):
-            return fail_full(rt, claim)
+            return fail_full(rt, claim, alog)
         error = scrub_paths(f"{type(exc).__name__}: {exc}")
     finally:
         shutil.rmtree(scratch, ignore_errors=True)
     log.error("job %s attempt %d: %s", job_id, claim.attempt, error)
-    return retry_or_fail(rt, claim, error)
+    return retry_or_fail(rt, claim, error, alog)
 
 
-def fail_full(rt: Runtime, claim: Claim) -> str:
+LEASE_LOST = "lease lost: the job went to another worker; this attempt's outcome is dropped"
+
+
+def fail_full(rt: Runtime, claim: Claim, alog: AttemptLog | None = None) -> str:
     """The data volume had no room for the job's files: failed now (a retry finds none
     either, and each would fill it again)."""
     log.error("job %s attempt %d: %s", claim.job_id, claim.attempt, volume.FULL)
+    (alog or AttemptLog(rt, claim)).end("error", f"failed (not retried): {volume.FULL}")
     rt.store.finish(claim, JobState.FAILED, error=volume.FULL)
     return JobState.FAILED
 
 
-def retry_or_fail(rt: Runtime, claim: Claim, error: str) -> str:
+def retry_or_fail(rt: Runtime, claim: Claim, error: str, alog: AttemptLog | None = None) -> str:
     """A failed attempt: back to the queue (sent again after ``retry_delay_s``) while
     attempts are left, else failed with ``error``."""
+    alog = alog or AttemptLog(rt, claim)
     if claim.attempt < claim.max_attempts:
+        alog.end("error", f"attempt failed, retrying: {error}")
         if rt.store.retry(claim, error):
             rt.dispatcher.send(
                 claim.job_id,
@@ -217,6 +309,7 @@ def retry_or_fail(rt: Runtime, claim: Claim, error: str) -> str:
                 pool=claim.params.get("pool"),
             )
         return "retry"
+    alog.end("error", f"failed after {claim.attempt} attempt(s): {error}")
     rt.store.finish(claim, JobState.FAILED, error=error)
     return JobState.FAILED
 
