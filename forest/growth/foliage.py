@@ -770,11 +770,16 @@ class FoliageAnchors:
 def anchor_positions(
     palette: F64, bone: NDArray[np.int32], rest: F64, row_vectors: bool = False
 ) -> F64:
-    """``palette[bone]`` applied to the points ``rest`` (see FoliageAnchors.positions)."""
-    m = palette[bone]
-    if row_vectors:
-        return np.einsum("ni,nij->nj", rest, m[:, :3, :3]) + m[:, 3, :3]
-    return np.einsum("nij,nj->ni", m[:, :3, :3], rest) + m[:, :3, 3]
+    """``palette[bone]`` applied to the points ``rest`` (see FoliageAnchors.positions), a
+    block at a time: a (k, 4, 4) gather was 200 MB for 1,000 oaks' sprays."""
+    out = np.empty((len(bone), 3))
+    for a in range(0, len(bone), BLOCK):
+        m, r = palette[bone[a : a + BLOCK]], rest[a : a + BLOCK]
+        if row_vectors:
+            out[a : a + BLOCK] = np.einsum("ni,nij->nj", r, m[:, :3, :3]) + m[:, 3, :3]
+        else:
+            out[a : a + BLOCK] = np.einsum("nij,nj->ni", m[:, :3, :3], r) + m[:, :3, 3]
+    return out
 
 
 def yaw_quaternions(yaw: F64) -> F64:
