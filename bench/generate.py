@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.floor import page_cache_write_seconds, timed_saves
+from bench.rss import peak_bytes, reset_peak
 from forest.bark.tiles import class_tables
 from forest.geometry import rim
 from forest.geometry.pieces import PieceArrays, piece_library, skinning_rest_inverse
@@ -201,10 +202,15 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
     rate_vec, rate_base = n_vec / t_vec, n_base / t_base
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(tmp) / "forest.usdc"
+        # the write's own peak: the high-water mark restarts at the present RSS (the
+        # forest's arrays), apart from the generation runs above
+        reset = reset_peak()
+        rss_before = peak_bytes()
         with timed_saves() as saves:
             t0 = time.perf_counter()
             write_scene(forest, out, skinned=False)  # the instanced writer, whatever --trees
             t_write = time.perf_counter() - t0
+        peak = peak_bytes()  # the forest in memory and its write (after a reset: this alone)
         size = out.stat().st_size
         t_floor = page_cache_write_seconds(Path(tmp), size)  # same bytes, same folder
         # one tree as an artist gets it (the default form of a one-tree .usdc), measured
@@ -214,6 +220,7 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
         tree = scene_figures(tree_path).trees[0]
         tree_bytes = tree_path.stat().st_size
     t_save = sum(saves)
+    t_author = t_write - t_save
     echo(
         f"preset {preset}, {trees} trees, {n_vec} pieces; best of {repeat} alternating runs "
         "after a cold one"
@@ -228,6 +235,16 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
         f"  of which Save {t_save:.2f} s (the rest: posing, fitting, authoring); page-cache "
         f"floor for the same bytes {t_floor:.3f} s: write {t_write / t_floor:.1f}x, "
         f"Save {t_save / t_floor:.1f}x the floor   (target: write <= 2x)"
+    )
+    echo(
+        f"  author (everything but Save: anchors, fits, extents, conversions, authoring) "
+        f"{t_author:.2f} s = {t_author / t_save:.2f}x Save   (target <= 1x)"
+    )
+    echo(
+        f"  peak RSS during the write {peak / 1e9:.2f} GB (the forest's arrays included; "
+        f"{rss_before / 1e9:.2f} GB before it)"
+        if reset
+        else f"  peak RSS of the process {peak / 1e9:.2f} GB (no per-step reset here)"
     )
     echo(
         f"one tree (seed 1, default .usdc): {tree.triangles:,} triangles "
@@ -251,5 +268,8 @@ def run_generate_bench(trees: int, preset: str, repeat: int, echo: Echo = print)
         "save_s": t_save,
         "floor_s": t_floor,
         "write_over_floor": t_write / t_floor,
+        "author_s": t_author,
+        "author_over_save": t_author / t_save,
+        "write_peak_rss_bytes": peak,
         "bytes": size,
     }

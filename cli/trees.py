@@ -459,6 +459,7 @@ def _generate_tiled(
             forest = generate_tile(g, plan, i, j, options, threshold=threshold)
             pieces += 0 if forest is None else forest.n_instances
             entries.append(write_tile(forest, out, i, j, skinned=skinned))
+            del forest  # before the next tile is grown: one tile's arrays at a time
             bar("tiles", k + 1, n)
     write_root(out, entries, frames=options.frames, fps=options.fps, meta=plan.meta())
     click.echo(

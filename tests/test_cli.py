@@ -275,5 +275,7 @@ def test_bench_generate_prints_both_sides(tmp_path: Path) -> None:
         "baseline (per-piece Python loop)",
         "speed-up",
         "write .usdc",
+        "x Save   (target <= 1x)",
+        "peak RSS",
     ):
         assert label in out.stdout

@@ -380,3 +380,94 @@ def test_skinned_leaves_stay_on_their_clouds(preset: str, tmp_path: Path) -> Non
     # and the clouds keep their size: the farthest leaf of each cloud reaches its edge
     far = np.maximum.reduceat(dist / reach, np.r_[0, np.cumsum(counts)[:-1]])
     assert far.min() > 0.5
+
+
+# -- the anchors' selection, grouped by tree: the per-tree loops it replaced, bit for bit ----
+
+
+def _outer_loop(pos: np.ndarray, tree: np.ndarray, bands: int = 10) -> np.ndarray:
+    """The per-tree loop ``_outer`` was until 0.7.0 (a mask and np.percentile per tree and
+    band), kept as the reference the grouped one must equal."""
+    out = np.zeros(len(pos))
+    for t in np.unique(tree):
+        sel = np.flatnonzero(tree == t)
+        p = pos[sel]
+        lo, hi = np.percentile(p[:, 1], [2, 98])
+        h = max(0.5 * float(hi - lo), 1e-6)
+        across = np.hypot(p[:, 0] - p[:, 0].mean(), p[:, 2] - p[:, 2].mean())
+        band = np.clip(((p[:, 1] - lo) / (2 * h) * bands).astype(np.int64), 0, bands - 1)
+        radius = np.ones(bands)
+        for b in np.unique(band):
+            radius[b] = max(float(np.percentile(across[band == b], 95)), 1e-6)
+        out[sel] = np.maximum(across / radius[band], np.abs(p[:, 1] - lo - h) / h)
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_outer_grouped_equals_the_per_tree_loop(seed: int) -> None:
+    from forest.growth.foliage import _outer, group_by, sorted_quantile
+
+    rng = np.random.default_rng(seed)
+    k = 5000
+    tree = rng.integers(0, 40, k).astype(np.int32)
+    tree[:3] = 77  # a tree of three sprays, and one of a single spray
+    tree[3] = 90
+    pos = rng.normal(size=(k, 3)) * [3.0, 5.0, 3.0] + tree[:, None] * [10.0, 0.0, 0.0]
+    pos[rng.random(k) < 0.05, 1] = 2.0  # ties
+    assert np.array_equal(_outer(pos, tree), _outer_loop(pos, tree))
+    big = tree + 40_000  # keys past 16 bits: the other sort
+    assert np.array_equal(_outer(pos, big), _outer_loop(pos, big))
+    order, bounds = group_by(big)
+    assert np.array_equal(order, np.argsort(big, kind="stable")) and len(bounds) == 43
+    for n in (1, 2, 3, 7, 100, 1001):
+        values = np.sort(rng.normal(size=n))
+        for q in (0.0, 0.02, 0.5, 0.95, 0.98, 1.0):
+            assert sorted_quantile(values, q) == np.percentile(values, 100 * q), (n, q)
+
+
+def test_low_sprays_and_triangle_caps_equal_their_loops() -> None:
+    from forest.growth.foliage import _cap_triangles, _fit_low
+
+    rng = np.random.default_rng(5)
+    m = 4000
+    drop = np.array([0.4, 0.9, 0.2, 0.9, 1.3, 0.6, 0.0, 0.5])
+    model = rng.integers(0, 8, m).astype(np.int32)
+    size = rng.uniform(0.8, 1.2, m)
+    room = rng.uniform(-0.5, 1.5, m)
+    keep = rng.random(m) < 0.9
+    low = keep & (size * drop[model] > room)
+    for d in (drop, drop + 0.1):  # with and without a model that never drops
+        want_model, want_size, want_keep = model.copy(), size.copy(), keep.copy()
+        order = np.argsort(d)
+        for i in np.flatnonzero(low):  # the loop _fit_low replaced
+            fits = order[want_size[i] * d[order] <= room[i]]
+            if len(fits):
+                want_model[i] = fits[-1]
+            elif room[i] > 0 and room[i] / d[order[0]] >= 0.6 * 0.8:
+                want_model[i], want_size[i] = order[0], room[i] / d[order[0]]
+            else:
+                want_keep[i] = False
+        got_model, got_size, got_keep = model.copy(), size.copy(), keep.copy()
+        _fit_low(got_model, got_size, got_keep, low, room, d, 0.6 * 0.8)
+        assert np.array_equal(got_model, want_model)
+        assert np.array_equal(got_size, want_size)
+        assert np.array_equal(got_keep, want_keep)
+        assert (got_size != size).any() or d is drop  # the shrinking branch is reached
+        assert not (got_keep & low & (got_size * d[got_model] > room)).any()
+    tree = rng.integers(0, 25, m).astype(np.int32)
+    score = np.round(rng.random(m), 2)  # ties, broken by index
+    tris = rng.integers(10, 60, m)
+    want = keep.copy()
+    for t in np.unique(tree):  # the loop _cap_triangles replaced
+        sel = np.flatnonzero(want & (tree == t))
+        sel = sel[np.argsort(-score[sel], kind="stable")]
+        want[sel[np.cumsum(tris[sel]) > 2000]] = False
+    got = keep.copy()
+    _cap_triangles(got, score, tree, tris, 2000)
+    assert np.array_equal(got, want) and got.sum() < keep.sum()
+    got = keep.copy()
+    _cap_triangles(got, score, tree + 40_000, tris, 2000)
+    assert np.array_equal(got, want) and got.sum() < keep.sum()
+    none = np.zeros(m, bool)
+    _cap_triangles(none, score, tree, tris, 2000)
+    assert not none.any()

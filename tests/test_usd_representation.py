@@ -201,3 +201,34 @@ def test_cli_skinned_and_no_skinned(tmp_path: Path) -> None:
     code, out = run("--no-skinned", "-o", str(tmp_path / "c.usdz"))
     assert code == 2 and "skinned" in out and "usdz" in out, out
     assert not (tmp_path / "c.usdz").exists()
+
+
+def test_posed_fit_moments_equal_one_product_per_instance_and_joint(
+    windy_forest: Forest, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """fit_posed's moments come from one product per prototype and joint; they are the sums
+    of the per-instance products over all MAX_JOINTS joints (its unused ones weighing 0) it
+    replaced, bit for bit, so the posed values do not move."""
+    from forest.geometry.pieces import MAX_JOINTS
+    from forest.usd import posed
+
+    forest = windy_forest
+    moments = posed.piece_moments(forest.pieces)
+    assert list(moments.joints) == [len(p.joint_rest) for p in forest.pieces]
+    palette = forest.palette(0.4)
+    proto, offset = forest.graph.piece, forest.bones.offset
+    bones = np.minimum(offset[:, None] + np.arange(MAX_JOINTS), len(palette) - 1)
+    # the formula before 0.7.0: a (3, 4) @ (4, 4) product per instance and joint, summed
+    ref = (palette[:, :3, :][bones] @ moments.w[proto]).sum(axis=1)
+    seen: list[np.ndarray] = []
+    real = posed.polar_rotation
+
+    def spy(h: np.ndarray, iterations: int = 8) -> np.ndarray:
+        seen.append(h)
+        return real(h, iterations)
+
+    monkeypatch.setattr(posed, "polar_rotation", spy)
+    posed.fit_posed(moments, proto, offset, palette)
+    p_mean = moments.mean[proto]
+    want = ref[:, :3, :3] - ref[:, :3, 3][:, :, None] * p_mean[:, None, :]
+    np.testing.assert_array_equal(np.concatenate(seen), want)

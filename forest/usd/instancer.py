@@ -153,7 +153,7 @@ def write_instancer(
         inst.CreatePositionsAttr(Vt.Vec3fArray.FromNumpy(t.astype(np.float32)))
         inst.CreateOrientationsfAttr(Vt.QuatfArray.FromNumpy(q.astype(np.float32)))
         inst.CreateScalesAttr(
-            Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
+            Vt.Vec3fArray.FromNumpy(np.repeat(s.astype(np.float32)[:, None], 3, axis=1))
         )
         inst.CreateExtentAttr(instances_extent(boxes, forest.transforms))
     moments = piece_moments(forest.pieces)
@@ -186,7 +186,7 @@ def write_instancer(
         t, q, s = fit_posed(moments, g.piece, forest.bones.offset, np.swapaxes(palette, -1, -2))
         positions = Vt.Vec3fArray.FromNumpy(t.astype(np.float32))
         orientations = Vt.QuathArray.FromNumpy(q.astype(np.float16))
-        scales = Vt.Vec3fArray.FromNumpy(np.repeat(s[:, None], 3, axis=1).astype(np.float32))
+        scales = Vt.Vec3fArray.FromNumpy(np.repeat(s.astype(np.float32)[:, None], 3, axis=1))
         extent = _posed_extent(boxes, t, q, s)
         # the first sample is also the default, so tools that read no time see the pose; a
         # still forest's only sample is the default itself: each value is authored once

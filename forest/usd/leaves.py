@@ -10,6 +10,7 @@ from forest.geometry.pieces import HUB
 from forest.geometry.transforms import F64
 from forest.growth.foliage import FoliageAnchors, LeafCloud, yaw_quaternions
 from forest.growth.generate import Forest
+from forest.growth.rig import F32
 from forest.usd.contract import (
     BONE_OFFSET,
     FOLIAGE,
@@ -48,16 +49,19 @@ def write_foliage(
     stage: Usd.Stage,
     forest: Forest,
     anchors: FoliageAnchors,
-    samples: list[tuple[float | None, F64]],
+    samples: list[tuple[float | None, F32]],
+    extent: F64,
     leaf_file: str | None = None,
 ) -> UsdGeom.PointInstancer:
     """Leaf clouds as a PointInstancer of the leaf family's cloud models (one Mesh prototype
     per model, ``protoIndices`` the model): one instance per anchor, turned about +y by its
     yaw (``orientations``/``orientationsf``; the exact radians in ``forest:yaw``), scaled by
-    its diameter, at its centre on the posed forest (``samples``: time and ``(k, 3)`` centres
-    per palette sample, time-sampled with wind), tinted by ``primvars:displayColor`` (linear
-    RGB, vertex interpolation: one per instance). Per instance also: the piece it sits on
-    (``forest:instance``), that piece's ``forest:boneOffset`` and the joint it follows
+    its diameter, at its centre on the posed forest (``samples``: time and ``(k, 3)`` float32
+    centres per palette sample, time-sampled with wind; ``extent`` ``(2, 3)`` the bound of
+    every cloud's ball over the samples, :func:`clouds_bound`), tinted by
+    ``primvars:displayColor`` (linear RGB, vertex interpolation: one per instance). Per
+    instance also: the piece it sits on (``forest:instance``), that piece's
+    ``forest:boneOffset`` and the joint it follows
     (``forest:joint``), and the rest point in the piece's model space
     (``forest:restPosition``): the centre at any frame is ``palette[boneOffset + joint]``
     applied to the rest point."""
@@ -81,14 +85,13 @@ def write_foliage(
     )
     inst.CreateIdsAttr(Vt.Int64Array.FromNumpy(np.arange(k, dtype=np.int64)))
     positions = inst.CreatePositionsAttr()
-    # the default is the first sample, so tools that read no time still see the clouds
-    positions.Set(Vt.Vec3fArray.FromNumpy(samples[0][1].astype(np.float32)))
-    for time, pos in samples:
+    for i, (time, pos) in enumerate(samples):
+        value = Vt.Vec3fArray.FromNumpy(pos)
+        # the default is the first sample, so tools that read no time still see the clouds
+        if i == 0:
+            positions.Set(value)
         if time is not None:
-            positions.Set(
-                Vt.Vec3fArray.FromNumpy(pos.astype(np.float32)),
-                time_code(time, forest.options.fps),
-            )
+            positions.Set(value, time_code(time, forest.options.fps))
     vertex = UsdGeom.Tokens.vertex
     ints = Sdf.ValueTypeNames.IntArray
     set_primvar(
@@ -121,10 +124,17 @@ def write_foliage(
         vertex,
         Vt.Vec3fArray.FromNumpy(anchors.rest.astype(np.float32)),
     )
-    # extent over every sample: every cloud's bounding ball (any yaw) at every frame
-    pos_all = np.stack([p for _, p in samples])
-    r = anchors.size[None, :, None] * max(c.radius for c in models)
-    lo = (pos_all - r).min(axis=(0, 1))
-    hi = (pos_all + r).max(axis=(0, 1))
-    inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(np.stack([lo, hi]).astype(np.float32)))
+    inst.CreateExtentAttr(Vt.Vec3fArray.FromNumpy(extent.astype(np.float32)))
     return inst
+
+
+def clouds_bound(anchors: FoliageAnchors, positions: F64, bound: F64 | None = None) -> F64:
+    """``(2, 3)`` min and max of every cloud's bounding ball (any yaw) centred on
+    ``positions`` ``(k, 3)``, joined with ``bound`` (that of other samples): the extent over
+    every frame, without a ``(frames, k, 3)`` stack of them (min and max are exact in any
+    order)."""
+    r = anchors.size[:, None] * max(c.radius for c in anchors.models())
+    out = np.stack([(positions - r).min(axis=0), (positions + r).max(axis=0)])
+    if bound is not None:
+        out = np.stack([np.minimum(bound[0], out[0]), np.maximum(bound[1], out[1])])
+    return out

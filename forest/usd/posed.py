@@ -19,17 +19,22 @@ from numpy.typing import NDArray
 from forest.geometry.pieces import MAX_JOINTS, PieceArrays
 from forest.geometry.transforms import F64, matrix_to_quat
 
-CHUNK = 65536  # instances per batch: bounds the (chunk, joints, 4, 4) gather
+CHUNK = 65536  # instances per batch: bounds the (chunk, 3, 4) gathers
+# rows per (rows, 4) @ (4, 4) product: OpenBLAS runs one this small on the calling thread
+# (m n k <= 4 * 65536); its threads on a shared 2-core machine took 1 to 80 times as long
+BLAS_ROWS = 16384
 
 
 @dataclass(frozen=True)
 class PieceMoments:
     """Per prototype: ``w`` (p, MAX_JOINTS, 4, 4) float64 ``sum_v w_vj P_v P_v^T / n_v``,
-    ``mean`` (p, 3) the vertex centroid, ``var`` (p,) the mean squared distance to it."""
+    ``mean`` (p, 3) the vertex centroid, ``var`` (p,) the mean squared distance to it,
+    ``joints`` (p,) how many of its joints (the first ones) weigh anything."""
 
     w: F64
     mean: F64
     var: F64
+    joints: NDArray[np.int64]
 
 
 def piece_moments(pieces: tuple[PieceArrays, ...]) -> PieceMoments:
@@ -44,7 +49,9 @@ def piece_moments(pieces: tuple[PieceArrays, ...]) -> PieceMoments:
         w[k] = np.einsum("vj,vab->jab", dense, outer) / len(hom)
         mean[k] = p.positions.mean(axis=0)
         var[k] = ((p.positions - mean[k]) ** 2).sum(axis=1).mean()
-    return PieceMoments(w, mean, var)
+    weighs = np.abs(w).reshape(len(pieces), MAX_JOINTS, -1).max(axis=2) > 0
+    joints = np.array([int(np.flatnonzero(row).max()) + 1 if row.any() else 0 for row in weighs])
+    return PieceMoments(w, mean, var, joints)
 
 
 def fit_posed(
@@ -60,16 +67,26 @@ def fit_posed(
     """
     n = len(proto)
     t_out, q_out, s_out = np.zeros((n, 3)), np.zeros((n, 4)), np.zeros(n)
-    joints = np.arange(MAX_JOINTS)
-    last = len(palette) - 1
     top = palette[:, :3, :]  # only the rows the moments need are gathered
+    used = moments.joints
     for a in range(0, n, CHUNK):
         z = min(n, a + CHUNK)
         pr = proto[a:z]
-        bones = np.minimum(bone_offset[a:z, None] + joints, last)  # unused joints weigh 0
-        # a matmul, then the sum over joints: an einsum contracts in another order, which
-        # moves float64 ulps that flip a few float32 roundings among millions of samples
-        s = (top[bones] @ moments.w[pr]).sum(axis=1)  # (m, 3, 4)
+        s = np.empty((z - a, 3, 4))
+        # per prototype and joint one (k * 3, 4) @ (4, 4) product, summed over the joints in
+        # their order: the very sums of a (3, 4) @ (4, 4) product per instance and joint (a
+        # BLAS call each, most of the fit's time) with the prototype's unused joints, which
+        # weigh 0 (an einsum contracts in another order, which moves float64 ulps that flip
+        # a few float32 roundings among millions of samples)
+        for k in range(len(used)):
+            idx = np.flatnonzero(pr == k)
+            if not len(idx):
+                continue
+            first = bone_offset[a + idx]
+            acc = _rows_times(top[first], moments.w[k, 0])
+            for j in range(1, int(used[k])):
+                acc += _rows_times(top[first + j], moments.w[k, j])
+            s[idx] = acc
         p_mean = moments.mean[pr]
         q_mean = s[:, :3, 3]
         h = s[:, :3, :3] - q_mean[:, :, None] * p_mean[:, None, :]
@@ -79,6 +96,16 @@ def fit_posed(
         q_out[a:z] = matrix_to_quat(r)
         s_out[a:z] = scale
     return t_out, q_out, s_out
+
+
+def _rows_times(m: F64, w: F64) -> F64:
+    """``(k, 3, 4) @ (4, 4)`` as ``(3 k, 4) @ (4, 4)`` products of at most
+    :data:`BLAS_ROWS` rows."""
+    rows = m.reshape(-1, 4)
+    out = np.empty_like(rows)
+    for a in range(0, len(rows), BLAS_ROWS):
+        np.matmul(rows[a : a + BLAS_ROWS], w, out=out[a : a + BLAS_ROWS])
+    return out.reshape(-1, 3, 4)
 
 
 def polar_rotation(h: F64, iterations: int = 8) -> F64:
