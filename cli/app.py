@@ -102,7 +102,10 @@ def main() -> None:
     """Procedural forests from interlocking quad-mesh pieces, written as USD scenes."""
     from forest.memory import keep_freed_memory
 
-    keep_freed_memory()
+    # not the API server: its many threads would share one arena's lock, and it would keep
+    # its peak size for nothing (its job workers are processes of their own)
+    if click.get_current_context().invoked_subcommand != "serve":
+        keep_freed_memory()
 
 
 @main.group(cls=LazyGroup, modules=BENCH_COMMANDS)

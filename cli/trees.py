@@ -39,11 +39,11 @@ def presets() -> None:
         click.echo(f"{name:<12} ~{cg.expected_pieces:6.0f} pieces/tree  {g.description}")
 
 
-def _load_grammar(preset: str | None, grammar: Path | None) -> Any:
+def _load_grammar(preset: str | None, grammar: Path | None, bark: str | None = None) -> Any:
     from forest.growth.presets import PresetOrGrammarError, grammar_of
 
     try:
-        return grammar_of(preset, grammar)
+        return grammar_of(preset, grammar, bark)
     except PresetOrGrammarError:  # said with the command's flags
         raise ForestError(
             "give exactly one of --preset NAME or --grammar FILE", path="grammar"
@@ -132,6 +132,13 @@ def recipes() -> None:
     help="Leaf colours: the species' summer palette or its autumn one.",
 )
 @click.option(
+    "--bark",
+    type=click.Choice(
+        ["default", "oak", "almond", "birch", "pine", "spruce", "willow", "poplar", "hazel"]
+    ),
+    help="A shipped bark tile set in place of the grammar's own (its 'bark').",
+)
+@click.option(
     "--tiles",
     "tiles_dir",
     metavar="DIR",
@@ -211,6 +218,7 @@ def generate(
     skinned: bool | None,
     lod: bool | None,
     season: str,
+    bark: str | None,
     tiles_dir: str | None,
     textures: bool,
     tile_size: float | None,
@@ -240,6 +248,8 @@ def generate(
                 "--tiles",
                 path="recipe",
             )
+        if bark is not None:
+            raise ForestError("--bark: a recipe's layers keep their species' bark", path="bark")
         if not glb and (lod0_triangles or profile):
             raise ForestError("--profile and --lod0-triangles apply to a .glb only", path="profile")
         if glb and tile_size is not None:
@@ -268,7 +278,7 @@ def generate(
             lod0_triangles=lod0_triangles,
         )
         return
-    g = _load_grammar(preset, grammar)
+    g = _load_grammar(preset, grammar, bark)
     # no tile folder: generate_forest takes the manifest of the shipped set the grammar names
     manifest = manifest_for(output.parent / tiles_dir) if tiles_dir else None
     options = ForestOptions(

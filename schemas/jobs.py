@@ -59,6 +59,10 @@ Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
 JOB_ID_PATTERN = r"^[0-9A-Za-z_-]{1,64}$"
 """What a job id can be (the store makes 32 hex digits): anything else is no such job, found
 without asking the store (PostgreSQL refuses a NUL in text: that was answered 503)."""
+BarkSet = Literal[
+    "default", "oak", "almond", "birch", "pine", "spruce", "willow", "poplar", "hazel"
+]
+"""The shipped bark tile sets (:data:`forest.bark.tilesets.SETS`)."""
 JobId = Annotated[str, Field(min_length=1, max_length=64, pattern=JOB_ID_PATTERN)]
 Priority = Annotated[int, Field(ge=0, le=9)]
 WebhookUrl = Annotated[str, Field(min_length=8, max_length=2048, pattern=r"^https?://")]
@@ -207,6 +211,9 @@ class TreeRequest(FiniteModel):
     season: Literal["summer", "autumn"] = "summer"
     """The leaves' palette: the species' summer colours, or its autumn ones (as the CLI's
     ``--season``)."""
+    bark: BarkSet | None = None
+    """A shipped bark tile set in place of the grammar's own (as the CLI's ``--bark``): the
+    scene's bark pictures, and the renderer's. Not with a recipe (its layers keep theirs)."""
     skinned: bool | None = None
     """USD only: bake each tree as a skinned mesh (the default representation where it is
     written); unset: skinned for small scenes (up to 64 trees and 20,000 pieces), posed above
@@ -226,6 +233,8 @@ class TreeRequest(FiniteModel):
         if self.recipe is not None and self.format not in formats:
             raise FieldValueError("format", f"a recipe's stand is written as {', '.join(formats)}")
         self._stand_only()
+        if self.recipe is not None and self.bark is not None:
+            raise FieldValueError("bark", "a recipe's layers keep their species' bark")
         return self
 
     def _recipe_formats(self) -> tuple[str, ...]:

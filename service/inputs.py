@@ -49,7 +49,7 @@ def resolve_grammar(
     req: TreeRequest, settings: ServiceSettings, trees: int, max_pieces: int
 ) -> tuple[Grammar, CompiledGrammar]:
     try:
-        grammar = grammar_of(req.preset, req.grammar)
+        grammar = grammar_of(req.preset, req.grammar, req.bark)
     except PresetOrGrammarError:
         raise field_error(["preset"], ONE_SOURCE) from None
     except GrammarError as exc:  # no such preset: named after the frame cap, as always

@@ -60,7 +60,7 @@ def start_worker(server: Server) -> subprocess.Popen[bytes]:
     run.mkdir(parents=True, exist_ok=True)
     with open(run / "sse-worker.log", "ab") as log:
         return subprocess.Popen(
-            [sys.executable, "-m", "worker", "-Q", "default,gpu", "--name", "sse@%h"],
+            [sys.executable, "-m", "worker", "-Q", "default,render,gpu,cpu", "--name", "sse@%h"],
             env=server.env, stdout=log, stderr=subprocess.STDOUT,
         )  # fmt: skip
 

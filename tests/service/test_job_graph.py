@@ -87,3 +87,15 @@ def test_failure_and_cancel_reach_what_waits(backend: dict[str, str], tmp_path: 
         done = paused.wait(waiting["id"], timeout=60)
         assert done["state"] == "canceled", done
         assert f"job {parent['id']} it waited for was canceled" in done["error"]
+
+
+def test_bark_choice_on_the_api(server: Server) -> None:
+    """API parity with the CLI's --bark (not part of the graph; this module's server is up)."""
+    r = server.post("/v1/trees", FOREST | {"format": "usda", "bark": "birch"})
+    if r.status_code == 202:  # not done within the wait: the job's file
+        job = server.wait(r.json()["id"], timeout=300)
+        r = httpx.get(f"{server.url}{job['artifacts'][0]['url']}", headers=server.headers)
+    assert r.status_code == 200, r.text
+    assert 'forest:barkTileSet = "birch"' in r.text
+    r = server.post("/v1/forests", {"recipe": "orchard", "bark": "oak"})
+    assert r.status_code == 422 and "bark" in r.text, r.text

@@ -70,7 +70,7 @@ def test_killed_worker_is_lost_after_the_timeout(farm: Server) -> None:
         return next((w for w in workers(farm) if w["current_job"] == job_id), None)
 
     w = until(busy)
-    assert w["state"] == "busy" and w["queues"] == ["default", "gpu"], w
+    assert w["state"] == "busy" and w["queues"] == ["default", "render", "gpu", "cpu"], w
     assert w["pid"] in farm.worker_pids() and w["id"].split(":")[1] == str(w["pid"])
     assert farm.get(f"/v1/jobs/{job_id}").json()["worker"] == w["id"]
     # the probe's answer: a GL renderer, or why there is none (no render extra, no EGL)

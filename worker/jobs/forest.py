@@ -22,7 +22,7 @@ def run_forest(ctx: JobContext) -> Outcome:
     req = ForestRequest.model_validate(ctx.params)
     if req.recipe is not None:
         return run_stand(ctx, req)
-    grammar = grammar_of(req.preset, req.grammar)
+    grammar = grammar_of(req.preset, req.grammar, req.bark)
     options = options_from_request(req)
 
     def note(stage: str, done: int, total: int) -> None:

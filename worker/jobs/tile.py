@@ -22,7 +22,7 @@ def run_tile(ctx: JobContext) -> Outcome:
     if req.recipe is not None:
         return run_stand_tile(ctx, req)
     i, j = req.tile
-    grammar = grammar_of(req.preset, req.grammar)
+    grammar = grammar_of(req.preset, req.grammar, req.bark)
     plan = TilePlan(req.trees, req.area, req.tile_size, req.seed)
 
     def note(stage: str, done: int, total: int) -> None:

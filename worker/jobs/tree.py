@@ -23,7 +23,7 @@ def run_tree(ctx: JobContext) -> Outcome:
     req = TreeRequest.model_validate(ctx.params)
     if req.recipe is not None:
         return run_stand_file(ctx, req)
-    grammar = grammar_of(req.preset, req.grammar)
+    grammar = grammar_of(req.preset, req.grammar, req.bark)
 
     def note(stage: str, done: int, total: int) -> None:
         ctx.report(stage, 0.7 * done / max(total, 1))

@@ -30,17 +30,21 @@ def load_preset(name: str) -> Grammar:
     return grammar_from_json(text, source=f"preset {name}")
 
 
-def grammar_of(preset: str | None, grammar: Grammar | Path | None) -> Grammar:
+def grammar_of(
+    preset: str | None, grammar: Grammar | Path | None, bark: str | None = None
+) -> Grammar:
     """The grammar a request or command names: exactly one of a preset name or a grammar (an
     object, or a JSON file to read). Neither or both: :class:`PresetOrGrammarError`, which
-    the CLI words with its flags."""
+    the CLI words with its flags. ``bark``: a shipped tile set in place of the grammar's."""
     if (preset is None) == (grammar is None):
         raise PresetOrGrammarError(
             "give exactly one of preset (a name) or grammar (an object)", path="preset"
         )
     if preset is not None:
-        return load_preset(preset)
-    if isinstance(grammar, Grammar):
-        return grammar
-    assert grammar is not None
-    return load_grammar(grammar)
+        found = load_preset(preset)
+    elif isinstance(grammar, Grammar):
+        found = grammar
+    else:
+        assert grammar is not None
+        found = load_grammar(grammar)
+    return found if bark is None else found.model_copy(update={"bark": bark})
