@@ -264,12 +264,15 @@ $("#forest-form").addEventListener("submit", async (ev) => {
     area: [Number($("#area-x").value), Number($("#area-y").value)],
     format: $("#format").value,
   };
+  // the preview is a render job the server makes beside the forest, waiting for it (its
+  // "then"); the renderer reads USD, so a .glb forest gets none, and the status says so
+  const preview = $("#auto-render").checked;
+  if (preview && body.format !== "glb") body.render = { width: 640, height: 480 };
   $("#form-status").textContent = "submitting…";
   try {
     const job = await api("/v1/forests", { method: "POST", body });
-    // a recipe's forest renders too: the renderer draws every layer over the terrain
-    if ($("#auto-render").checked && job.params.format !== "glb") autoRender.add(job.id);
-    $("#form-status").textContent = `forest job ${job.id.slice(0, 8)} queued`;
+    const note = preview && body.format === "glb" ? " (no preview: the renderer reads USD, not .glb)" : "";
+    $("#form-status").textContent = `forest job ${job.id.slice(0, 8)} queued${job.then.length ? " with its preview render" : ""}${note}`;
     refreshJobs();
   } catch (err) {
     $("#form-status").textContent = "";
@@ -346,7 +349,6 @@ $("#download-usd").addEventListener("click", async () => {
 });
 
 // ---- jobs -----------------------------------------------------------------------------------
-const autoRender = new Set(); // forest jobs to render once completed (submitted here)
 const blobs = new Map(); // artifact url -> object URL (fetched with the key)
 
 async function artifactUrl(url) {
@@ -550,7 +552,6 @@ async function refreshJobs() {
         readLog(job.id).catch(() => {});
       }
     }
-    if (job.state === "completed" && autoRender.delete(job.id)) render(job);
   }
   body.replaceChildren(...rows);
   for (const job of page.items) if (!FINISHED.includes(job.state)) follow(job.id);
@@ -569,7 +570,6 @@ async function updateJob(jobId) {
     old.replaceWith(jobRow(job));
     placeLog(jobId);
   }
-  if (job.state === "completed" && autoRender.delete(job.id)) render(job);
   return job;
 }
 
