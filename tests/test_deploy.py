@@ -1,12 +1,20 @@
-"""deploy/: compose and Kubernetes files parse and hold what the cluster needs (Docker cannot
-run here, so this is the check we can make)."""
+"""deploy/: the Dockerfile's targets, compose and Kubernetes files parse and hold what the
+cluster needs. Docker cannot build or run here (deploy/smoke.sh does, where it can): the compose
+files are validated against the Compose Specification's JSON schema (as vendored by
+check-jsonschema), and with `docker compose config` where Compose is installed."""
 
 from __future__ import annotations
 
+import json
+import os
 import re
+import shutil
+import subprocess
+from importlib import resources
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 
 from service.settings import ServiceSettings
@@ -27,7 +35,61 @@ def test_compose_services_wait_for_healthy_dependencies() -> None:
     for name in ("api", "worker", "gpu-worker"):
         env = services[name]["environment"]
         assert {"FOREST_DATABASE_URL", "FOREST_BROKER_URL", "FOREST_ARTIFACTS_DIR"} <= set(env)
-        assert (DEPLOY.parent / services[name]["build"]["dockerfile"]).is_file()
+        build = services[name]["build"]
+        assert build["dockerfile"] == "deploy/Dockerfile", name
+        assert build["target"] in _stages(), name
+
+
+def _stages() -> dict[str, str]:
+    """deploy/Dockerfile's stages: name -> its text (FROM line included), ARGs resolved."""
+    text = (DEPLOY / "Dockerfile").read_text()
+    args = dict(re.findall(r"^ARG (\w+)=(\S+)$", text, re.M))
+    stages: dict[str, str] = {}
+    for part in re.split(r"^(?=FROM )", text, flags=re.M)[1:]:
+        head = re.match(r"FROM (\S+) AS ([\w-]+)", part)
+        assert head, part.splitlines()[0]
+        base = re.sub(r"\$\{(\w+)\}", lambda m: args[m.group(1)], head.group(1))
+        stages[head.group(2)] = part.replace(head.group(1), base, 1)
+    return stages
+
+
+def test_one_dockerfile_with_a_target_per_image() -> None:
+    """deploy/Dockerfile replaces the three Dockerfiles: core (API runtime), api, worker-cpu
+    (Mesa's EGL, the renderer), worker-gpu (an NVIDIA CUDA runtime with libglvnd's EGL)."""
+    assert sorted(p.name for p in DEPLOY.glob("*Dockerfile*")) == ["Dockerfile"]
+    stages = _stages()
+    assert {"core", "api", "worker-cpu", "worker-gpu"} <= set(stages)
+    assert stages["api"].startswith("FROM core ") and "service.server" in stages["api"]
+    cpu, gpu = stages["worker-cpu"], stages["worker-gpu"]
+    assert cpu.startswith("FROM core ")
+    for package in ("libegl1", "libegl-mesa0", "libgl1-mesa-dri"):
+        assert re.search(rf"\b{package}\b", cpu), package
+    assert "[service,render]" in cpu  # moderngl: the CPU worker renders too
+    assert gpu.startswith("FROM nvidia/cuda:") and "-runtime-" in gpu.splitlines()[0]
+    assert "libEGL_nvidia.so.0" in gpu and "graphics" in gpu and "[worker]" in gpu
+    for name in ("worker-cpu", "worker-gpu"):  # Docker's health check: the registry probe
+        assert 'CMD ["python", "-m", "worker.probe"]' in stages[name], name
+    compose = yaml.safe_load((DEPLOY / "compose.yaml").read_text())["services"]
+    for service, target in (("worker", "worker-cpu"), ("gpu-worker", "worker-gpu")):
+        cmd = re.findall(r"^CMD (\[.*\])$", stages[target], re.M)[-1]
+        assert json.loads(cmd) == compose[service]["command"], target
+
+
+def test_smoke_script_needs_only_docker() -> None:
+    script = DEPLOY / "smoke.sh"
+    text = script.read_text()
+    assert os.access(script, os.X_OK) and text.startswith("#!/usr/bin/env bash\n")
+    assert "set -euo pipefail" in text
+    for target in ("api", "worker-cpu", "worker-gpu"):
+        assert f"build {target}" in text, target
+    assert "worker.probe" in text and "llvmpipe" in text
+    # Docker alone: no host HTTP client, Compose or kubectl (Python runs in the images)
+    code = "\n".join(line for line in text.splitlines() if not line.lstrip().startswith("#"))
+    assert not re.search(r"\b(curl|wget|kubectl|docker-compose|docker compose)\b", code)
+    assert subprocess.run(["bash", "-n", str(script)]).returncode == 0
+    if shutil.which("shellcheck"):
+        done = subprocess.run(["shellcheck", str(script)], capture_output=True, text=True)
+        assert done.returncode == 0, done.stdout
 
 
 def _consumed(services: dict[str, Any], profile: str | None) -> set[str]:
@@ -50,7 +112,8 @@ def test_compose_renders_without_a_gpu_and_with_one() -> None:
     assert services["gpu-worker"]["profiles"] == ["gpu"]
     assert set(KIND_QUEUES.values()) | {"cpu"} <= _consumed(services, None)
     assert _consumed(services, "gpu") == set(QUEUES)
-    assert "libegl-mesa0" in (DEPLOY / "worker.Dockerfile").read_text()
+    assert services["worker"]["build"]["target"] == "worker-cpu"
+    assert "libegl-mesa0" in _stages()["worker-cpu"]
 
 
 class _ComposeLoader(yaml.SafeLoader):
@@ -94,6 +157,57 @@ def test_compose_redis_variant_replaces_rabbitmq() -> None:
         assert settings.is_redis, name
         assert settings.database_url == env["FOREST_DATABASE_URL"]  # the base's, kept
     assert "redis" in merged["volumes"]
+
+
+COMPOSE_ENV = {"POSTGRES_PASSWORD": "p", "RABBITMQ_PASSWORD": "r", "FOREST_API_KEYS": "k=t"}
+
+
+def _compose_schema() -> dict[str, Any]:
+    """The Compose Specification's JSON schema, as check-jsonschema vendors it (its
+    `check-compose-spec` hook)."""
+    vendor = resources.files("check_jsonschema.builtin_schemas.vendor")
+    schema: dict[str, Any] = json.loads((vendor / "compose-spec.json").read_text())
+    return schema
+
+
+def test_compose_files_match_the_compose_spec() -> None:
+    """Each compose file, and the Redis variant merged over the base, validates against the
+    Compose Specification's schema; a wrong key or type is caught (the check bites)."""
+    import jsonschema
+
+    schema = _compose_schema()
+    validator = jsonschema.validators.validator_for(schema)(schema)
+    base = yaml.safe_load((DEPLOY / "compose.yaml").read_text())
+    over = yaml.load((DEPLOY / "compose.redis.yaml").read_text(), _ComposeLoader)
+    for what, doc in (("compose.yaml", base), ("compose.redis.yaml", over)):
+        errors = [f"{list(e.absolute_path)}: {e.message}" for e in validator.iter_errors(doc)]
+        assert errors == [], what
+    merged = _merge(base, over)
+    assert list(validator.iter_errors(merged)) == []
+    broken = yaml.safe_load((DEPLOY / "compose.yaml").read_text())
+    broken["services"]["worker"]["deploy"]["replica"] = 2  # a typo of replicas
+    broken["services"]["api"]["build"]["target"] = ["api"]  # a list, not a string
+    errors = list(validator.iter_errors(broken))
+    assert {tuple(e.absolute_path)[:2] for e in errors} == {
+        ("services", "worker"),
+        ("services", "api"),
+    }
+    assert any("'replica'" in e.message for e in errors)
+
+
+@pytest.mark.skipif(
+    shutil.which("docker") is None
+    or subprocess.run(["docker", "compose", "version"], capture_output=True).returncode != 0,
+    reason="Docker Compose is not installed here: the schema check above stands for it",
+)
+def test_docker_compose_config() -> None:
+    env = {**os.environ, **COMPOSE_ENV}
+    for files in (["compose.yaml"], ["compose.yaml", "compose.redis.yaml"]):
+        args = [a for f in files for a in ("-f", str(DEPLOY / f))]
+        done = subprocess.run(
+            ["docker", "compose", *args, "config", "-q"], env=env, capture_output=True, text=True
+        )
+        assert done.returncode == 0, done.stderr
 
 
 def test_kubernetes_manifests() -> None:
