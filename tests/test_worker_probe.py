@@ -59,6 +59,9 @@ def test_unreachable_store_is_not_judged(tmp_path: Path) -> None:
     gone = f"sqlite:///{tmp_path / 'no-such-dir' / 'jobs.sqlite'}"
     assert check(gone, HOST, 30).code == OK
     assert check(gone, HOST, 30, strict=True).code == STALE
+    refused = "postgresql+psycopg://forest:x@127.0.0.1:1/forest"  # nothing listens on port 1
+    verdict = check(refused, HOST, 30)
+    assert verdict.code == OK and "unreachable" in verdict.line
 
 
 def test_module_entry_exits_non_zero_when_stale(url: str, tmp_path: Path) -> None:

@@ -22,12 +22,24 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
 
-from sqlalchemy import select
+from sqlalchemy import Engine, create_engine, select
 from sqlalchemy.exc import SQLAlchemyError
+from sqlalchemy.pool import NullPool
 
 from farm.db import WorkerRow, engine_for, utcnow
 
 OK, STALE = 0, 1
+CONNECT_TIMEOUT_S = 5
+"""A database server that does not answer a connection within this is unreachable (under a
+probe's usual 10 s limit, which would otherwise count a hung connect as this worker's fault)."""
+
+
+def _engine(url: str) -> Engine:
+    if url.startswith("postgresql"):  # one connection, given up after CONNECT_TIMEOUT_S
+        return create_engine(
+            url, poolclass=NullPool, connect_args={"connect_timeout": CONNECT_TIMEOUT_S}
+        )
+    return engine_for(url)  # SQLite: a file, with the store's busy timeout
 
 
 @dataclass(frozen=True)
@@ -41,7 +53,7 @@ def check(
 ) -> Verdict:
     """The verdict on the newest registry row of ``host`` in the job store at ``url``."""
     try:
-        with engine_for(url).connect() as conn:
+        with _engine(url).connect() as conn:
             row = conn.execute(
                 select(WorkerRow.id, WorkerRow.last_seen, WorkerRow.stopped_at)
                 .where(WorkerRow.host == host)
