@@ -134,9 +134,21 @@ def _consume(app: Any, settings: Any, queues: list[str], node: str, loglevel: st
 @click.option("--name", help="Celery node name (default forest-<pid>@<host>).")
 @click.option("--loglevel", default="info", show_default=True)
 @click.option("--list", "list_kinds", is_flag=True, help="List the job kinds this worker runs.")
-def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: bool) -> None:
+@click.option(
+    "--check",
+    is_flag=True,
+    help="Liveness probe: exit 1 when this host's worker has not written its registry row "
+    "within FOREST_WORKER_TIMEOUT_S (python -m worker.probe, cheaper: no CLI start-up).",
+)
+def worker_command(
+    queues: str, name: str | None, loglevel: str, list_kinds: bool, check: bool
+) -> None:
     """Join a cluster: consume jobs from the broker and job store in the settings
     (FOREST_BROKER_URL, FOREST_DATABASE_URL, FOREST_ARTIFACTS_DIR)."""
+    if check:
+        from worker.probe import main as probe
+
+        sys.exit(probe([]))
     try:
         # the job store and queue: the one-line answer, not a traceback, on a core install
         require("service", "celery", "sqlalchemy", "alembic", path="forest worker")
