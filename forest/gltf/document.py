@@ -48,7 +48,14 @@ from forest.gltf.lod import (
     leaf_quads,
 )
 from forest.gltf.primitive import SkinnedQuads, find_rows, skinned_primitive
-from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
+from forest.gltf.skin import (
+    TreeSkin,
+    add_tree_skeleton,
+    add_wind,
+    rest_trs,
+    sample_pose,
+    similarity_trs,
+)
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.lod.levels import tree_levels
@@ -218,8 +225,23 @@ def add_forest(
     slices_ = tree_slices(forest, joint_budget)
     if progress:
         progress("glTF trees", 0, len(slices_))
+    # every tree's and joint's node transform decomposed in one call for the forest
+    tree_trs = similarity_trs(forest.tree_transforms)
+    joint_trs = rest_trs(pose)
     for k, (inst, bones) in enumerate(slices_):
-        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones, joint_budget)
+        skin = add_tree_skeleton(
+            gltf,
+            blob,
+            forest,
+            frames,
+            pose,
+            k,
+            inst,
+            bones,
+            joint_budget,
+            tree_trs=tree_trs[k],
+            joint_trs=joint_trs,
+        )
         skins.append((skin, bones))
         n_joints = bones.stop - bones.start
         to_tree = invert_similarity(forest.tree_transforms[k])
