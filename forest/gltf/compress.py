@@ -451,17 +451,25 @@ def pack(gltf: gl.GLTF2, packing: Packing = DEFAULT_PACKING) -> gl.GLTF2:
     return gltf
 
 
-def glb(gltf: gl.GLTF2) -> bytes:
-    """The GLB container of ``gltf``: its JSON and its binary blob as buffer 0 (pygltflib's
-    own writer would merge every buffer into one, the meshopt fallback buffer included)."""
+def glb_parts(gltf: gl.GLTF2) -> list[bytes]:
+    """The GLB container of ``gltf`` in pieces to write one after the other: its header, its
+    JSON chunk and its binary blob as buffer 0 (pygltflib's own writer would merge every
+    buffer into one, the meshopt fallback buffer included). The blob is not copied: joined,
+    the container cost the file's size three more times at the writer's peak."""
     blob = gltf.binary_blob() or b""
     text = document_json(gltf).encode("utf-8")
     text += b" " * (-len(text) % 4)
-    blob += b"\0" * (-len(blob) % 4)
-    chunks = struct.pack("<I4s", len(text), b"JSON") + text
+    parts = [struct.pack("<I4s", len(text), b"JSON"), text]
     if blob:
-        chunks += struct.pack("<I4s", len(blob), b"BIN\0") + blob
-    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+        pad = -len(blob) % 4
+        parts += [struct.pack("<I4s", len(blob) + pad, b"BIN\0"), blob, b"\0" * pad]
+    total = 12 + sum(len(p) for p in parts)
+    return [struct.pack("<4sII", b"glTF", 2, total), *parts]
+
+
+def glb(gltf: gl.GLTF2) -> bytes:
+    """The GLB container of ``gltf`` (:func:`glb_parts`, joined)."""
+    return b"".join(glb_parts(gltf))
 
 
 # immutable leaves: pygltflib deep-copies every leaf, a no-op for these

@@ -34,7 +34,7 @@ from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material
 from forest.gltf.buffer import Blob
-from forest.gltf.compress import DEFAULT_PACKING, Packing, glb, pack
+from forest.gltf.compress import DEFAULT_PACKING, Packing, glb_parts, pack
 from forest.gltf.leaves import LeafMaterials
 from forest.gltf.lod import (
     IMPOSTOR_LEVEL,
@@ -366,13 +366,13 @@ def save_glb(
     """Pack ``doc`` (:mod:`forest.gltf.compress`) and write it to ``path`` atomically."""
     out = Path(path)
     gltf = pack(doc, packing)
-    # one step: pygltflib encodes the whole document in one call
+    # one step: the container and its JSON are made in one call
     if progress:
         progress("save", 0, 1)
-    data = glb(gltf)
+    parts = glb_parts(gltf)
     try:
-        with replaced_when_written(out) as tmp:
-            tmp.write_bytes(data)
+        with replaced_when_written(out) as tmp, tmp.open("wb") as f:
+            f.writelines(parts)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror}", path=str(out)) from None
     if progress:
