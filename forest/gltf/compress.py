@@ -297,7 +297,7 @@ def _quantized(gltf: gl.GLTF2) -> dict[int, _Data]:
 
 @dataclass
 class _View:
-    data: bytes
+    data: bytes | memoryview
     stride: int | None  # the bufferView's byteStride (vertex attributes only)
     target: int | None
     element: int  # bytes per element, for the codec
@@ -326,7 +326,9 @@ def _relayout(gltf: gl.GLTF2, new: dict[int, _Data]) -> list[_View]:
     for v, view in enumerate(gltf.bufferViews):
         accs = sorted(members.get(v, []), key=lambda a: gltf.accessors[a].byteOffset or 0)
         start = view.byteOffset or 0
-        raw = bytes(blob[start : start + view.byteLength])
+        # a view of the blob, not a copy: an untouched view (the pictures) is copied once,
+        # into the packed buffer
+        raw = memoryview(blob)[start : start + view.byteLength]
         if v in images or not accs:
             views.append(_View(raw, view.byteStride, view.target, 1, None))
             continue
@@ -383,17 +385,15 @@ def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
     """Lay the views out: plain ones (and the compressed bytes) in the GLB's buffer 0; with
     meshopt, the compressed views' uncompressed layout in buffer 1, the data-less fallback.
     A view the codec does not shrink (a few animation times) stays plain."""
-    parts: list[bytes] = []
-    size = 0
+    # one growing buffer, each view's bytes let go once copied in: the packed data is held
+    # about once beside the document's float blob, not three times (views, parts, join)
+    out = bytearray()
     fallback = 0
 
-    def put(data: bytes) -> int:
-        nonlocal size
-        pad = -size % 4
-        parts.append(b"\0" * pad + data)
-        size += pad
-        at = size
-        size += len(data)
+    def put(data: bytes | memoryview) -> int:
+        out.extend(b"\0" * (-len(out) % 4))
+        at = len(out)
+        out.extend(data)
         return at
 
     for v, view in enumerate(views):
@@ -418,8 +418,9 @@ def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
         else:
             bv.buffer, bv.byteOffset = 0, put(view.data)
         bv.extensions = bv.extensions or None
-    size += -size % 4
-    blob = b"".join(parts).ljust(size, b"\0")
+        view.data = b""
+    out.extend(b"\0" * (-len(out) % 4))
+    blob = out
     gltf.buffers = [gl.Buffer(byteLength=len(blob))]
     if fallback:
         gltf.buffers.append(
@@ -443,8 +444,8 @@ def pack(gltf: gl.GLTF2, packing: Packing = DEFAULT_PACKING) -> gl.GLTF2:
         return gltf
     if len(gltf.buffers) != 1 or gltf.binary_blob() is None:
         raise OutputError("packing needs a document with one buffer and its binary blob")
-    new = _quantized(gltf)
-    _assemble(gltf, _relayout(gltf, new), meshopt=packing == "meshopt")
+    views = _relayout(gltf, _quantized(gltf))  # the converted arrays let go once laid out
+    _assemble(gltf, views, meshopt=packing == "meshopt")
     _use(gltf, QUANTIZATION, required=True)
     if packing == "meshopt":
         _use(gltf, MESHOPT, required=True)
