@@ -315,7 +315,7 @@ def generate(
         from forest.growth.compile import compile_grammar
 
         compiled = compile_grammar(g)
-        check_glb_vertices(compiled, trees, segments)
+        check_glb_vertices(compiled, trees, segments, profile or "game", lod0_triangles)
     with show_progress("forest", quiet) as bar:
         grow = bar.steps(f"generate {trees} tree(s)")
         forest = generate_forest(
