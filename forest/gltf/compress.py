@@ -550,7 +550,11 @@ def _clean(obj: Any) -> dict[Any, Any]:
                 out[key] = raw
         elif kind is list:
             if raw:
-                out[key] = [_clean(v) if _mapping(v) else _plain(v) for v in raw]
+                # most lists are numbers (children, joints, bounds): kept as they are
+                out[key] = [
+                    v if type(v) in _SCALARS else _clean(v) if _mapping(v) else _plain(v)
+                    for v in raw
+                ]
         elif _mapping(raw):
             # a dataclass always has fields, so only an empty dict is dropped here
             if len(raw) if isinstance(raw, dict) else True:
