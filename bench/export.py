@@ -141,9 +141,10 @@ def run_export_bench(
             tris = {lvl: float(np.mean(v)) for lvl, v in levels.items()}
             joint = float(np.mean(joints)) if joints else float("nan")
             lods = "  ".join(f"LOD{lvl} {t:,.0f}" for lvl, t in tris.items())
+            shown = f"{joint:>12,.0f}" if joints else " " * 12  # posed: no skeleton
             echo(
                 f"{form.name:28}{seconds:>9.2f}{size / 1e6:>9.2f}{size / trees / 1e6:>9.2f}"
-                f"{joint:>12,.0f}  {lods}"
+                f"{shown}  {lods}".rstrip()
             )
             rows.append(
                 {
