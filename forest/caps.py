@@ -27,7 +27,7 @@ from forest.growth.grammar import CompiledGrammar
 from forest.settings import ForestSettings
 
 # vertices per .glb (bark and leaves, as glb_vertices estimates them): 100 game oaks (about
-# 21 M written, a 525 MB file, 2.2 GB peak while written; 2026-11-27) or 43 film ones
+# 21 M written, a 525 MB file, 1.7 GB peak while written; 2026-11-27) or 43 film ones
 # (about 100 bytes of peak memory and 35 of file a vertex)
 MAX_VERTICES = 25_000_000
 # welded game bark on its repeating picture: glTF vertices per bark quad (an oak's LOD0:
