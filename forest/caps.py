@@ -10,7 +10,9 @@ level by level, at the exact mean. Measured on 2026-11-27 over every shipped pre
 bones came to 0.72-0.99 of the estimate (0.87-0.93 from 10 trees on), their baked vertices to
 0.74-0.997; the level-counted ones' bones to 1.00 (alternating) and, by the spread of single
 trees, up to 1.39 (uniform, 1 tree), 1.14 (10 trees), 0.87-0.98 (100 trees), their vertices
-up to 1.02 and 1.43. A forest the estimate lets through is counted again once grown
+up to 1.02 and 1.43. A .glb's vertices are those of its profile (:func:`glb_vertices`): the
+game profile's levels wrote 0.86-0.89 of the estimate over every preset (2026-11-27, 2
+trees each). A forest the estimate lets through is counted again once grown
 (:func:`forest.growth.generate.generate_forest`, :func:`forest.gltf.document.check_size`).
 
 A mixed stand's layers (:mod:`forest.stand`) are estimated at their trees' sizes
@@ -37,10 +39,49 @@ from forest.settings import ForestSettings
 if TYPE_CHECKING:  # a forest of one species never loads the recipe schemas (start-up)
     from schemas.recipe import Recipe, SizeDistribution
 
-MAX_VERTICES = 8_000_000  # baked vertices per .glb (bark and leaves): about 450 MB of GLB
 # trees grown per layer to estimate a mixed stand's layer, one at each of this many quantiles
 # of its size distribution: a few hundredths of a second for an oak
 LAYER_SAMPLE_TREES = 8
+# vertices per .glb (bark and leaves, as glb_vertices estimates them): 100 game oaks (about
+# 21 M written, a 525 MB file, 1.7 GB peak while written; 2026-11-27) or 43 film ones
+# (about 100 bytes of peak memory and 35 of file a vertex)
+MAX_VERTICES = 25_000_000
+# welded game bark on its repeating picture: glTF vertices per bark quad (an oak's LOD0:
+# 1.33, docs/gltf.md); the film profile's atlas needs 4, one per quad corner
+GAME_BARK_PER_QUAD = 1.34
+# a game level keeps its bark and leaves in about, not exactly, their shares of the triangles
+# (an oak's LOD0 kept 68 % leaves for a 63 % share): the estimate's margin
+GAME_MARGIN = 1.1
+IMPOSTOR_VERTICES = 8  # LOD3: the crossed card pair
+
+
+def glb_vertices(
+    bark_quads: float,
+    leaf_vertices: float,
+    leaf_triangles: float,
+    profile: str = "game",
+    lod0_triangles: int | None = None,
+) -> float:
+    """One tree's vertices in a .glb of ``profile`` from its full tree's bark quads and leaf
+    cards. film: every bark quad corner its own vertex, and the cards'. game: LOD0 (the full
+    tree scaled to its budget, bark welded, :data:`GAME_BARK_PER_QUAD`), the lower levels'
+    leaf cards (their bark is LOD0's vertices, indexed again) and the impostor, times
+    :data:`GAME_MARGIN`; an oak's 579 k film vertices are about 210 k."""
+    if profile == "film":
+        return 4.0 * bark_quads + leaf_vertices
+    # imported here: forest.lod imports the grown forest, which imports these caps
+    from forest.lod.select import BARK_SHARE, GAME_LOD0, TARGETS
+
+    full = 2.0 * bark_quads + leaf_triangles
+    if full <= 0:
+        return 0.0
+    lod0 = GAME_LOD0.budget if lod0_triangles is None else lod0_triangles
+    keep = min(1.0, lod0 / full)
+    n = keep * (GAME_BARK_PER_QUAD * bark_quads + leaf_vertices)
+    per_triangle = leaf_vertices / leaf_triangles if leaf_triangles else 0.0
+    for target in TARGETS[1:]:  # of the full tree's triangles, as forest.lod.levels
+        n += (1.0 - BARK_SHARE) * target.triangles(int(full)) * per_triangle
+    return GAME_MARGIN * n + IMPOSTOR_VERTICES
 
 
 def _per_tree(cg: CompiledGrammar, per_kind: NDArray[np.float64]) -> float:
@@ -56,20 +97,29 @@ def expected_bones(cg: CompiledGrammar) -> float:
     return _per_tree(cg, np.array([p.n_joints for p in piece_library()], np.float64))
 
 
-def expected_vertices(cg: CompiledGrammar, segments: int = 1) -> float:
-    """Expected baked vertices per tree of a .glb (as :func:`forest.gltf.document.
-    baked_vertices` counts them): 4 per bark quad, and the leaf sprays' (each bearer's mean
-    sprays of the mean model, no more than ``leaves.max_triangles`` allows a tree)."""
-    bark = 4.0 * _per_tree(cg, np.array([len(p.quads) for p in piece_library(segments)], float))
+def expected_vertices(
+    cg: CompiledGrammar,
+    segments: int = 1,
+    profile: str = "film",
+    lod0_triangles: int | None = None,
+) -> float:
+    """Expected vertices per tree of a .glb of ``profile`` (:func:`glb_vertices`, as
+    :func:`forest.gltf.document.baked_vertices` counts them from a grown forest): the bark
+    quads, and the leaf sprays' (each bearer's mean sprays of the mean model, no more than
+    ``leaves.max_triangles`` allows a tree)."""
+    quads = _per_tree(cg, np.array([len(p.quads) for p in piece_library(segments)], float))
     leaves = cg.grammar.leaves
     models = cloud_models(leaves.family, leaves.length, leaves.phyllotaxis)
-    per_spray = float(np.mean([len(c.positions) for c in models]))
-    leaf = cg.expected_bearers * sum(leaves.sprays) / 2 * per_spray
+    sprays = cg.expected_bearers * sum(leaves.sprays) / 2
+    leaf = sprays * float(np.mean([len(c.positions) for c in models]))
+    triangles = sprays * float(np.mean([2 * c.n_cards for c in models]))
     if leaves.max_triangles is not None:
         # the most vertices a triangle of any model brings: the sprays a tree keeps stop there
         per_tri = max(len(c.positions) / (2 * c.n_cards) for c in models)
-        leaf = min(leaf, leaves.max_triangles * per_tri)
-    return bark + leaf
+        if leaf > leaves.max_triangles * per_tri:
+            triangles *= leaves.max_triangles * per_tri / leaf
+            leaf = leaves.max_triangles * per_tri
+    return glb_vertices(quads, leaf, triangles, profile, lod0_triangles)
 
 
 def check_palette(cg: CompiledGrammar, trees: int, frames: int, settings: ForestSettings) -> None:
@@ -86,13 +136,20 @@ def check_palette(cg: CompiledGrammar, trees: int, frames: int, settings: Forest
         )
 
 
-def check_glb_vertices(cg: CompiledGrammar, trees: int, segments: int = 1) -> None:
-    """``trees`` trees' expected baked vertices within the glTF writer's cap."""
-    n = expected_vertices(cg, segments) * trees
+def check_glb_vertices(
+    cg: CompiledGrammar,
+    trees: int,
+    segments: int = 1,
+    profile: str = "game",
+    lod0_triangles: int | None = None,
+) -> None:
+    """``trees`` trees' expected .glb vertices (``profile``, the writer's default game)
+    within the glTF writer's cap."""
+    n = expected_vertices(cg, segments, profile, lod0_triangles) * trees
     if n > MAX_VERTICES:
         raise LimitError(
-            f"{trees} trees bake to about {n:.0f} vertices, over the glTF cap of "
-            f"{MAX_VERTICES}; use fewer trees (or USD, which instances the pieces)",
+            f"{trees} trees bake to about {n:.0f} vertices in a {profile} .glb, over the glTF "
+            f"cap of {MAX_VERTICES}; use fewer trees (or USD, which instances the pieces)",
             path="trees",
             limit=MAX_VERTICES,
         )

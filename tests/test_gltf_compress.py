@@ -22,6 +22,7 @@ from forest.gltf.compress import (
     MESHOPT,
     QUANTIZATION,
     Dequant,
+    document_json,
     glb,
     pack,
     quantize_weights,
@@ -265,6 +266,24 @@ def test_glb_container_and_same_bytes(float_doc: gl.GLTF2, meshopt: gl.GLTF2) ->
     assert kind == b"BIN\0" and bin_len == meshopt.buffers[0].byteLength
     assert glb(pack(copy.deepcopy(float_doc), "meshopt")) == data
     assert len(data) < 0.6 * len(glb(float_doc))
+
+
+def test_document_json_is_pygltflibs(
+    float_doc: gl.GLTF2, quantized: gl.GLTF2, meshopt: gl.GLTF2
+) -> None:
+    """The fast JSON writer gives pygltflib's text exactly: the forest's documents, and the
+    corners of pygltflib's empty-key rule (None, empty strings, lists and dicts dropped,
+    recursively, but not inside an extension's own dict, nor in a list of lists)."""
+    odd = gl.GLTF2(
+        asset=gl.Asset(version="2.0", extras={"a": None, "b": "", "c": {"d": [], "e": 1}}),
+        nodes=[
+            gl.Node(name="", extras={"x": [{"y": None, "z": [[{"w": None}]]}]}),
+            gl.Node(extensions={"EXT_x": {"k": None, "e": {}}}, children=[1], scale=[1.0] * 3),
+        ],
+        meshes=[gl.Mesh(primitives=[gl.Primitive(attributes=gl.Attributes(POSITION=0))])],
+    )
+    for doc in (float_doc, quantized, meshopt, odd):
+        assert document_json(doc) == doc.gltf_to_json(separators=(",", ":"), indent=None)
 
 
 def test_unknown_packing_is_refused(float_doc: gl.GLTF2) -> None:

@@ -25,20 +25,21 @@ class Blob:
 
     def __init__(self, gltf: gl.GLTF2) -> None:
         self.gltf = gltf
-        self.parts: list[bytes] = []
-        self.size = 0
+        # one growing buffer, not a list joined at the end: the join held the forest's
+        # binary data twice (three times with the padding) at the writer's peak
+        self.data = bytearray()
+
+    @property
+    def size(self) -> int:
+        return len(self.data)
 
     def view(self, data: bytes, target: int | None = None) -> int:
         """A buffer view of ``data`` (padded to :data:`ALIGN`); its index."""
-        pad = -self.size % ALIGN
-        if pad:
-            self.parts.append(b"\0" * pad)
-            self.size += pad
+        self.data += b"\0" * (-self.size % ALIGN)
         self.gltf.bufferViews.append(
             gl.BufferView(buffer=0, byteOffset=self.size, byteLength=len(data), target=target)
         )
-        self.parts.append(data)
-        self.size += len(data)
+        self.data += data
         return len(self.gltf.bufferViews) - 1
 
     def accessor(
@@ -102,7 +103,7 @@ class Blob:
         return len(self.gltf.textures) - 1
 
     def finish(self) -> None:
-        pad = -self.size % ALIGN
-        blob = b"".join(self.parts) + b"\0" * pad
-        self.gltf.buffers = [gl.Buffer(byteLength=len(blob))]
-        self.gltf.set_binary_blob(blob)
+        self.data += b"\0" * (-self.size % ALIGN)
+        self.gltf.buffers = [gl.Buffer(byteLength=self.size)]
+        # the bytearray itself (pygltflib keeps what it is given), no copy
+        self.gltf.set_binary_blob(self.data)

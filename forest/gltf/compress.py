@@ -18,6 +18,9 @@ Packings (:data:`PACKINGS`), lightest last:
 
 from __future__ import annotations
 
+import copy
+import dataclasses
+import json
 import struct
 from collections import defaultdict
 from dataclasses import dataclass
@@ -323,6 +326,7 @@ def _relayout(gltf: gl.GLTF2, new: dict[int, _Data]) -> list[_View]:
     for v, view in enumerate(gltf.bufferViews):
         accs = sorted(members.get(v, []), key=lambda a: gltf.accessors[a].byteOffset or 0)
         start = view.byteOffset or 0
+        # copied (the pictures: small), so that nothing holds the float blob once laid out
         raw = bytes(blob[start : start + view.byteLength])
         if v in images or not accs:
             views.append(_View(raw, view.byteStride, view.target, 1, None))
@@ -380,17 +384,15 @@ def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
     """Lay the views out: plain ones (and the compressed bytes) in the GLB's buffer 0; with
     meshopt, the compressed views' uncompressed layout in buffer 1, the data-less fallback.
     A view the codec does not shrink (a few animation times) stays plain."""
-    parts: list[bytes] = []
-    size = 0
+    # one growing buffer, each view's bytes let go once copied in: the packed data is held
+    # about once beside the document's float blob, not three times (views, parts, join)
+    out = bytearray()
     fallback = 0
 
     def put(data: bytes) -> int:
-        nonlocal size
-        pad = -size % 4
-        parts.append(b"\0" * pad + data)
-        size += pad
-        at = size
-        size += len(data)
+        out.extend(b"\0" * (-len(out) % 4))
+        at = len(out)
+        out.extend(data)
         return at
 
     for v, view in enumerate(views):
@@ -415,8 +417,9 @@ def _assemble(gltf: gl.GLTF2, views: list[_View], meshopt: bool) -> None:
         else:
             bv.buffer, bv.byteOffset = 0, put(view.data)
         bv.extensions = bv.extensions or None
-    size += -size % 4
-    blob = b"".join(parts).ljust(size, b"\0")
+        view.data = b""
+    out.extend(b"\0" * (-len(out) % 4))
+    blob = out
     gltf.buffers = [gl.Buffer(byteLength=len(blob))]
     if fallback:
         gltf.buffers.append(
@@ -440,22 +443,143 @@ def pack(gltf: gl.GLTF2, packing: Packing = DEFAULT_PACKING) -> gl.GLTF2:
         return gltf
     if len(gltf.buffers) != 1 or gltf.binary_blob() is None:
         raise OutputError("packing needs a document with one buffer and its binary blob")
-    new = _quantized(gltf)
-    _assemble(gltf, _relayout(gltf, new), meshopt=packing == "meshopt")
+    views = _relayout(gltf, _quantized(gltf))  # the converted arrays let go once laid out
+    # every view's bytes are in ``views`` now: the float blob goes before the packed one is
+    # laid out (at 100 oaks the two side by side were the writer's peak, 2.2 GB)
+    gltf.set_binary_blob(b"")
+    _assemble(gltf, views, meshopt=packing == "meshopt")
     _use(gltf, QUANTIZATION, required=True)
     if packing == "meshopt":
         _use(gltf, MESHOPT, required=True)
     return gltf
 
 
-def glb(gltf: gl.GLTF2) -> bytes:
-    """The GLB container of ``gltf``: its JSON and its binary blob as buffer 0 (pygltflib's
-    own writer would merge every buffer into one, the meshopt fallback buffer included)."""
+def glb_parts(gltf: gl.GLTF2) -> list[bytes]:
+    """The GLB container of ``gltf`` in pieces to write one after the other: its header, its
+    JSON chunk and its binary blob as buffer 0 (pygltflib's own writer would merge every
+    buffer into one, the meshopt fallback buffer included). The blob is not copied: joined,
+    the container cost the file's size three more times at the writer's peak."""
     blob = gltf.binary_blob() or b""
-    text = gltf.gltf_to_json(separators=(",", ":"), indent=None).encode("utf-8")
+    text = document_json(gltf).encode("utf-8")
     text += b" " * (-len(text) % 4)
-    blob += b"\0" * (-len(blob) % 4)
-    chunks = struct.pack("<I4s", len(text), b"JSON") + text
+    parts = [struct.pack("<I4s", len(text), b"JSON"), text]
     if blob:
-        chunks += struct.pack("<I4s", len(blob), b"BIN\0") + blob
-    return struct.pack("<4sII", b"glTF", 2, 12 + len(chunks)) + chunks
+        pad = -len(blob) % 4
+        parts += [struct.pack("<I4s", len(blob) + pad, b"BIN\0"), blob, b"\0" * pad]
+    total = 12 + sum(len(p) for p in parts)
+    return [struct.pack("<4sII", b"glTF", 2, total), *parts]
+
+
+def glb(gltf: gl.GLTF2) -> bytes:
+    """The GLB container of ``gltf`` (:func:`glb_parts`, joined)."""
+    return b"".join(glb_parts(gltf))
+
+
+# immutable leaves: pygltflib deep-copies every leaf, a no-op for these
+_SCALARS = (str, int, float, bool, type(None))
+_FIELDS: dict[type, tuple[str, ...]] = {}
+
+
+def _plain(obj: Any) -> Any:
+    """``obj`` as pygltflib's ``gltf_asdict`` makes it (dataclasses as dicts of their
+    fields, in order; ``Attributes`` as its ``__dict__``), with the field names cached per
+    class: pygltflib asks ``dataclasses.fields`` again for each of a forest's 10^4-10^5
+    nodes, accessors and channels."""
+    kind = type(obj)
+    if kind in _SCALARS:
+        return obj
+    if kind is list:
+        return [_plain(v) for v in obj]
+    if kind is gl.Attributes:
+        return copy.deepcopy(obj.__dict__)
+    names = _FIELDS.get(kind)
+    if names is None and dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        names = _FIELDS[kind] = tuple(f.name for f in dataclasses.fields(obj))
+    if names is not None:
+        return {n: _plain(getattr(obj, n)) for n in names}
+    if isinstance(obj, tuple) and hasattr(obj, "_fields"):
+        return kind(*[_plain(v) for v in obj])
+    if isinstance(obj, (list, tuple)):
+        return kind(_plain(v) for v in obj)
+    if isinstance(obj, dict):
+        return kind((_plain(k), _plain(v)) for k, v in obj.items())
+    return copy.deepcopy(obj)
+
+
+def _drop_empty(d: dict[Any, Any]) -> dict[Any, Any]:
+    """pygltflib's ``delete_empty_keys``, as a copy: no None, no empty string, list or dict,
+    recursively through dicts (not into an extension's own dict) and the dicts of lists."""
+    out = {}
+    for key, value in d.items():
+        if value is None or (hasattr(value, "__iter__") and len(value) == 0):
+            continue
+        if isinstance(value, dict) and key != "extensions":
+            value = _drop_empty(value)
+        elif isinstance(value, list):
+            value = [_drop_empty(v) if isinstance(v, dict) else v for v in value]
+        out[key] = value
+    return out
+
+
+def _fields(obj: Any) -> tuple[str, ...] | None:
+    """A dataclass instance's field names (cached per class), else None."""
+    kind = type(obj)
+    names = _FIELDS.get(kind)
+    if names is None and dataclasses.is_dataclass(obj) and not isinstance(obj, type):
+        names = _FIELDS[kind] = tuple(f.name for f in dataclasses.fields(obj))
+    return names
+
+
+def _clean(obj: Any) -> dict[Any, Any]:
+    """``_drop_empty(_plain(obj))`` for a dataclass, ``Attributes`` or dict ``obj`` in one
+    pass (most fields of a node or an accessor are None: skipped before any copy)."""
+    names = _fields(obj) if type(obj) is not gl.Attributes else None
+    if names is not None:
+        items: Any = ((n, getattr(obj, n)) for n in names)
+    elif isinstance(obj, dict):
+        items = obj.items()
+    else:
+        items = obj.__dict__.items()
+    out: dict[Any, Any] = {}
+    for key, raw in items:
+        kind = type(raw)
+        if raw is None:
+            continue
+        if kind is int or kind is float or kind is bool:
+            out[key] = raw
+        elif kind is str:
+            if raw:
+                out[key] = raw
+        elif kind is list:
+            if raw:
+                # most lists are numbers (children, joints, bounds): kept as they are
+                out[key] = [
+                    v if type(v) in _SCALARS else _clean(v) if _mapping(v) else _plain(v)
+                    for v in raw
+                ]
+        elif _mapping(raw):
+            # a dataclass always has fields, so only an empty dict is dropped here
+            if len(raw) if isinstance(raw, dict) else True:
+                out[_plain(key)] = _plain(raw) if key == "extensions" else _clean(raw)
+        else:
+            value = _plain(raw)
+            if hasattr(value, "__iter__") and len(value) == 0:
+                continue
+            if isinstance(value, list):
+                value = [_drop_empty(v) if isinstance(v, dict) else v for v in value]
+            out[_plain(key)] = value
+    return out
+
+
+def _mapping(obj: Any) -> bool:
+    """Whether ``_plain(obj)`` is a dict (``delete_empty_keys`` cleans those)."""
+    if isinstance(obj, dict) or type(obj) is gl.Attributes:
+        return True
+    return _fields(obj) is not None
+
+
+def document_json(gltf: gl.GLTF2) -> str:
+    """``gltf``'s JSON, compact: the same text as pygltflib's ``gltf_to_json(separators=(",",
+    ":"), indent=None)`` (the tests compare them), in a fraction of its time; pygltflib's
+    generic conversion was a quarter of writing a large forest."""
+    return json.dumps(_clean(gltf), separators=(",", ":"), allow_nan=False, skipkeys=True)

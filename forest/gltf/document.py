@@ -29,12 +29,12 @@ from forest.bark.lattice import (
     lower_tint,
     super_tile,
 )
-from forest.caps import MAX_VERTICES
+from forest.caps import MAX_VERTICES, glb_vertices
 from forest.errors import ForestError, LimitError, OutputError
 from forest.geometry.transforms import F64, invert_similarity
 from forest.gltf.bark import add_bark_material
 from forest.gltf.buffer import Blob
-from forest.gltf.compress import DEFAULT_PACKING, Packing, glb, pack
+from forest.gltf.compress import DEFAULT_PACKING, Packing, glb_parts, pack
 from forest.gltf.leaves import LeafMaterials
 from forest.gltf.lod import (
     IMPOSTOR_LEVEL,
@@ -48,7 +48,14 @@ from forest.gltf.lod import (
     leaf_quads,
 )
 from forest.gltf.primitive import SkinnedQuads, find_rows, skinned_primitive
-from forest.gltf.skin import TreeSkin, add_tree_skeleton, add_wind, sample_pose
+from forest.gltf.skin import (
+    TreeSkin,
+    add_tree_skeleton,
+    add_wind,
+    rest_trs,
+    sample_pose,
+    similarity_trs,
+)
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.lod.levels import tree_levels
@@ -61,25 +68,40 @@ if TYPE_CHECKING:
 Progress = Callable[[str, int, int], None]
 
 
-def baked_vertices(forest: Forest) -> int:
-    """Vertices the baked meshes will have, counted before baking: 4 per bark quad (every
-    quad maps a whole tile, so no quad shares a corner's UV with its neighbour) and every
-    leaf spray's own."""
-    quads = np.array([len(p.quads) for p in forest.pieces])
-    n = int(4 * quads[forest.graph.piece].sum())
+def baked_vertices(forest: Forest, profile: str = "film", lod0_triangles: int | None = None) -> int:
+    """Vertices the .glb's meshes will have, counted before baking, tree by tree
+    (:func:`forest.caps.glb_vertices` of each tree's bark quads and leaf cards): film, 4
+    per bark quad (every quad maps a whole tile of the atlas) and every leaf spray's own;
+    game, the levels of detail within their budgets."""
+    trees = forest.options.trees
+    tree = forest.graph.tree
+    per_piece = np.array([len(p.quads) for p in forest.pieces])
+    quads = np.bincount(tree, per_piece[forest.graph.piece], minlength=trees)
+    leaf_vertices = leaf_triangles = np.zeros(trees, np.int64)
     anchors = foliage_or_none(forest)
     if anchors is not None:
-        per_model = np.array([len(c.positions) for c in anchors.models()])
-        n += int(per_model[anchors.model].sum())
-    return n
+        models = anchors.models()
+        of_spray = tree[anchors.instance]
+        per_model = np.array([len(c.positions) for c in models])
+        leaf_vertices = np.bincount(of_spray, per_model[anchors.model], minlength=trees)
+        cards = np.array([2 * c.n_cards for c in models])
+        leaf_triangles = np.bincount(of_spray, cards[anchors.model], minlength=trees)
+    return int(
+        sum(
+            glb_vertices(q, v, t, profile, lod0_triangles)
+            for q, v, t in zip(
+                quads.tolist(), leaf_vertices.tolist(), leaf_triangles.tolist(), strict=True
+            )
+        )
+    )
 
 
-def check_size(forest: Forest) -> None:
-    n = baked_vertices(forest)
+def check_size(forest: Forest, profile: str = "film", lod0_triangles: int | None = None) -> None:
+    n = baked_vertices(forest, profile, lod0_triangles)
     if n > MAX_VERTICES:
         raise LimitError(
-            f"{forest.options.trees} trees bake to {n} vertices, over the glTF cap of "
-            f"{MAX_VERTICES}; use fewer trees (or USD, which instances the pieces)",
+            f"{forest.options.trees} trees bake to {n} vertices in a {profile} .glb, over the "
+            f"glTF cap of {MAX_VERTICES}; use fewer trees (or USD, which instances the pieces)",
             path="trees",
             limit=MAX_VERTICES,
         )
@@ -148,7 +170,7 @@ def forest_gltf(
         from forest.lod.impostor import gl_missing
 
         impostor = gl_missing() is None
-    check_size(forest)
+    check_size(forest, profile, lod0.budget)
     opts = forest.options
     gltf = document(
         forest.version,
@@ -218,8 +240,23 @@ def add_forest(
     slices_ = tree_slices(forest, joint_budget)
     if progress:
         progress("glTF trees", 0, len(slices_))
+    # every tree's and joint's node transform decomposed in one call for the forest
+    tree_trs = similarity_trs(forest.tree_transforms)
+    joint_trs = rest_trs(pose)
     for k, (inst, bones) in enumerate(slices_):
-        skin = add_tree_skeleton(gltf, blob, forest, frames, pose, k, inst, bones, joint_budget)
+        skin = add_tree_skeleton(
+            gltf,
+            blob,
+            forest,
+            frames,
+            pose,
+            k,
+            inst,
+            bones,
+            joint_budget,
+            tree_trs=tree_trs[k],
+            joint_trs=joint_trs,
+        )
         skins.append((skin, bones))
         n_joints = bones.stop - bones.start
         to_tree = invert_similarity(forest.tree_transforms[k])
@@ -344,13 +381,13 @@ def save_glb(
     """Pack ``doc`` (:mod:`forest.gltf.compress`) and write it to ``path`` atomically."""
     out = Path(path)
     gltf = pack(doc, packing)
-    # one step: pygltflib encodes the whole document in one call
+    # one step: the container and its JSON are made in one call
     if progress:
         progress("save", 0, 1)
-    data = glb(gltf)
+    parts = glb_parts(gltf)
     try:
-        with replaced_when_written(out) as tmp:
-            tmp.write_bytes(data)
+        with replaced_when_written(out) as tmp, tmp.open("wb") as f:
+            f.writelines(parts)
     except OSError as exc:
         raise OutputError(f"cannot write: {exc.strerror}", path=str(out)) from None
     if progress:

@@ -80,8 +80,15 @@ class VertexSet:
 
 def find_rows(base: NDArray[Any], rows: NDArray[Any]) -> NDArray[np.int64]:
     """Each of ``rows``' index among ``base``'s rows (equal values), -1 where it has none: one
-    ``np.unique`` over both."""
-    _, inverse = np.unique(np.concatenate([base, rows]), axis=0, return_inverse=True)
+    ``np.unique`` over both, each row as one opaque item of its bytes (``unique(axis=0)``
+    compares rows field by field, 3-4x slower; floats have -0.0 made 0.0 first, so that equal
+    bytes are equal values)."""
+    both = np.concatenate([base, rows])
+    if both.dtype.kind == "f":
+        both = both + 0.0
+    both = np.ascontiguousarray(both.reshape(len(both), -1))
+    items = both.view(np.dtype((np.void, both.shape[1] * both.dtype.itemsize))).ravel()
+    _, inverse = np.unique(items, return_inverse=True)
     inverse = inverse.ravel()
     where = np.full(int(inverse.max(initial=-1)) + 1, -1, np.int64)
     where[inverse[: len(base)]] = np.arange(len(base))

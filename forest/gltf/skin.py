@@ -52,30 +52,58 @@ def sample_pose(forest: Forest, frames: JointFrames) -> Pose:
     return Pose(t, q.astype(np.float32), s, times)
 
 
+def similarity_trs(m: F64) -> list[dict[str, list[float]]]:
+    """Similarities ``(n, 4, 4)`` as nodes' translation / rotation / scale (identity parts
+    left out, as glTF's defaults), decomposed in one call (a forest's trees at once)."""
+    t, q, s = decompose_similarity(m)
+    # each row normalised by its own norm call: the batched norm sums in another order, and
+    # the written floats stay those of before
+    q = q / np.array([np.linalg.norm(r) for r in q])[:, None]
+    has_t = np.any(t != 0, axis=1)
+    has_r = ~np.all(np.isclose(q, (0, 0, 0, 1), rtol=0, atol=1e-12), axis=1)
+    has_s = np.abs(s - 1.0) > 1e-12
+    return _parts(t, q, np.repeat(s[:, None], 3, axis=1), has_t, has_r, has_s)
+
+
 def trs(m: F64) -> dict[str, list[float]]:
-    """A similarity ``(4, 4)`` as a node's translation / rotation / scale (identity parts
-    left out, as glTF's defaults)."""
-    t, q, s = decompose_similarity(m[None])
-    q = q[0] / np.linalg.norm(q[0])
-    out: dict[str, list[float]] = {}
-    if np.any(t[0] != 0):
-        out["translation"] = [float(v) for v in t[0]]
-    if not np.allclose(q, (0, 0, 0, 1), rtol=0, atol=1e-12):
-        out["rotation"] = [float(v) for v in q]
-    if abs(s[0] - 1.0) > 1e-12:
-        out["scale"] = [float(s[0])] * 3
+    """A similarity ``(4, 4)`` as a node's translation / rotation / scale
+    (:func:`similarity_trs` of one)."""
+    return similarity_trs(m[None])[0]
+
+
+def _parts(
+    t: NDArray[np.floating],
+    q: NDArray[np.floating],
+    s: NDArray[np.floating],
+    has_t: NDArray[np.bool_],
+    has_r: NDArray[np.bool_],
+    has_s: NDArray[np.bool_],
+) -> list[dict[str, list[float]]]:
+    """Per row, the TRS parts flagged (as Python floats: ``tolist`` gives each float32 or
+    float64 value exactly, as ``float`` did one at a time)."""
+    out: list[dict[str, list[float]]] = []
+    columns = (t, q, s, has_t, has_r, has_s)
+    rows = zip(*(c.tolist() for c in columns), strict=True)
+    for tv, qv, sv, ht, hr, hs in rows:
+        node: dict[str, list[float]] = {}
+        if ht:
+            node["translation"] = tv
+        if hr:
+            node["rotation"] = qv
+        if hs:
+            node["scale"] = sv
+        out.append(node)
     return out
 
 
-def _node_trs(t: NDArray[np.float32], q: NDArray[np.float32], s: NDArray[np.float32]) -> gl.Node:
-    node = gl.Node()
-    if np.any(t != 0):
-        node.translation = [float(v) for v in t]
-    if np.any(q[:3] != 0) or q[3] != 1:
-        node.rotation = [float(v) for v in q]
-    if np.any(s != 1):
-        node.scale = [float(v) for v in s]
-    return node
+def rest_trs(pose: Pose) -> list[dict[str, list[float]]]:
+    """Every bone's joint node TRS at the pose's first sample (the rest of a still forest),
+    without the identity parts: one vectorised pass per forest, not a numpy test per joint."""
+    t, q, s = pose.t[0], pose.q[0], pose.s[0]
+    has_t = np.any(t != 0, axis=1)
+    has_r = np.any(q[:, :3] != 0, axis=1) | (q[:, 3] != 1)
+    has_s = np.any(s != 1, axis=1)
+    return _parts(t, q, s, has_t, has_r, has_s)
 
 
 @dataclass(frozen=True)
@@ -98,24 +126,29 @@ def add_tree_skeleton(
     inst: slice,
     bones: slice,
     budget: int | None = None,
+    *,
+    tree_trs: dict[str, list[float]] | None = None,
+    joint_trs: list[dict[str, list[float]]] | None = None,
 ) -> TreeSkin:
     """The tree's node (tree transform) with its joint hierarchy under it, posed at the first
     sample, and its skin (``frames`` and ``bones`` of the joint ``budget``). Appends the tree
-    node to the default scene."""
+    node to the default scene. ``tree_trs`` (the tree's :func:`similarity_trs`) and
+    ``joint_trs`` (:func:`rest_trs` of ``pose``): made once per forest by a caller that
+    writes many trees; made here otherwise."""
     names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones, budget)]
-    parent = frames.joints.parent[bones] - bones.start
+    parent = (frames.joints.parent[bones] - bones.start).tolist()
+    if tree_trs is None:
+        tree_trs = trs(forest.tree_transforms[tree])
+    if joint_trs is None:
+        joint_trs = rest_trs(pose)
     first = len(gltf.nodes)
-    tree_node = gl.Node(name=f"Tree_{tree:05d}", **trs(forest.tree_transforms[tree]))
+    tree_node = gl.Node(name=f"Tree_{tree:05d}", **tree_trs)
+    nodes = list(range(first + 1, first + 1 + len(names)))
+    joint_nodes = [gl.Node(name=name, **joint_trs[bones.start + j]) for j, name in enumerate(names)]
+    for j, p in enumerate(parent):  # parent-first: a joint's host is made before it
+        (tree_node if p < 0 else joint_nodes[p]).children.append(nodes[j])
     gltf.nodes.append(tree_node)
-    nodes: list[int] = []
-    for j, name in enumerate(names):
-        b = bones.start + j
-        node = _node_trs(pose.t[0, b], pose.q[0, b], pose.s[0, b])
-        node.name = name
-        gltf.nodes.append(node)
-        nodes.append(len(gltf.nodes) - 1)
-        host = tree_node if parent[j] < 0 else gltf.nodes[nodes[parent[j]]]
-        host.children.append(nodes[-1])
+    gltf.nodes.extend(joint_nodes)
     gltf.scenes[0].nodes.append(first)
     inverse = invert_similarity(frames.binds[bones])
     ibm = blob.accessor(inverse.astype(np.float32))

@@ -109,7 +109,7 @@ def stand_gltf(
         forest = stand.grow_layer(k, options)
         if forest is None:
             continue
-        vertices += baked_vertices(forest)
+        vertices += baked_vertices(forest, profile, lod0.budget)
         if vertices > MAX_VERTICES:
             raise LimitError(
                 f"the stand's trees bake to over {MAX_VERTICES} vertices (the glTF cap) by "

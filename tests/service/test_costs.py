@@ -107,9 +107,12 @@ def test_tree_palette_cap(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> No
 
 
 def test_glb_vertex_cap_before_any_work(tmp_path: Path) -> None:
-    """100 oaks bake to about 56 M vertices, over the glTF writer's 8 M."""
-    settings = ServiceSettings(data_dir=tmp_path, max_forest_memory_mb=1 << 20)
-    body = {"preset": "oak", "trees": 100, "format": "glb"}
+    """1,000 oaks bake to about 226 M vertices as the (game) .glb, over the glTF writer's
+    25 M (100 write); the scene bytes cap set aside, which would refuse them first."""
+    settings = ServiceSettings(
+        data_dir=tmp_path, max_forest_memory_mb=1 << 20, max_scene_bytes=1 << 40
+    )
+    body = {"preset": "oak", "trees": 1000, "format": "glb"}
     r = post(settings, "/v1/forests", body)
     assert r.status_code == 422, r.text
     detail = r.json()["errors"][0]
