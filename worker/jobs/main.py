@@ -145,7 +145,7 @@ def worker_command(queues: str, name: str | None, loglevel: str, list_kinds: boo
             from worker.jobs.registry import KINDS
 
             for kind in KINDS:
-                pools = " (pool gpu: gpu, pool cpu: cpu)" if kind == "render" else ""
+                pools = " (pool gpu: gpu, pool cpu: cpu)" if kind.startswith("render") else ""
                 click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}{pools}")
             return
         run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)
