@@ -1,7 +1,8 @@
 """``forest bench service``: latency and throughput of ``forest serve`` in a subprocess on a
 temporary data folder: ``POST /v1/trees`` at several client concurrencies, and forest-job
 throughput (trees/s) with 1 and 2 workers, on the embedded SQLite job store and broker or on
-a real job store and broker given by URL."""
+a real job store and broker given by URL; or (``--render-frames``) the wall time of one clip
+with 1 and 2 render workers, its frame chunks run in parallel."""
 
 from __future__ import annotations
 
@@ -147,6 +148,78 @@ def job_throughput(url: str, body: dict[str, object], jobs: int) -> dict[str, fl
     return {"seconds": wall, "jobs_per_s": jobs / wall, "trees_per_s": trees / wall}
 
 
+def clip_wall_time(url: str, forest: dict[str, object], render: dict[str, object]) -> float:
+    """A forest job, then the wall time of a render job of it, from its submission until it
+    completed (its frame chunks run, its clip assembled)."""
+    with httpx.Client(base_url=url, timeout=60) as c:
+
+        def finished(job_id: str) -> dict[str, object]:
+            while True:
+                job = c.get(f"/v1/jobs/{job_id}").json()
+                if job["state"] not in (JobState.QUEUED, JobState.ACTIVE):
+                    if job["state"] != JobState.COMPLETED:
+                        raise RuntimeError(f"job {job_id} {job['state']}: {job.get('error')}")
+                    return dict(job)
+                time.sleep(0.05)
+
+        r = c.post("/v1/forests", json=forest)
+        r.raise_for_status()
+        forest_id = r.json()["id"]
+        finished(forest_id)
+        start = time.perf_counter()
+        r = c.post("/v1/renders", json=render | {"forest_job": forest_id})
+        r.raise_for_status()
+        finished(r.json()["id"])
+        return time.perf_counter() - start
+
+
+def _backends(database_url: str | None, broker_url: str | None) -> dict[str, str]:
+    backends = {}
+    if database_url:
+        backends["FOREST_DATABASE_URL"] = database_url
+    if broker_url:
+        backends["FOREST_BROKER_URL"] = broker_url
+        if os.environ.get("FOREST_QUEUE_PREFIX"):  # a broker shared with other farms
+            backends["FOREST_QUEUE_PREFIX"] = os.environ["FOREST_QUEUE_PREFIX"]
+    return backends
+
+
+def run_clip_bench(
+    preset: str,
+    frames: int,
+    size: tuple[int, int],
+    workers: list[int],
+    echo: Callable[[str], None] = print,
+    database_url: str | None = None,
+    broker_url: str | None = None,
+) -> dict[int, float]:
+    """The wall time of one clip (mp4) of ``frames`` frames with each count of render
+    workers, its frames split into chunks of ``FOREST_RENDER_CHUNK_FRAMES``, and each time's
+    ratio to the first count's; answers workers -> seconds."""
+    backends = _backends(database_url, broker_url)
+    forest: dict[str, object] = {
+        "preset": preset, "trees": 4, "seed": 3, "frames": 24, "fps": 24.0, "format": "usdc",
+    }  # fmt: skip
+    render: dict[str, object] = {
+        "width": size[0], "height": size[1], "frames": frames, "clip": "mp4",
+    }  # fmt: skip
+    chunk = os.environ.get("FOREST_RENDER_CHUNK_FRAMES", "8")
+    echo(
+        f"clip: {frames} frames {size[0]}x{size[1]} mp4 of {preset} x 4 trees, chunks of "
+        f"{chunk} frames, {os.cpu_count()} CPU(s)"
+    )
+    echo(f"{'workers':>8} {'seconds':>9} {'frames/s':>9} {'ratio':>7}")
+    times: dict[int, float] = {}
+    with tempfile.TemporaryDirectory(prefix="forest-bench-") as tmp:
+        for w in workers:
+            with embedded_server(Path(tmp) / f"clip{w}", w, backends) as served:
+                seconds = clip_wall_time(served.url, forest, render)
+            times[w] = seconds
+            ratio = times[workers[0]] / seconds
+            echo(f"{w:>8} {seconds:>9.2f} {frames / seconds:>9.2f} {ratio:>6.2f}x")
+    return times
+
+
 def run_service_bench(
     preset: str,
     concurrency: list[int],
@@ -158,13 +231,7 @@ def run_service_bench(
     database_url: str | None = None,
     broker_url: str | None = None,
 ) -> None:
-    backends = {}
-    if database_url:
-        backends["FOREST_DATABASE_URL"] = database_url
-    if broker_url:
-        backends["FOREST_BROKER_URL"] = broker_url
-        if os.environ.get("FOREST_QUEUE_PREFIX"):  # a broker shared with other farms
-            backends["FOREST_QUEUE_PREFIX"] = os.environ["FOREST_QUEUE_PREFIX"]
+    backends = _backends(database_url, broker_url)
     broker = (broker_url or "sqla+sqlite").split(":", 1)[0]
     store = (database_url or "sqlite").split(":", 1)[0].split("+", 1)[0]
     with tempfile.TemporaryDirectory(prefix="forest-bench-") as tmp:

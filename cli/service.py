@@ -90,6 +90,15 @@ main.add_command(worker_command, "worker")
     help="Broker URL for the job runs (default: the embedded SQLite broker), e.g. "
     "amqp://guest:guest@127.0.0.1:5672// or redis://127.0.0.1:6379/0.",
 )
+@click.option(
+    "--render-frames",
+    type=click.IntRange(0, 10_000),
+    default=0,
+    show_default=True,
+    help="Instead of the tree and forest runs: the wall time of one clip of this many frames "
+    "(in frame chunks of FOREST_RENDER_CHUNK_FRAMES) with each worker count, and the ratio.",
+)
+@click.option("--render-size", default="320x240", show_default=True, help="The clip's WxH.")
 @input_errors
 def bench_service(
     preset: str,
@@ -100,13 +109,29 @@ def bench_service(
     trees: int,
     database_url: str | None,
     broker_url: str | None,
+    render_frames: int,
+    render_size: str,
 ) -> None:
     """Latency (p50, p99) and req/s of POST /v1/trees at several client counts, and
     forest-job throughput (trees/s) with 1 and 2 workers, on the embedded server or on the
-    job store and broker given."""
+    job store and broker given; with --render-frames, a clip's wall time per worker count."""
     needs("service", *SERVICE_MODULES, "httpx")
-    from bench.service import run_service_bench
+    from bench.service import run_clip_bench, run_service_bench
 
+    if render_frames:
+        w, _, h = render_size.partition("x")
+        if not (w.isdigit() and h.isdigit()):
+            raise click.BadParameter("WxH, e.g. 320x240", param_hint="--render-size")
+        run_clip_bench(
+            preset,
+            render_frames,
+            (int(w), int(h)),
+            parse_counts(workers, "workers"),
+            echo=click.echo,
+            database_url=database_url,
+            broker_url=broker_url,
+        )
+        return
     run_service_bench(
         preset,
         parse_counts(concurrency, "concurrency"),

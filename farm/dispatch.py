@@ -20,6 +20,7 @@ KIND_QUEUES: dict[str, str] = {
     "forest": "default",
     "render": "render",
     "forest_tile": "default",
+    "render_chunk": "render",
     "tree": "default",
 }
 QUEUES = ("default", "render", "gpu", "cpu")
@@ -29,7 +30,7 @@ POOLS = ("any", "gpu", "cpu")
 
 def queue_for(kind: str, pool: str | None = None) -> str:
     """The queue (without the prefix) a job of ``kind`` goes to; a render's ``pool`` picks."""
-    if kind == "render" and pool in ("gpu", "cpu"):
+    if kind in ("render", "render_chunk") and pool in ("gpu", "cpu"):
         return pool
     return KIND_QUEUES[kind]
 

@@ -23,9 +23,9 @@ from collections import Counter
 from farm.dispatch import Dispatcher
 from farm.graph import settle
 from farm.settings import FarmSettings
-from farm.store import TILE_KIND, JobStore
+from farm.store import CHUNK_KIND, TILE_KIND, JobStore
 
-__all__ = ["TILE_KIND", "pump", "pump_quietly", "render_pool"]
+__all__ = ["CHUNK_KIND", "TILE_KIND", "pump", "pump_quietly", "render_pool"]
 
 log = logging.getLogger(__name__)
 
@@ -65,8 +65,9 @@ def pump(store: JobStore, dispatcher: Dispatcher, settings: FarmSettings) -> int
 
 
 def render_pool(store: JobStore, job_id: str, kind: str) -> str | None:
-    """A render job's pool (its queue), read only for renders: other kinds have one queue."""
-    if kind != "render":
+    """A render job's pool (its queue), read only for renders and their chunks (a chunk row
+    carries its render's pool): other kinds have one queue."""
+    if kind not in ("render", CHUNK_KIND):
         return None
     row = store.get(job_id)
     return None if row is None else (row.params or {}).get("pool")

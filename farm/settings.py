@@ -67,6 +67,10 @@ class FarmSettings(BaseSettings):
     """Jobs and tiles of tiled forests sent to the broker and not finished, all tenants
     together (:mod:`farm.fair`; the name predates untiled jobs joining the window): the rest
     wait in the job table. About twice the job workers."""
+    render_chunk_frames: int = Field(8, ge=1)
+    """A render job of more frames than this splits into ``render_chunk`` jobs of this many
+    frames each, run in parallel on any render worker and joined into the clip and metrics
+    (:mod:`farm.chunks`); a render of this many frames or fewer is one job."""
     max_tenant_tiles_in_flight: int = Field(2, ge=1)
     """The same, per tenant: another tenant's job waits behind at most this many of one
     tenant's jobs and tiles. About the number of job workers."""

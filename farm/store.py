@@ -29,6 +29,10 @@ UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
 IN_BATCH = 500  # ids per IN list: far below every driver's bound-parameter limit
 WINDOW_LOCK = 7318450022  # the fair window's advisory lock (beside the migrations' 7318450021)
 TILE_KIND = "forest_tile"
+CHUNK_KIND = "render_chunk"
+"""A chunk of a render job's frames (:mod:`farm.chunks`): like tiles, a child row (``parent``)
+that the fair window sends."""
+PARENT_KINDS = ("forest", "render")  # the kinds that make children (with ``tiles`` > 0)
 HELD = "waiting for a turn"
 """The stage of a job (or tile) that is queued but not sent yet (:mod:`farm.fair`)."""
 
@@ -433,10 +437,10 @@ class JobStore:
             )
             .group_by(JobRow.tenant)
         ).all()
-        tiled = s.execute(
+        tiled = s.execute(  # tiled forests and chunked renders (their tiles count the chunks)
             select(JobRow.tenant, func.min(JobRow.created_at))
             .where(
-                JobRow.kind == "forest",
+                JobRow.kind.in_(PARENT_KINDS),
                 JobRow.tiles > 0,
                 JobRow.state.in_(UNFINISHED),
                 JobRow.cancel_requested.is_(False),
@@ -482,7 +486,7 @@ class JobStore:
         forests = s.execute(
             select(JobRow.id, JobRow.priority, JobRow.created_at).where(
                 JobRow.tenant == tenant,
-                JobRow.kind == "forest",
+                JobRow.kind.in_(PARENT_KINDS),
                 JobRow.tiles > 0,
                 (JobRow.state == JobState.ACTIVE)
                 | ((JobRow.state == JobState.QUEUED) & JobRow.enqueued_at.is_not(None)),
@@ -503,33 +507,33 @@ class JobStore:
                     .execution_options(synchronize_session=False)
                 )
                 return job_id, kind
-            tile = self.take_held(s, job_id)
-            if tile is not None:
-                return tile, TILE_KIND
+            child = self.take_held(s, job_id)
+            if child is not None:
+                return child
         return None
 
     @staticmethod
-    def take_held(s: Session, parent: str) -> str | None:
+    def take_held(s: Session, parent: str) -> tuple[str, str] | None:
         """Mark one held child of ``parent`` sent (the caller sends it once ``s`` commits);
-        its id, or None when none is held."""
-        held = s.scalar(
-            select(JobRow.id)
+        its ``(id, kind)``, or None when none is held."""
+        got = s.execute(
+            select(JobRow.id, JobRow.kind)
             .where(
                 JobRow.parent == parent,
                 JobRow.state == JobState.QUEUED,
                 JobRow.enqueued_at.is_(None),
             )
             .limit(1)
-        )
-        if held is None:
+        ).first()
+        if got is None:
             return None
         s.execute(
             update(JobRow)
-            .where(JobRow.id == held)
+            .where(JobRow.id == got[0])
             .values(enqueued_at=utcnow(), stage=JobState.QUEUED)
             .execution_options(synchronize_session=False)
         )
-        return str(held)
+        return str(got[0]), str(got[1])
 
     def hold_again(self, job_id: str) -> None:
         """A job or tile whose message could not be sent goes back to held."""

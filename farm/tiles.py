@@ -25,7 +25,7 @@ from typing import Any
 from farm.artifacts import ArtifactStore
 from farm.db import JobRow
 from farm.dispatch import Dispatcher
-from farm.fair import TILE_KIND, pump
+from farm.fair import CHUNK_KIND, TILE_KIND, pump
 from farm.settings import FarmSettings
 from farm.store import Claim, JobStore
 from schemas.jobs import ForestRequest, JobState
@@ -84,8 +84,8 @@ def stand_tile_artifact(i: int, j: int, layer: str) -> str:
 
 def artifact_owner(claim: Claim) -> str:
     """The job whose artifacts a job's files join: a tile's go beside its forest's root
-    layer."""
-    if claim.kind == TILE_KIND:
+    layer, a render chunk's frames into its render job's folder."""
+    if claim.kind in (TILE_KIND, CHUNK_KIND):
         return str(claim.params.get("parent", claim.job_id))
     return claim.job_id
 

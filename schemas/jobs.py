@@ -47,8 +47,10 @@ class JobState(StrEnum):
         return core_schema.no_info_after_validator_function(cls, literal)
 
 
-JobKind = Literal["forest", "render", "forest_tile", "tree"]
-"""``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job; ``tree``:
+JobKind = Literal["forest", "render", "forest_tile", "render_chunk", "tree"]
+"""``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job;
+``render_chunk``: some frames of a render job of more than ``FOREST_RENDER_CHUNK_FRAMES``
+frames, made by that job; ``tree``:
 the job of a ``POST /v1/trees`` (the tree is made by a worker, not by the API process)."""
 MAX_UNTILED_TREES = 200_000
 UsdFormat = Literal["usda", "usdc", "usdz"]

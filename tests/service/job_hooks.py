@@ -21,7 +21,8 @@ from worker.jobs.context import JobContext, Outcome, TaskKind
 HOOKS_ENV = "TEST_JOB_HOOKS"  # not a FOREST_ setting: nothing of the farm reads it
 """JSON of the hooks a worker started by :func:`main` adds: ``pause_first_s`` (each job's
 first attempt pauses this long, at stage ``test-pause``), ``hold_gil_s`` (a render holds its
-GIL this long when it starts drawing)."""
+GIL this long when it starts drawing), ``pause_chunk_s`` (the first attempt of a render's
+second frame chunk, the one from frame 8, pauses this long: a window to kill its worker)."""
 
 
 def hold_gil(seconds: float) -> None:
@@ -57,10 +58,21 @@ def hold_gil_drawing(kind: TaskKind, seconds: float, ctx: JobContext) -> Outcome
     return kind(ctx)
 
 
+def pause_second_chunk(kind: TaskKind, seconds: float, marks: str, ctx: JobContext) -> Outcome:
+    """``kind`` (``render_chunk``), pausing the first attempt of the chunk from frame 8."""
+    if int(ctx.params["chunk"][0]) == 8:
+        return pause_first_attempt(kind, seconds, marks, ctx)
+    return kind(ctx)
+
+
 def add_hooks(kinds: dict[str, TaskKind], hooks: dict[str, float], marks: Path) -> None:
     """Wrap the kinds of ``kinds`` in place with ``hooks`` (:data:`HOOKS_ENV`)."""
     if "hold_gil_s" in hooks:
         kinds["render"] = partial(hold_gil_drawing, kinds["render"], hooks["hold_gil_s"])
+    if "pause_chunk_s" in hooks:
+        kinds["render_chunk"] = partial(
+            pause_second_chunk, kinds["render_chunk"], hooks["pause_chunk_s"], str(marks)
+        )
     if "pause_first_s" in hooks:
         for name, kind in list(kinds.items()):
             kinds[name] = partial(pause_first_attempt, kind, hooks["pause_first_s"], str(marks))

@@ -61,3 +61,19 @@ def test_bench_service_runs_jobs_on_postgresql_and_redis() -> None:
     assert title in lines, lines
     row = lines[-1].split()
     assert row[0] == "1" and float(row[1]) > 0, lines  # 1 worker, its seconds
+
+
+def test_bench_service_times_a_chunked_clip() -> None:
+    """``--render-frames``: one clip's wall time per worker count and the ratio to the first
+    (its frames in chunks of 8: a 16-frame clip is two render_chunk jobs)."""
+    res = subprocess.run(
+        [sys.executable, "-m", "cli", "bench", "service", "--preset", "alternating",
+         "--render-frames", "16", "--render-size", "64x48", "--workers", "1,2"],
+        env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True, timeout=600,
+    )  # fmt: skip
+    assert res.returncode == 0, res.stderr[-2000:]
+    lines = res.stdout.splitlines()
+    assert lines[0].startswith("clip: 16 frames 64x48 mp4 of alternating"), lines
+    rows = [line.split() for line in lines[2:]]
+    assert [r[0] for r in rows] == ["1", "2"] and rows[0][3] == "1.00x", lines
+    assert all(float(r[1]) > 0 for r in rows), lines

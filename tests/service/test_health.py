@@ -40,6 +40,7 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
         "forest\tqueue default",
         "render\tqueue render (pool gpu: gpu, pool cpu: cpu)",
         "forest_tile\tqueue default",
+        "render_chunk\tqueue render (pool gpu: gpu, pool cpu: cpu)",
         "tree\tqueue default",
     ]
     bad = runner.invoke(main, ["worker", "-Q", "default,tpu"])

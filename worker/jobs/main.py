@@ -157,7 +157,7 @@ def worker_command(
             from worker.jobs.registry import KINDS
 
             for kind in KINDS:
-                pools = " (pool gpu: gpu, pool cpu: cpu)" if kind == "render" else ""
+                pools = " (pool gpu: gpu, pool cpu: cpu)" if kind.startswith("render") else ""
                 click.echo(f"{kind}\tqueue {KIND_QUEUES[kind]}{pools}")
             return
         run_worker([q.strip() for q in queues.split(",") if q.strip()], name, loglevel)

@@ -5,6 +5,7 @@ import; the kinds' queues are the farm's (:data:`farm.dispatch.KIND_QUEUES`)."""
 
 from __future__ import annotations
 
+from worker.jobs.chunk import run_render_chunk
 from worker.jobs.context import TaskKind
 from worker.jobs.forest import run_forest
 from worker.jobs.render import run_render
@@ -15,5 +16,6 @@ KINDS: dict[str, TaskKind] = {
     "forest": run_forest,
     "render": run_render,
     "forest_tile": run_tile,
+    "render_chunk": run_render_chunk,
     "tree": run_tree,
 }

@@ -29,14 +29,15 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
-from farm import joblog, tiles, volume
+from farm import chunks, joblog, tiles, volume
 from farm.artifacts import ArtifactStore
 from farm.dispatch import TASK_NAME, Dispatcher, make_celery
-from farm.fair import TILE_KIND, pump_quietly
+from farm.fair import CHUNK_KIND, TILE_KIND, pump_quietly
 from farm.settings import FarmSettings, get_settings
 from farm.store import Claim, JobStore
 from farm.workers import Identity, Registry
 from schemas.jobs import JobState
+from worker.jobs.chunk import assemble
 from worker.jobs.context import JobContext, TaskKind
 from worker.jobs.registry import KINDS
 from worker.jobs.scene_guard import UploadCaps
@@ -187,11 +188,20 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
             rt.store.finish(claim, JobState.FAILED, error="its forest job is gone")
             return JobState.FAILED
         claim = full
-    if tiles.is_tiled(claim.kind, claim.params):
+    if claim.kind == CHUNK_KIND:
+        full = chunks.with_request(rt.store, claim)
+        if full is None:
+            rt.store.finish(claim, JobState.FAILED, error="its render job is gone")
+            return JobState.FAILED
+        claim = full
+    tiled = tiles.is_tiled(claim.kind, claim.params)
+    if tiled or chunks.is_chunked(claim.kind, claim.params, s):
         try:
-            return tiles.join(rt.store, rt.dispatcher, rt.artifacts, claim, s)
+            if tiled:
+                return tiles.join(rt.store, rt.dispatcher, rt.artifacts, claim, s)
+            return chunks.join(rt.store, rt.dispatcher, rt.artifacts, claim, s, assemble)
         except Exception as exc:  # the store or broker is away: back to the queue, retried
-            log.exception("tiled forest job %s", job_id)
+            log.exception("%s job %s", "tiled forest" if tiled else "chunked render", job_id)
             if volume.is_full(exc):
                 return fail_full(rt, claim)
             return retry_or_fail(rt, claim, scrub_paths(f"{type(exc).__name__}: {exc}"))

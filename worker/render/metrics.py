@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import statistics
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -20,8 +21,9 @@ from worker.render.foliage import FoliageStats
 from worker.render.renderer import FrameStats, Renderer, TessSettings
 
 
-def summarize(frames: list[FrameStats]) -> MetricsSummary:
-    """Medians over the frames; ``gpu_ms`` only where every frame has it."""
+def summarize(frames: Sequence[FrameStats] | Sequence[FrameMetrics]) -> MetricsSummary:
+    """Medians over the frames (as drawn, or as a chunk's metrics list them); ``gpu_ms`` only
+    where every frame has it."""
     cpu = statistics.median(f.cpu_ms for f in frames)
     gpu_values = [f.gpu_ms for f in frames if f.gpu_ms is not None]
     gpu = statistics.median(gpu_values) if len(gpu_values) == len(frames) else None

@@ -82,6 +82,12 @@ class RenderRequest:
     clip: Path | None = None  # .mp4/.webm/.gif/.webp of the measured frames (worker.render.clip)
     orbit: bool = False  # the camera turns once about the target over the frames
     fps: float | None = None  # the clip's rate; None: the scene's (else 24)
+    # a chunk of the run (a render job's frame chunk, farm.chunks): only the measured frames k
+    # in [start, stop) of the whole run are drawn, each as the whole run draws it (its palette
+    # sample, its orbit camera, after the same warm-up), and written as frame_<k>.png into
+    # frames_dir; no preview, metrics file or clip (the join assembles them)
+    frame_range: tuple[int, int] | None = None
+    frames_dir: Path | None = None
 
     def check(self) -> None:
         self.camera.check()
@@ -121,6 +127,14 @@ class RenderRequest:
         if self.fps is not None and not (np.isfinite(self.fps) and 0 < self.fps <= 120):
             # refused with or without a clip: an option that is given is checked
             raise ForestError(f"must be in (0, 120], got {self.fps}", path="fps")
+        if self.frame_range is not None:
+            start, stop = self.frame_range
+            if not 0 <= start < stop <= self.frames:
+                raise ForestError(
+                    f"must lie in [0, {self.frames}], got {start}..{stop}", path="frame_range"
+                )
+            if self.frames_dir is None or not self.frames_dir.is_dir():
+                raise OutputError("folder does not exist", path=str(self.frames_dir))
         if self.output.suffix.lower() != ".png":
             raise OutputError("the preview is a PNG: name it *.png", path=str(self.output))
         if self.clip is not None:
@@ -223,6 +237,11 @@ def frames_to_draw(req: RenderRequest, scene: SceneArrays) -> tuple[int, str | N
     return req.frames, None
 
 
+def frame_png(k: int) -> str:
+    """The file of measured frame ``k`` of a chunked render (:attr:`RenderRequest.frames_dir`)."""
+    return f"frame_{k:05d}.png"
+
+
 def render_file(
     req: RenderRequest,
     on_stage: Callable[[str], None] | None = None,
@@ -233,6 +252,32 @@ def render_file(
     ``(stage, done, total)`` as frames are drawn (a staged frame on a CPU rasteriser takes
     seconds): ``warm-up`` and ``frames``, then ``write`` (the files, with the clip's
     encoding)."""
+    if req.frame_range is not None:
+        raise ForestError("a chunk of a render is render_chunk's", path="frame_range")
+    metrics, _ = _render(req, on_stage, progress)
+    assert metrics is not None
+    return metrics
+
+
+def render_chunk(
+    req: RenderRequest,
+    on_stage: Callable[[str], None] | None = None,
+    progress: Progress | None = None,
+) -> tuple[RenderMetrics | None, float]:
+    """Draw the frames ``req.frame_range`` names of the whole run ``req`` describes, each
+    written as :func:`frame_png` into ``req.frames_dir`` (pixel for pixel what the whole run
+    draws: a frame depends on its index only); their metrics (None when the scene draws none
+    of them: a still scene draws one frame) and the clip's frame rate."""
+    if req.frame_range is None or req.frames_dir is None:
+        raise ForestError("a chunk needs its frame range and frames folder", path="frame_range")
+    return _render(req, on_stage, progress)
+
+
+def _render(
+    req: RenderRequest,
+    on_stage: Callable[[str], None] | None,
+    progress: Progress | None,
+) -> tuple[RenderMetrics | None, float]:
     note = progress or (lambda stage, done, total: None)
     req.check()
     if on_stage is not None:
@@ -317,19 +362,28 @@ def render_file(
             note("warm-up", i + 1, req.warmup)
         stats = []
         clip_frames = []
-        note("frames", 0, n_draw)
-        for k in range(n_draw):
+        chunk = req.frame_range
+        # a chunk of a scene that draws fewer frames than asked (a still one) may draw none
+        ks = range(n_draw) if chunk is None else range(chunk[0], min(chunk[1], n_draw))
+        note("frames", 0, len(ks))
+        for done, k in enumerate(ks):
             stats.append(
                 renderer.draw(
                     cameras[k], tess, req.frame + k, req.per_instance, cull=req.cull, lod_pixels=lod
                 )
             )
-            if k == 0:
+            if chunk is not None:
+                assert req.frames_dir is not None
+                write_png(req.frames_dir / frame_png(k), renderer.read_color())
+            elif k == 0:
                 preview = renderer.read_color()
-            if req.clip is not None:
+            if req.clip is not None and chunk is None:
                 clip_frames.append(renderer.read_color()[..., :3])
-            note("frames", k + 1, n_draw)
+            note("frames", done + 1, len(ks))
         raise_gl_error(ctx, "rendering")
+        if not stats:  # a chunk past the frames a still scene draws
+            renderer.release()
+            return None, req.fps if req.fps is not None else scene_fps(scene)
         metrics = render_metrics(
             renderer,
             stats,
@@ -337,10 +391,14 @@ def render_file(
             per_instance=req.per_instance,
             cull=req.cull,
             warmup_frames=req.warmup,
-            lod_pixels=lod if stats[0].drawn_instances is not None else None,
+            lod_pixels=lod if stats and stats[0].drawn_instances is not None else None,
         ).model_copy(update={"warnings": warnings})
         if stand is not None:
             metrics = metrics.model_copy(update={"scene": str(stand.path)})
+        fps = req.fps if req.fps is not None else scene_fps(scene)
+        if chunk is not None:  # its frames are written; the join writes the rest
+            renderer.release()
+            return metrics, fps
         # the preview, its figures and the clip are replaced together or, on a failure, none
         outputs = [req.output] if req.metrics is None else [req.output, req.metrics]
         if req.clip is not None:
@@ -351,10 +409,9 @@ def render_file(
             if req.metrics is not None:
                 write_metrics(tmps[1], metrics)
             if req.clip is not None:
-                fps = req.fps if req.fps is not None else scene_fps(scene)
                 write_clip(tmps[-1], clip_frames, fps)
         note("write", 1, 1)
         renderer.release()
-        return metrics
+        return metrics, fps
     finally:
         ctx.release()
