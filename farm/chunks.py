@@ -18,7 +18,6 @@ job has completed. What a chunk runs and how the clip is encoded are the worker'
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import shutil
 from collections.abc import Callable
@@ -27,13 +26,13 @@ from typing import Any
 
 from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
-from farm.fair import CHUNK_KIND, pump
+from farm.fair import CHUNK_KIND
+from farm.family import look, write_children
 from farm.settings import FarmSettings
 from farm.store import Claim, JobStore
 from schemas.jobs import JobState
 
 POLL_S = 0.5  # how often a chunked render job looks at its chunks
-BATCH = 2000  # chunk rows per insert (a render has at most 10,000 frames)
 
 ChunkResults = list[tuple[dict[str, Any], dict[str, Any] | None]]
 Assemble = Callable[
@@ -60,13 +59,9 @@ def is_chunked(kind: str, params: dict[str, Any], settings: FarmSettings) -> boo
     return kind == "render" and int(params.get("frames", 1)) > settings.render_chunk_frames
 
 
-def with_request(store: JobStore, claim: Claim) -> Claim | None:
-    """A chunk's claim with its render job's request under its own params (a chunk row holds
-    its render job, frame range and pool only); None if the render job is gone."""
-    parent = store.get(str(claim.params.get("parent", "")))
-    if parent is None:
-        return None
-    return dataclasses.replace(claim, params={**dict(parent.params or {}), **claim.params})
+def _chunk_name(params: dict[str, Any]) -> str:
+    a, b = params.get("chunk", ["?", "?"])
+    return f"frames {a}-{b}"
 
 
 def set_up(store: JobStore, claim: Claim, settings: FarmSettings, made: int) -> str | None:
@@ -74,22 +69,12 @@ def set_up(store: JobStore, claim: Claim, settings: FarmSettings, made: int) -> 
     batches); None when done, else what happened (canceled, lost)."""
     job_id, params = claim.job_id, claim.params
     ranges = chunk_ranges(int(params["frames"]), settings.render_chunk_frames)
-    store.set_tiles(job_id, len(ranges))  # the fair window looks for jobs with children
     pool = params.get("pool")
     rows = [
         (chunk_job_id(job_id, n), {"parent": job_id, "chunk": [a, b], "pool": pool})
         for n, (a, b) in enumerate(ranges)
     ]
-    for start in range(made, len(rows), BATCH):
-        store.add_children(claim, CHUNK_KIND, rows[start : start + BATCH])
-        beat = store.heartbeat(claim, settings.lease_s, 0.0, f"writing chunks {start}/{len(rows)}")
-        if beat is None:
-            return "lost"
-        if beat:
-            store.cancel_family(job_id, children_only=True)
-            store.finish(claim, JobState.CANCELED, error="canceled on request")
-            return JobState.CANCELED
-    return None
+    return write_children(store, claim, CHUNK_KIND, rows, made, settings.lease_s, "chunks")
 
 
 def join(
@@ -114,17 +99,9 @@ def join(
         ended = set_up(store, claim, settings, made)
         if ended is not None:
             return ended
-    pump(store, dispatcher, settings)
-    summary = store.child_summary(job_id)
-    failed = store.failed_child(job_id) if JobState.FAILED in summary else None
-    if failed is not None:
-        store.cancel_family(job_id, children_only=True)  # the other chunks stop
-        a, b = failed[0].get("chunk", ["?", "?"])
-        store.finish(claim, JobState.FAILED, error=f"frames {a}-{b}: {failed[1]}")
-        return JobState.FAILED
-    if JobState.CANCELED in summary:
-        store.finish(claim, JobState.CANCELED, error="canceled on request")
-        return JobState.CANCELED
+    ended, summary = look(store, dispatcher, settings, claim, _chunk_name)
+    if ended is not None:
+        return ended
     done = summary.get(JobState.COMPLETED, (0, 0.0))[0]
     if done < n:
         # frames done over frames: the completed chunks' frames and the running ones' share

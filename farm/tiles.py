@@ -3,20 +3,19 @@ tile of its grid and, once every tile completed, writes the root layer that hold
 files as payloads.
 
 The tile jobs' ids derive from the forest job's id and the tile, and their rows are written in
-order, in batches of :data:`BATCH` (within every database's parameter limit; the forest job's
-lease is heartbeated between batches), so a second delivery of the forest job goes on where the
-first stopped. A tile row holds only its forest job and cell (the worker reads the request from
-the forest job) and is written held: the fair window (:mod:`farm.fair`) sends tiles as workers
-free up. The forest job does not wait in a worker: each delivery looks at its tiles (counts
-by state, one query) and, unless they are all done, goes back to the queue to look again in
-:func:`poll_s` (as Celery's chord_unlock polls a group). What a tile job runs (generate its
-trees, write its file) is the worker's; where the tiles lie is the library's plan
+order, in batches (:mod:`farm.family`: within every database's parameter limit; the forest
+job's lease is heartbeated between batches), so a second delivery of the forest job goes on
+where the first stopped. A tile row holds only its forest job and cell (the worker reads the
+request from the forest job) and is written held: the fair window (:mod:`farm.fair`) sends
+tiles as workers free up. The forest job does not wait in a worker: each delivery looks at its
+tiles (counts by state, one query) and, unless they are all done, goes back to the queue to
+look again in :func:`poll_s` (as Celery's chord_unlock polls a group). What a tile job runs
+(generate its trees, write its file) is the worker's; where the tiles lie is the library's plan
 (:mod:`forest.growth.tiling`, :mod:`forest.usd.tiled`).
 """
 
 from __future__ import annotations
 
-import dataclasses
 import hashlib
 import math
 import shutil
@@ -25,7 +24,8 @@ from typing import Any
 from farm.artifacts import ArtifactStore
 from farm.db import JobRow
 from farm.dispatch import Dispatcher
-from farm.fair import CHUNK_KIND, TILE_KIND, pump
+from farm.fair import CHUNK_KIND, TILE_KIND
+from farm.family import look, write_children
 from farm.settings import FarmSettings
 from farm.store import Claim, JobStore
 from schemas.jobs import ForestRequest, JobState
@@ -33,7 +33,6 @@ from schemas.tiles import tile_grid
 
 TILE_POLL_S = 0.5  # how often a tiled forest job looks at its tiles (at least)
 MAX_POLL_S = 10.0
-BATCH = 2000  # tile rows per insert (and per heartbeat of the forest job while it writes them)
 
 
 def poll_s(tiles: int) -> float:
@@ -102,13 +101,9 @@ def cancel(store: JobStore, job_id: str, tenant: str | None = None) -> JobRow | 
     return store.get(job_id)
 
 
-def with_request(store: JobStore, claim: Claim) -> Claim | None:
-    """A tile's claim with its forest job's request under its own params (a tile row holds
-    only its forest job and cell); None if the forest job is gone."""
-    parent = store.get(str(claim.params.get("parent", "")))
-    if parent is None:
-        return None
-    return dataclasses.replace(claim, params={**dict(parent.params or {}), **claim.params})
+def _tile_name(params: dict[str, Any]) -> str:
+    i, j = params.get("tile", ["?", "?"])
+    return f"tile {i}_{j}"
 
 
 def set_up(store: JobStore, claim: Claim, lease_s: float, made: int | None = None) -> str | None:
@@ -119,22 +114,10 @@ def set_up(store: JobStore, claim: Claim, lease_s: float, made: int | None = Non
     made = store.count_children(job_id) if made is None else made
     if made >= n_tiles(claim.params):
         return None
-    cells = tile_job_ids(job_id, claim.params)
-    store.set_tiles(job_id, len(cells))
-    for start in range(made, len(cells), BATCH):
-        batch = cells[start : start + BATCH]
-        store.add_children(
-            claim, TILE_KIND, [(t, {"parent": job_id, "tile": [i, j]}) for i, j, t in batch]
-        )
-        stage = f"writing tiles {start + len(batch)}/{len(cells)}"
-        beat = store.heartbeat(claim, lease_s, 0.0, stage)
-        if beat is None:
-            return "lost"
-        if beat:  # canceled while writing: the rows written so far go with it
-            store.cancel_family(job_id, children_only=True)
-            store.finish(claim, JobState.CANCELED, error="canceled on request")
-            return JobState.CANCELED
-    return None
+    rows = [
+        (t, {"parent": job_id, "tile": [i, j]}) for i, j, t in tile_job_ids(job_id, claim.params)
+    ]
+    return write_children(store, claim, TILE_KIND, rows, made, lease_s, "tiles")
 
 
 def join(
@@ -159,17 +142,9 @@ def join(
         ended = set_up(store, claim, settings.lease_s, made)
         if ended is not None:
             return ended
-    pump(store, dispatcher, settings)
-    summary = store.child_summary(job_id)
-    failed = store.failed_child(job_id) if JobState.FAILED in summary else None
-    if failed is not None:
-        store.cancel_family(job_id, children_only=True)  # the other tiles stop
-        i, j = failed[0].get("tile", ["?", "?"])
-        store.finish(claim, JobState.FAILED, error=f"tile {i}_{j}: {failed[1]}")
-        return JobState.FAILED
-    if JobState.CANCELED in summary:
-        store.finish(claim, JobState.CANCELED, error="canceled on request")
-        return JobState.CANCELED
+    ended, summary = look(store, dispatcher, settings, claim, _tile_name)
+    if ended is not None:
+        return ended
     done = summary.get(JobState.COMPLETED, (0, 0.0))[0]
     if done < n:
         progress = done + sum(p for st, (_, p) in summary.items() if st != JobState.COMPLETED)

@@ -100,8 +100,9 @@ def test_glb_vertex_cap_refused_before_expansion() -> None:
     caps.check_glb_vertices(cg, 40, profile="film")  # 40 film oaks (about 23 M vertices)
 
 
-def test_cli_refuses_a_glb_over_the_vertex_cap_before_growing(tmp_path: Path) -> None:
-    """The CLI compiles and checks before it grows: a sitecustomize makes expansion fail."""
+def never_expands(tmp_path: Path) -> dict[str, str]:
+    """The environment of a CLI run whose forest expansion fails (a sitecustomize replaces
+    it): a refusal under it was made before any tree grew."""
     hook = tmp_path / "hook"
     hook.mkdir()
     (hook / "sitecustomize.py").write_text(
@@ -110,7 +111,12 @@ def test_cli_refuses_a_glb_over_the_vertex_cap_before_growing(tmp_path: Path) ->
         "    raise SystemExit('expanded')\n"
         "g.expand_in_groups = _never\n"
     )
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+
+
+def test_cli_refuses_a_glb_over_the_vertex_cap_before_growing(tmp_path: Path) -> None:
+    """The CLI compiles and checks before it grows: a sitecustomize makes expansion fail."""
+    env = never_expands(tmp_path)
     for args in (
         ["--trees", "1000", "-o", "f.glb"],
         ["--trees", "100", "--profile", "film", "-o", "f.glb"],
@@ -222,15 +228,7 @@ def test_cli_refuses_a_stand_before_growing(tmp_path: Path) -> None:
     """``forest generate --recipe``: a .glb over the vertex cap (summed over the layers), a
     scene whose oak layer is over the palette cap and a tiled one whose fullest oak tile is,
     refused before any layer (or tile) grows."""
-    hook = tmp_path / "hook"
-    hook.mkdir()
-    (hook / "sitecustomize.py").write_text(
-        "import forest.growth.generate as g\n"
-        "def _never(*a, **k):\n"
-        "    raise SystemExit('expanded')\n"
-        "g.expand_in_groups = _never\n"
-    )
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(hook), str(ROOT)])}
+    env = never_expands(tmp_path)
     for args, said in (
         (["--trees", "200", "-o", "st.glb"], "glTF cap"),
         (["--trees", "3000", "--frames", "24", "-o", "st.usdc"], "max_palette_matrices"),

@@ -33,6 +33,7 @@ from farm import chunks, joblog, tiles, volume
 from farm.artifacts import ArtifactStore
 from farm.dispatch import TASK_NAME, Dispatcher, make_celery
 from farm.fair import CHUNK_KIND, TILE_KIND, pump_quietly
+from farm.family import with_request
 from farm.settings import FarmSettings, get_settings
 from farm.store import Claim, JobStore
 from farm.workers import Identity, Registry
@@ -182,16 +183,11 @@ def run_claim(rt: Runtime, claim: Claim, kinds: dict[str, TaskKind] | None) -> s
     """Run a claimed job: a tile with its forest job's request, a tiled forest's join, or
     its kind in a supervised child."""
     s, job_id = rt.settings, claim.job_id
-    if claim.kind == TILE_KIND:
-        full = tiles.with_request(rt.store, claim)
+    if claim.kind in (TILE_KIND, CHUNK_KIND):
+        full = with_request(rt.store, claim)  # a tile's forest request, a chunk's render's
         if full is None:
-            rt.store.finish(claim, JobState.FAILED, error="its forest job is gone")
-            return JobState.FAILED
-        claim = full
-    if claim.kind == CHUNK_KIND:
-        full = chunks.with_request(rt.store, claim)
-        if full is None:
-            rt.store.finish(claim, JobState.FAILED, error="its render job is gone")
+            parent = "forest" if claim.kind == TILE_KIND else "render"
+            rt.store.finish(claim, JobState.FAILED, error=f"its {parent} job is gone")
             return JobState.FAILED
         claim = full
     tiled = tiles.is_tiled(claim.kind, claim.params)
