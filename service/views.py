@@ -210,7 +210,9 @@ def enqueue(
             # the broker is away: answer 503 and fail the job now rather than leave it for a
             # later pump to send (the client, told to retry, would make it twice); unless its
             # message went out before the failure
-            log.warning("broker unavailable for job %s: %s", row.id, type(exc).__name__)
+            log.warning(
+                "broker unavailable for job %s: %s: %.200s", row.id, type(exc).__name__, exc
+            )
             abandoned = services.store.abandon(row.id, NOT_SUBMITTED)
             if abandoned is not None:
                 services.artifacts.remove(row.id)  # its uploaded input

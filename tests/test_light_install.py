@@ -207,6 +207,8 @@ LAYERS = {
     "cli/sheets/inspect.py": ("inspect",),
     "worker/render": ("render",),
     "worker/jobs": ("service",),
+    "worker/probe.py": ("service",),  # a worker's liveness: its registry row in the job store
+    "worker/jobs/chunk.py": ("service", "render"),  # a chunked render's join encodes the clip
     "farm": ("service",),
     "service": ("service",),
 }

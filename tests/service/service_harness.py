@@ -382,16 +382,17 @@ def reference_scene(tmp: Path, body: dict[str, Any], stem: str = "scene") -> byt
 
 class Proxy:
     """A TCP proxy to a server (PostgreSQL, RabbitMQ, Redis) that a test can cut: the server
-    goes away for whoever reaches it through the proxy; a new proxy on the same ``port`` brings
-    it back."""
+    goes away for whoever reaches it through the proxy (every connection closed, each new one
+    closed as it comes) until :meth:`restore`. The proxy keeps its port bound throughout, so
+    nothing else (another test's server or proxy) can take it while the server is away."""
 
-    def __init__(self, target: tuple[str, int], port: int = 0) -> None:
+    def __init__(self, target: tuple[str, int]) -> None:
         self.target = target
-        self.sock = socket.create_server(("127.0.0.1", port))
+        self.sock = socket.create_server(("127.0.0.1", 0))
         self.port = self.sock.getsockname()[1]
         self.conns: list[socket.socket] = []
         self.open = True
-        # a connection being set up when the test cuts is either closed by the cut or refused
+        # a connection being set up as the test cuts is either closed by the cut or refused
         self.lock = threading.Lock()
         threading.Thread(target=self._accept, daemon=True).start()
 
@@ -399,12 +400,12 @@ class Proxy:
         while True:
             try:
                 client, _ = self.sock.accept()
-            except OSError:
+            except OSError:  # closed
                 return
             with self.lock:
                 if not self.open:
                     client.close()
-                    return
+                    continue
                 try:
                     upstream = socket.create_connection(self.target)
                 except OSError:
@@ -427,17 +428,26 @@ class Proxy:
                     s.shutdown(socket.SHUT_RDWR)
 
     def cut(self) -> None:
+        """The server goes away: open connections closed, new ones closed as they come."""
         with self.lock:
             self.open = False
-            # shutdown wakes a thread blocked in accept (close alone leaves it listening)
-            with contextlib.suppress(OSError):
-                self.sock.shutdown(socket.SHUT_RDWR)
-            self.sock.close()
             for c in self.conns:
                 # a pipe thread may have shut it down already: close it whatever shutdown says
                 with contextlib.suppress(OSError):
                     c.shutdown(socket.SHUT_RDWR)
                 c.close()
+            self.conns.clear()
+
+    def restore(self) -> None:
+        """The server is back for new connections."""
+        with self.lock:
+            self.open = True
+
+    def close(self) -> None:
+        self.cut()
+        with contextlib.suppress(OSError):  # wakes the thread blocked in accept
+            self.sock.shutdown(socket.SHUT_RDWR)
+        self.sock.close()
 
 
 def tree_file(server: Server, body: dict[str, object]) -> httpx.Response:

@@ -142,7 +142,7 @@ def throttled(
             yield s, proxy
         finally:
             s.stop()
-            proxy.cut()
+            proxy.close()
 
 
 def test_wrong_keys_are_throttled_per_address(throttled: tuple[Server, Proxy | None]) -> None:

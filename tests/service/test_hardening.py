@@ -233,15 +233,18 @@ def test_database_outage_is_503(backend: dict[str, str], tmp_path: Path) -> None
     require_server("PostgreSQL", PG)
     proxy = Proxy(PG)
     env = backend | ENV | {"FOREST_DATABASE_URL": url.replace(":5432/", f":{proxy.port}/")}
-    for server in served(tmp_path / "outage", env | {"FOREST_RATE_LIMIT": ""}):
-        assert server.get("/v1/jobs", headers=A).status_code == 200
-        proxy.cut()
-        for _ in range(3):
-            r = server.get("/v1/jobs", headers=A)
-            assert r.status_code == 503, r.text
-            assert r.headers["retry-after"] == "5"
-            assert r.json()["detail"] == "the job store is unavailable; retry later"
-        assert server.get("/readyz").status_code == 503
+    try:
+        for server in served(tmp_path / "outage", env | {"FOREST_RATE_LIMIT": ""}):
+            assert server.get("/v1/jobs", headers=A).status_code == 200
+            proxy.cut()
+            for _ in range(3):
+                r = server.get("/v1/jobs", headers=A)
+                assert r.status_code == 503, (r.text, server.log())
+                assert r.headers["retry-after"] == "5"
+                assert r.json()["detail"] == "the job store is unavailable; retry later"
+            assert server.get("/readyz").status_code == 503
+    finally:
+        proxy.close()
 
 
 def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path: Path) -> None:
@@ -283,7 +286,7 @@ def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path
             body = {"preset": "almond", "seed": 12}
             for _ in range(2):
                 r = server.post("/v1/forests", body, headers=retry)
-                assert r.status_code == 503, r.text
+                assert r.status_code == 503, (r.text, server.log())
                 assert r.headers["retry-after"] == "5"
                 assert r.json()["detail"] == (
                     "the broker is unavailable; the job was not submitted; retry later"
@@ -293,7 +296,7 @@ def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path
             assert len(refused) == 2, jobs
             for job in refused:
                 assert job["state"] == "failed" and "broker was unavailable" in job["error"]
-            proxy = Proxy(target, port)  # the broker is back
+            proxy.restore()  # the broker is back
             again = server.post("/v1/forests", body, headers=retry)
             assert again.status_code == 202, again.text
             assert again.json()["id"] not in {j["id"] for j in refused}
@@ -301,4 +304,4 @@ def test_broker_outage_is_503_and_loses_no_job(backend: dict[str, str], tmp_path
                 done = server.wait(job_id, timeout=120)
                 assert (done["state"], done["attempts"]) == ("completed", 1), done
     finally:
-        proxy.cut()
+        proxy.close()
