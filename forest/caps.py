@@ -34,6 +34,7 @@ from forest.errors import LimitError
 from forest.geometry.pieces import piece_library
 from forest.growth.foliage import cloud_models
 from forest.growth.grammar import CompiledGrammar
+from forest.lod.targets import BARK_SHARE, GAME_LOD0, TARGETS
 from forest.settings import ForestSettings
 
 if TYPE_CHECKING:  # a forest of one species never loads the recipe schemas (start-up)
@@ -69,9 +70,6 @@ def glb_vertices(
     :data:`GAME_MARGIN`; an oak's 579 k film vertices are about 210 k."""
     if profile == "film":
         return 4.0 * bark_quads + leaf_vertices
-    # imported here: forest.lod imports the grown forest, which imports these caps
-    from forest.lod.select import BARK_SHARE, GAME_LOD0, TARGETS
-
     full = 2.0 * bark_quads + leaf_triangles
     if full <= 0:
         return 0.0

@@ -20,7 +20,7 @@ from forest.growth.generate import Forest, ForestOptions, generate_forest
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.growth.presets import load_preset
 from forest.lod.impostor import gl_missing
-from forest.lod.select import GAME_LOD0
+from forest.lod.targets import GAME_LOD0
 
 FRAMES = 24
 BUDGETS = (150_000, 40_000, 8_000, 4)  # triangles of LOD0..LOD3 (issue 24's game budgets)
@@ -146,7 +146,7 @@ def test_capped_lod0_keeps_the_crowns_coverage(oak: Forest) -> None:
     from forest.growth.foliage import leaf_texture
     from forest.growth.generate import foliage_or_none
     from forest.lod.levels import tree_levels
-    from forest.lod.select import GAME_LOD0, BarkMesh, LeavesMesh
+    from forest.lod.select import BarkMesh, LeavesMesh
     from forest.lod.views import draw_views
     from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 

@@ -15,7 +15,8 @@ from forest.growth.generate import Forest, ForestOptions, foliage_or_none, gener
 from forest.growth.presets import load_preset
 from forest.lod.impostor import bake_impostor, card_pair, gl_missing
 from forest.lod.levels import Level, tree_levels
-from forest.lod.select import TARGETS, BarkMesh, LeavesMesh
+from forest.lod.select import BarkMesh, LeavesMesh
+from forest.lod.targets import TARGETS
 from forest.usd.contract import (
     BARK_MESH,
     IMPOSTOR_ATLAS,

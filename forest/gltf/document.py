@@ -59,7 +59,8 @@ from forest.gltf.skin import (
 from forest.growth.generate import Forest, foliage_or_none
 from forest.growth.joint_budget import GAME_JOINTS
 from forest.lod.levels import tree_levels
-from forest.lod.select import GAME_LOD0, TARGETS, BarkMesh, LeavesMesh, LodTarget
+from forest.lod.select import BarkMesh, LeavesMesh
+from forest.lod.targets import GAME_LOD0, TARGETS, LodTarget
 from forest.usd.skinned import joint_frames, leaves_mesh, tree_mesh, tree_slices
 
 if TYPE_CHECKING:

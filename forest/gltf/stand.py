@@ -30,7 +30,7 @@ from forest.gltf.document import (
     save_glb,
 )
 from forest.growth.generate import ForestOptions
-from forest.lod.select import GAME_LOD0
+from forest.lod.targets import GAME_LOD0
 from forest.stand.generate import Stand
 from forest.stand.terrain import Heightfield
 from forest.usd.stand import GROUND_COLOR

@@ -13,11 +13,8 @@ from forest.growth.foliage import LEAF, STEM, FoliageAnchors
 from forest.growth.generate import Forest
 from forest.lod.cards import crown_cards
 from forest.lod.select import (
-    BARK_SHARE,
-    TARGETS,
     BarkMesh,
     LeavesMesh,
-    LodTarget,
     hang_joints,
     kept_by_radius,
     local_parents,
@@ -27,6 +24,7 @@ from forest.lod.select import (
     spread_pick,
     tree_anchors,
 )
+from forest.lod.targets import BARK_SHARE, TARGETS, LodTarget
 
 # LOD1's cards grow by this over 1 / sqrt(kept fraction): sprays whose cards overlapped less
 # once fewer cover more. Measured on oak seed 3 (alpha coverage at 1024 px, side and top):
