@@ -153,8 +153,12 @@ def clip_wall_time(url: str, forest: dict[str, object], render: dict[str, object
     completed (its frame chunks run, its clip assembled)."""
     with httpx.Client(base_url=url, timeout=60) as c:
 
-        def finished(job_id: str) -> dict[str, object]:
+        def finished(job_id: str, timeout_s: float = 3600.0) -> dict[str, object]:
+            # a job no worker takes (its queue unconsumed) would wait for ever: give up
+            deadline = time.monotonic() + timeout_s
             while True:
+                if time.monotonic() > deadline:
+                    raise RuntimeError(f"job {job_id} not done after {timeout_s:.0f} s")
                 job = c.get(f"/v1/jobs/{job_id}").json()
                 if job["state"] not in (JobState.QUEUED, JobState.ACTIVE):
                     if job["state"] != JobState.COMPLETED:

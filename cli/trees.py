@@ -133,6 +133,7 @@ def recipes() -> None:
 )
 @click.option(
     "--bark",
+    # forest.bark.tilesets.SETS spelled out: loading this module loads no numpy (a test checks)
     type=click.Choice(
         ["default", "oak", "almond", "birch", "pine", "spruce", "willow", "poplar", "hazel"]
     ),
@@ -392,7 +393,7 @@ def _generate_stand(
         game_lod0(lod0_triangles, "film" if profile == "film" else "game")  # before growing
     with show_progress("forest", quiet) as bar:
         stand = plan_stand(load_recipe(recipe), trees, options.area, seed)
-        _check_stand_caps(stand, options, is_glb(output), tile_size)
+        _check_stand_caps(stand, options, is_glb(output), tile_size, profile, lod0_triangles)
         if is_glb(output):
             from forest.gltf.stand import write_stand_glb
 
@@ -423,7 +424,14 @@ def _generate_stand(
     click.echo(f"wrote {where}: {stand.trees} tree(s) ({counts})")
 
 
-def _check_stand_caps(stand: Any, options: Any, glb: bool, tile_size: float | None) -> None:
+def _check_stand_caps(
+    stand: Any,
+    options: Any,
+    glb: bool,
+    tile_size: float | None,
+    profile: str | None,
+    lod0_triangles: int | None,
+) -> None:
     """Every layer's caps (pieces, palette; a .glb's vertices over all layers) from its
     placed trees (tiled: its fullest tile's, each layer tile being a forest of its own) and
     its estimate at their sizes, before the first layer grows."""
@@ -445,6 +453,8 @@ def _check_stand_caps(stand: Any, options: Any, glb: bool, tile_size: float | No
         settings,
         glb=glb,
         segments=options.segments,
+        profile=profile or "game",  # as write_stand_glb writes it
+        lod0_triangles=lod0_triangles,
     )
 
 

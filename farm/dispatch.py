@@ -24,8 +24,6 @@ KIND_QUEUES: dict[str, str] = {
     "tree": "default",
 }
 QUEUES = ("default", "render", "gpu", "cpu")
-POOLS = ("any", "gpu", "cpu")
-"""A render job's ``pool``: the queue it goes to (``any``: ``render``)."""
 
 
 def queue_for(kind: str, pool: str | None = None) -> str:

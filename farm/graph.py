@@ -17,8 +17,6 @@ from farm.db import JobRow, utcnow
 from farm.store import HELD, IN_BATCH
 from schemas.jobs import JobState
 
-MAX_AFTER = 16
-"""Jobs one job may wait for."""
 MAX_ROUNDS = 8
 """Settling rounds per pump: a chain settles one link a round (a canceled forest cancels its
 render, which cancels what waits for the render...); a longer chain goes on at the next pump."""
@@ -26,19 +24,29 @@ render, which cancels what waits for the render...); a longer chain goes on at t
 
 def settle(s: Session) -> int:
     """Unblock, fail or cancel the blocked jobs whose jobs have ended; how many changed.
-    Runs inside the window's exclusive transaction."""
+    Runs inside the window's exclusive transaction. Every blocked job is looked at, a page of
+    :data:`IN_BATCH` at a time in id order (jobs waiting on one long job must not hide those
+    behind them)."""
     changed = 0
     for _ in range(MAX_ROUNDS):
-        blocked = s.scalars(
-            select(JobRow)
-            .where(JobRow.blocked.is_(True), JobRow.state == JobState.QUEUED)
-            .limit(IN_BATCH)
-        ).all()
-        ids = {p for row in blocked for p in row.after or []}
-        parents = (
-            {r.id: r for r in s.scalars(select(JobRow).where(JobRow.id.in_(ids)))} if ids else {}
-        )
-        n = sum(_settle_one(row, parents) for row in blocked)
+        n, last = 0, ""
+        while True:
+            blocked = s.scalars(
+                select(JobRow)
+                .where(JobRow.blocked.is_(True), JobRow.state == JobState.QUEUED, JobRow.id > last)
+                .order_by(JobRow.id)
+                .limit(IN_BATCH)
+            ).all()
+            if not blocked:
+                break
+            last = blocked[-1].id
+            ids = sorted({p for row in blocked for p in row.after or []})
+            parents = {
+                r.id: r
+                for k in range(0, len(ids), IN_BATCH)
+                for r in s.scalars(select(JobRow).where(JobRow.id.in_(ids[k : k + IN_BATCH])))
+            }
+            n += sum(_settle_one(row, parents) for row in blocked)
         changed += n
         if n == 0:
             break

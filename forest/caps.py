@@ -203,13 +203,16 @@ def check_layers(
     *,
     glb: bool = False,
     segments: int = 1,
+    profile: str = "game",
+    lod0_triangles: int | None = None,
 ) -> None:
     """A mixed stand's caps before its first layer grows: each layer is a forest of its own
     (its pieces and its palette within the per-forest caps), and a .glb holds every layer's
     baked vertices. Layers grow one at a time, so without this a later layer over a cap was
     refused only after the earlier ones were grown and written (and a .glb's vertices only
     layer by layer, once grown). ``compiled``: each layer's estimate at its sizes
-    (:func:`layer_estimates`)."""
+    (:func:`layer_estimates`); ``profile``, ``lod0_triangles``: the .glb's, as it is written
+    (the stand writer's default is the game profile)."""
     for cg, n, name in zip(compiled, counts, names, strict=True):
         if n < 1:
             continue
@@ -222,7 +225,8 @@ def check_layers(
             ) from None
     if glb:
         total = sum(
-            expected_vertices(cg, segments) * n for cg, n in zip(compiled, counts, strict=True)
+            expected_vertices(cg, segments, profile, lod0_triangles) * n
+            for cg, n in zip(compiled, counts, strict=True)
         )
         if total > MAX_VERTICES:
             raise LimitError(

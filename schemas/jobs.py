@@ -67,10 +67,10 @@ BarkSet = Literal[
 """The shipped bark tile sets (:data:`forest.bark.tilesets.SETS`)."""
 JobId = Annotated[str, Field(min_length=1, max_length=64, pattern=JOB_ID_PATTERN)]
 Priority = Annotated[int, Field(ge=0, le=9)]
+"""0-9: among one tenant's waiting work, higher first (tenants take turns whatever it says)."""
 WebhookUrl = Annotated[str, Field(min_length=8, max_length=2048, pattern=r"^https?://")]
 """Called (POST, HMAC-signed) once the job has ended; its host must be one the server allows
 (``FOREST_WEBHOOK_HOSTS``)."""
-"""0-9: among one tenant's waiting work, higher first (tenants take turns whatever it says)."""
 
 
 def _bad_text(text: str) -> str | None:
@@ -456,13 +456,13 @@ class Job(StrictModel):
     result: dict[str, Any] | None
     priority: Priority = 5
     cost: JobCost | None = None
+    """The estimate its tenant's quotas counted (none for a tile: its forest job counts it)."""
     after: list[str] = []
     """Jobs this one waits for (it is held, stage ``waiting for N job(s)``, until all have
     completed)."""
     then: list[str] = []
     """Jobs that wait for this one (a forest request's ``render``, a render of a forest
     still running)."""
-    """The estimate its tenant's quotas counted (none for a tile: its forest job counts it)."""
     runs: list[JobRun] = []
     """Which worker ran each attempt, oldest first (``worker`` names only the one running it
     now)."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import typing
 from pathlib import Path
 
+import click
 from click.testing import CliRunner
 from pxr import Usd
 
@@ -13,8 +14,13 @@ from forest.bark.tilesets import SETS
 from schemas.jobs import BarkSet, TreeRequest
 
 
-def test_the_schema_names_every_shipped_set() -> None:
+def test_the_schema_and_the_cli_name_every_shipped_set() -> None:
+    """The names are spelled out where they are read at start-up (no tile-set import for a
+    schema or the command's options): both lists follow the shipped sets."""
     assert typing.get_args(BarkSet) == SETS
+    generate = main.get_command(click.Context(main), "generate")
+    bark = next(p for p in generate.params if p.name == "bark")
+    assert tuple(bark.type.choices) == SETS
 
 
 def bark_set(path: Path) -> str:

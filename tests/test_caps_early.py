@@ -267,3 +267,13 @@ def test_largest_tile_counts_as_the_tiles_cut_the_layers() -> None:
         want.append(max(len(c) for c in cut))
     assert usd_stand.largest_tile_counts(stand, size) == want
     assert 0 < max(want) < max(len(t) for t in stand.placement.layers)
+
+
+def test_stand_glb_vertices_are_counted_as_the_profile_writes_them() -> None:
+    """A stand's .glb is written with the game profile by default: 60 oaks fit the cap as
+    game levels (about 0.23 M vertices a tree) and not in the film form (0.57 M)."""
+    cg = compile_grammar(load_preset("oak"))
+    settings = ForestSettings()
+    caps.check_layers([cg], [60], ["oak"], 0, settings, glb=True)
+    with pytest.raises(LimitError, match="glTF cap"):
+        caps.check_layers([cg], [60], ["oak"], 0, settings, glb=True, profile="film")

@@ -235,7 +235,13 @@ def test_kubernetes_manifests() -> None:
         d["metadata"]["name"]: [t["metadata"]["queueName"] for t in d["spec"]["triggers"]]
         for d in scaled
     }
-    assert queues == {"forest-worker": ["default"], "forest-gpu-worker": ["gpu", "render"]}
+    # each Deployment scales on every queue it consumes (a CPU-pool backlog adds CPU workers)
+    consumed = {}
+    for d in docs:
+        if d["kind"] == "Deployment" and d["metadata"]["name"] in queues:
+            args = d["spec"]["template"]["spec"]["containers"][0]["args"]
+            consumed[d["metadata"]["name"]] = sorted(args[args.index("-Q") + 1].split(","))
+    assert {name: sorted(q) for name, q in queues.items()} == consumed
 
 
 def _pod_specs() -> list[tuple[str, dict[str, Any]]]:

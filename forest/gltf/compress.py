@@ -492,9 +492,7 @@ def _plain(obj: Any) -> Any:
         return [_plain(v) for v in obj]
     if kind is gl.Attributes:
         return copy.deepcopy(obj.__dict__)
-    names = _FIELDS.get(kind)
-    if names is None and dataclasses.is_dataclass(obj) and not isinstance(obj, type):
-        names = _FIELDS[kind] = tuple(f.name for f in dataclasses.fields(obj))
+    names = _fields(obj)
     if names is not None:
         return {n: _plain(getattr(obj, n)) for n in names}
     if isinstance(obj, tuple) and hasattr(obj, "_fields"):

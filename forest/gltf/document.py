@@ -250,7 +250,6 @@ def add_forest(
             blob,
             forest,
             frames,
-            pose,
             k,
             inst,
             bones,

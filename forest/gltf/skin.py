@@ -65,12 +65,6 @@ def similarity_trs(m: F64) -> list[dict[str, list[float]]]:
     return _parts(t, q, np.repeat(s[:, None], 3, axis=1), has_t, has_r, has_s)
 
 
-def trs(m: F64) -> dict[str, list[float]]:
-    """A similarity ``(4, 4)`` as a node's translation / rotation / scale
-    (:func:`similarity_trs` of one)."""
-    return similarity_trs(m[None])[0]
-
-
 def _parts(
     t: NDArray[np.floating],
     q: NDArray[np.floating],
@@ -121,26 +115,20 @@ def add_tree_skeleton(
     blob: Blob,
     forest: Forest,
     frames: JointFrames,
-    pose: Pose,
     tree: int,
     inst: slice,
     bones: slice,
     budget: int | None = None,
     *,
-    tree_trs: dict[str, list[float]] | None = None,
-    joint_trs: list[dict[str, list[float]]] | None = None,
+    tree_trs: dict[str, list[float]],
+    joint_trs: list[dict[str, list[float]]],
 ) -> TreeSkin:
     """The tree's node (tree transform) with its joint hierarchy under it, posed at the first
     sample, and its skin (``frames`` and ``bones`` of the joint ``budget``). Appends the tree
     node to the default scene. ``tree_trs`` (the tree's :func:`similarity_trs`) and
-    ``joint_trs`` (:func:`rest_trs` of ``pose``): made once per forest by a caller that
-    writes many trees; made here otherwise."""
+    ``joint_trs`` (:func:`rest_trs` of the pose): made once per forest, in one call each."""
     names = [p.rsplit("/", 1)[-1] for p in joint_paths(forest, inst, bones, budget)]
     parent = (frames.joints.parent[bones] - bones.start).tolist()
-    if tree_trs is None:
-        tree_trs = trs(forest.tree_transforms[tree])
-    if joint_trs is None:
-        joint_trs = rest_trs(pose)
     first = len(gltf.nodes)
     tree_node = gl.Node(name=f"Tree_{tree:05d}", **tree_trs)
     nodes = list(range(first + 1, first + 1 + len(names)))

@@ -8,6 +8,7 @@ from fastapi import APIRouter
 from fastapi.responses import JSONResponse
 
 from farm.tiles import tile_count
+from farm.webhooks import refusal
 from schemas.jobs import ForestRequest, Job
 from service.deps import IdempotencyKey, ServicesDep
 from service.errors import field_error
@@ -34,6 +35,10 @@ def create_forest(
     if req.render is not None:
         check_renderable(req.model_dump(mode="json"), "render")
         check_caps(s, req.render.width, req.render.height, req.render.frames, ["render"])
+        # the render's webhook host too: no forest job is made for a render that cannot be
+        refused = refusal(req.render.webhook, s) if req.render.webhook else None
+        if refused is not None:
+            raise field_error(["render", "webhook"], refused)
     # a tiled forest: the caps hold per tile (each tile is a job of its own), on average
     per_tile = math.ceil(req.trees / tile_count(req))
     if per_tile > s.max_forest_trees:

@@ -53,29 +53,21 @@ def create_render(
     if row.state in (JobState.QUEUED, JobState.ACTIVE) and not row.cancel_requested:
         # not drawn yet: the render waits for it and learns its scene then (farm.graph)
         check_renderable(row.params)
-        params = req.model_dump(mode="json") | {"scene": None}
-        pieces = int((row.estimate or {}).get("pieces", 0))
-        return submit(
-            services,
-            "render",
-            params,
-            idempotency_key,
-            tenant,
-            cost=job_cost(pieces, req.frames),
-            field=["frames"],
-            after=[row.id, *(a for a in after if a != row.id)],
-        )
-    if row.state != JobState.COMPLETED:
-        state = JobState.CANCELED if row.cancel_requested else row.state
-        raise field_error(["forest_job"], f"the forest job is {state}, not completed")
-    scene = (row.result or {}).get("scene")
-    if not scene or services.artifacts.path(row.id, scene) is None:
-        raise field_error(["forest_job"], "the forest job has no scene artifact")
-    if scene.endswith(".glb"):
-        raise field_error(["forest_job"], GLB)
+        scene, pieces = None, (row.estimate or {}).get("pieces", 0)
+        after = [row.id, *(a for a in after if a != row.id)]
+    else:
+        if row.state != JobState.COMPLETED:
+            state = JobState.CANCELED if row.cancel_requested else row.state
+            raise field_error(["forest_job"], f"the forest job is {state}, not completed")
+        scene = (row.result or {}).get("scene")
+        if not scene or services.artifacts.path(row.id, scene) is None:
+            raise field_error(["forest_job"], "the forest job has no scene artifact")
+        if scene.endswith(".glb"):
+            raise field_error(["forest_job"], GLB)
+        pieces = (row.result or {}).get("pieces", 0)
     params = req.model_dump(mode="json") | {"scene": scene}  # schemas.jobs.RenderJob
     # the estimate: the forest's pieces drawn once per frame
-    cost = job_cost(int((row.result or {}).get("pieces", 0)), req.frames)
+    cost = job_cost(int(pieces), req.frames)
     return submit(
         services,
         "render",

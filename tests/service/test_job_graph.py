@@ -56,6 +56,11 @@ def test_bad_dependencies_are_refused(server: Server) -> None:
     assert r.status_code == 422 and "glTF" in r.text, r.text
     r = server.post("/v1/forests", FOREST | {"render": RENDER | {"width": 100_000}})
     assert r.status_code == 422, r.text
+    # a render that cannot be made (its webhook refused here) makes no forest either
+    total = server.get("/v1/jobs").json()["total"]
+    r = server.post("/v1/forests", FOREST | {"render": RENDER | {"webhook": "https://x.test/h"}})
+    assert r.status_code == 422 and r.json()["errors"][0]["loc"][1:] == ["render", "webhook"]
+    assert server.get("/v1/jobs").json()["total"] == total
 
 
 @pytest.mark.parametrize("backend", ["pg-redis"], indirect=True)
