@@ -15,8 +15,11 @@ from forest.geometry.pieces import HUB, piece_library
 from forest.growth.foliage import (
     CLUSTER,
     FAMILIES,
+    LEAF,
     MODELS,
     ROSETTE,
+    SPRIG_NEEDLE_ANGLE,
+    SPRIG_RATIO,
     STEM_S,
     STEM_T,
     YAW_STEPS,
@@ -147,6 +150,35 @@ def test_every_species_has_its_own_leaf_picture() -> None:
     width = a[100:240].sum(axis=1).astype(float)
     swings = np.sum(np.abs(np.diff(np.sign(np.diff(width)))) > 0)
     assert swings >= 4
+
+
+def test_spruce_needles_are_drawn_at_their_size() -> None:
+    """A spruce sprig card is about SPRIG_RATIO times as long as wide, the ratio its picture is
+    drawn for, so the needles show at 1-2.5 cm (SPECIES.md), not as streaks along the card."""
+    for model in range(MODELS):
+        cloud = leaf_cloud("spruce", model)
+        corners = cloud.positions[cloud.quads[cloud.kind == LEAF]]  # (c, 4, 3)
+        width = np.linalg.norm(corners[:, 1] - corners[:, 0], axis=1)
+        length = np.linalg.norm(corners[:, 3] - corners[:, 0], axis=1)
+        ratio = np.median(length / width)
+        assert 0.6 * SPRIG_RATIO < ratio < 1.4 * SPRIG_RATIO, (model, ratio)
+        # a needle reaches 75-95 % of the half width at SPRIG_NEEDLE_ANGLE to its twig
+        needle = 0.85 * (width / 2) / np.sin(np.radians(SPRIG_NEEDLE_ANGLE))
+        assert needle.min() >= 0.01 and needle.max() <= 0.025, (model, needle.min(), needle.max())
+    # on such a card, lines leaving the twig at SPRIG_NEEDLE_ANGLE run along needles in the
+    # picture (left half of the texture: x across -1..1, t along 0..1), one every 1/64
+    size = 1024
+    alpha = leaf_texture("spruce", size)[:, : size // 2, 3] > 0
+    x = np.linspace(0.12, 0.7, 40)
+    rise = 0.5 / np.tan(np.radians(SPRIG_NEEDLE_ANGLE)) / SPRIG_RATIO  # t per unit of x
+    on = []
+    for k in range(8, 56):
+        for side in (-1, 1):
+            t0 = (k + (0.5 if side > 0 else 0.0)) / 64
+            col = np.clip(((side * x + 1) / 2 * (size // 2)).astype(int), 0, size // 2 - 1)
+            row = np.clip(((t0 + rise * x) * size).astype(int), 0, size - 1)
+            on.append(alpha[row, col].mean())
+    assert np.median(on) > 0.95, np.median(on)
 
 
 def test_anchors_follow_hub_bones_of_foliage_pieces(windy_forest: Forest) -> None:

@@ -73,12 +73,14 @@ def test_every_tree_measured(figures: dict[tuple[str, int], SceneFigures]) -> No
 
 
 # Targets not met yet, each an expected failure (strict: it fails the run once it passes, so
-# the mark goes with the gap). A spruce card is a needle sprig 20-50 cm long whose picture
-# draws its needles as long oblique streaks: needle-sized cards would cost ~30x the
-# triangles, so the fix is a picture with needles at their metric size plus the drawn needle
-# length written into the file for the judge (issue foliage-twigs, open).
+# the mark goes with the gap). A spruce card is a sprig 25-45 cm long (SPRIG_RATIO times its
+# width) whose picture draws its needles at 1.5-2.5 cm (tests/test_foliage.py checks the
+# picture against the cards): cards of one needle would need ~30x the triangles (a 30 m
+# spruce's crown shell is ~480 m2; 2.5 cm cards cover it with ~770 k of them), so the card
+# measure misses; the needles are at their size (issue foliage-twigs, open).
 SPRUCE_SPRIGS = pytest.mark.xfail(
-    strict=True, reason="spruce cards are needle sprigs; needles not yet drawn at 1-2.5 cm"
+    strict=True,
+    reason="spruce cards are needle sprigs 25-45 cm long; their needles are drawn at 1.5-2.5 cm",
 )
 LEAF_CASES = [
     pytest.param(name, seed, marks=SPRUCE_SPRIGS) if name == "spruce" else (name, seed)

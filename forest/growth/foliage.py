@@ -72,6 +72,11 @@ ROSETTE_ST = (0.5, 1.0, 0.5, 1.0)
 ROSETTE = 6
 ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half width
 STEM, LEAF, CLUSTER = 0, 1, 2  # what a card shows (LeafCloud.kind)
+# a spruce sprig card is SPRIG_RATIO times as long as it is wide (its width twice a needle's
+# reach), so the picture draws its needles at their metric size: 1-2.5 cm, not streaks along
+# the card (a card per needle would cost ~30x the triangles)
+SPRIG_RATIO = 8.0
+SPRIG_NEEDLE_ANGLE = 55.0  # degrees between a needle and its twig, pointing forwards
 STEM_S = (0.245, 0.255)
 STEM_T = (0.015, 0.05)
 LEAF_GREEN = (0.22, 0.42, 0.13)  # linear RGB of sprays that carry no colour (older scenes)
@@ -139,7 +144,7 @@ FORMS: dict[str, SprayForm] = {
     "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
-    "spruce": SprayForm((0.016, 0.026), 1.0, 0.0, "spiral", (4, 7), (0.8, 1.3),
+    "spruce": SprayForm((0.014, 0.024), 1.0, 0.0, "spiral", (4, 7), (0.8, 1.3),
                         habit="sprig", rise=(-15.0, 10.0)),
     "broadleaf": SprayForm((0.07, 0.12), 0.6, 0.1, "spiral", (4, 6), (0.3, 0.55), crowd=1.6,
                            sides=(2, 4), side=(0.1, 0.2), rosette=True),
@@ -460,11 +465,14 @@ def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
            phyllotaxis: Phyllotaxis, family: Family) -> LeafCloud:  # fmt: skip
     """A spruce branchlet: a main shoot with a few side shoots (alternately left and right,
     at 40-60 degrees), every shoot in segments each shown by two crossed needle sprigs (the
-    picture: a twig with needles either side), so needles stand all round the shoots."""
+    picture: a twig with needles all round), so needles stand all round the shoots; a
+    segment is about SPRIG_RATIO times as long as a sprig is wide, the needles' size in the
+    picture."""
     length = rng.uniform(*form.shoot)
-    main = _shoot(rng, form, length, 4)
-    cards = _Cards()
     needle = rng.uniform(*lengths)
+    width = 2 * needle * form.aspect
+    main = _shoot(rng, form, length, _sprig_segments(length, width))
+    cards = _Cards()
 
     def clothe(path: F64) -> None:
         base = path[:-1]
@@ -474,7 +482,7 @@ def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
         turn = rng.uniform(0, np.pi)
         for k in (0.0, np.pi / 2):
             r = _frame(t, np.full(len(t), turn + k))
-            cards.add(base, t, r, seg, np.full(len(t), 2 * needle * form.aspect))
+            cards.add(base, t, r, seg, np.full(len(t), width))
 
     clothe(main)
     sides = int(rng.integers(form.leaves[0], form.leaves[1] + 1))
@@ -486,10 +494,16 @@ def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
         d = _unit(np.cos(ang) * tangent[i] + np.sin(ang) * side)
         ln = max(length - s[i], 0.1) * rng.uniform(0.5, 0.8)
         # side shoots sag and, on the lower side, hang (the comb of a spruce's branches)
-        k = np.linspace(0, 1, 3)[:, None]
+        k = np.linspace(0, 1, _sprig_segments(ln, width) + 1)[:, None]
         droop = np.array([0.0, -rng.uniform(0.15, 0.6), 0.0]) * k**1.5 * ln
         clothe(at[i] + k * ln * d + droop)
     return cards.cloud(family)
+
+
+def _sprig_segments(length: float, width: float) -> int:
+    """Cards along a sprig shoot ``length`` metres long: each about SPRIG_RATIO times its
+    ``width``, so the picture's needles keep their size."""
+    return int(np.clip(round(length / (SPRIG_RATIO * width)), 1, 6))
 
 
 _BUILDERS = {"spread": _leafy, "hanging": _leafy, "tuft": _tuft, "sprig": _sprig}
@@ -577,19 +591,44 @@ def _segments(px: F64, py: F64, a: F64, b: F64, half: float) -> NDArray[np.bool_
     return hit
 
 
+def _sprig_picture(x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
+    """A spruce shoot on a card SPRIG_RATIO times as long as wide: the twig down the middle
+    and needles all round it at their metric size. Those either side leave the twig at
+    SPRIG_NEEDLE_ANGLE, forwards, every 1/64 of the card (4-6 mm on a 25-40 cm card: a real
+    shoot's are 1-3 mm apart, past what 256 texels show) staggered left and right, each
+    reaching 75-95 % of the half width (the card's half width is a needle's length); the
+    needles on top, seen end-on, are shorter and steeper, between them. Together they cover
+    about two thirds of the card, so mip levels keep the sprig above the 0.5 alpha cut."""
+    ax = np.abs(x)
+    twig = (ax < 0.07) & (tt > 0.005) & (tt < 0.995)
+    slope = 0.5 / np.tan(np.radians(SPRIG_NEEDLE_ANGLE)) / SPRIG_RATIO  # t per unit of |x|
+    # the last needles at the shoot's end are shorter: the bud's
+    tip = np.clip((1.0 - tt) / 0.06, 0.35, 1.0)
+    needle = np.zeros(x.shape, bool)
+    value = np.zeros(x.shape)
+    layers = ((slope, 0.5 * (x > 0), 0.75, 0.95), (2.4 * slope, 0.5 + 0.25 * (x > 0), 0.4, 0.65))
+    for rise, offset, lo, hi in layers:
+        phase = (tt - rise * ax) * 64.0 + offset
+        k = np.round(phase)
+        reach = (lo + (hi - lo) * _hash01(k + 97.0 * (x > 0))) * tip
+        hit = (np.abs(phase - k) < 0.3) & (ax < reach) & (tt - rise * ax > 0.004) & ~needle
+        value = np.where(hit, 0.7 + 0.28 * ax / np.maximum(reach, 1e-6), value)
+        needle |= hit
+    return twig | needle, np.where(twig, 0.5, value)
+
+
+def _hash01(k: F64) -> F64:
+    """A repeatable value in [0, 1) for each whole ``k`` (a needle's index)."""
+    return np.asarray(np.modf(np.abs(np.sin(k * 12.9898) * 43758.5453))[0])
+
+
 def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
     """Where the family's leaf is (x across its card in -1..1, tt along it in 0..1, the stalk
     at 0) and its neutral value there."""
     form = FORMS[family]
     stalk = (np.abs(x) < 0.06) & (tt > 0.005) & (tt < max(form.petiole, 0.08) + 0.02)
     if form.habit == "sprig":
-        twig = (np.abs(x) < 0.08) & (tt > 0.005) & (tt < 0.995)
-        # needles leave the twig every 1/16 of its length at 55 degrees, nearly to the edge,
-        # thick enough to stay a few texels wide in an impostor
-        phase = (tt - 0.45 * np.abs(x)) * 16.0
-        needle = (np.abs(phase - np.round(phase)) < 0.36) & (np.abs(x) < 0.95)
-        needle &= tt - 0.45 * np.abs(x) > 0.0
-        return twig | needle, np.where(twig, 0.5, 0.78 + 0.22 * np.abs(x))
+        return _sprig_picture(x, tt)
     if form.habit == "tuft":
         # pairs of needles from a sheath at the base, fanned out
         # seven pairs, each pair's two needles splayed from one sheath up the shoot: a
