@@ -124,8 +124,9 @@ def delete_job_artifacts(services: ServicesDep, caller: CallerDep, job_id: JobId
     return job_model(done, services)
 
 
-@router.get(
+@router.api_route(
     "/{job_id}/artifacts/{name}",
+    methods=["GET", "HEAD"],  # HEAD: a download manager's size and type first, no body
     response_class=FileResponse,
     responses={
         200: {

@@ -45,6 +45,13 @@ def test_forest_job_then_render(server: Server, tmp_path: Path) -> None:
     arrays = read_scene(path)
     assert arrays.n_instances == job["result"]["pieces"]
     assert scene.content == reference_scene(tmp_path, FOREST)
+    # HEAD: the same headers (size, type, name), no body
+    head = httpx.head(f"{server.url}{job['artifacts'][0]['url']}", headers=server.headers)
+    assert head.status_code == 200 and head.content == b"", head.status_code
+    for name in ("content-length", "content-type", "content-disposition", "etag"):
+        assert head.headers[name] == scene.headers[name], name
+    other = httpx.head(f"{server.url}/v1/jobs/{job['id']}/artifacts/x.png", headers=server.headers)
+    assert other.status_code == 404
 
     r = server.post(
         "/v1/renders", {"forest_job": job["id"], "width": 48, "height": 32, "frames": 2}
