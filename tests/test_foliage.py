@@ -18,6 +18,8 @@ from forest.growth.foliage import (
     LEAF,
     MODELS,
     ROSETTE,
+    SPRAY,
+    SPRAY_LEAVES,
     SPRIG_NEEDLE_ANGLE,
     SPRIG_RATIO,
     STEM_S,
@@ -89,10 +91,15 @@ def test_spray_leaves_follow_the_phyllotaxis_and_face_the_light() -> None:
         assert c.leaf is not None and c.kind is not None
         n = c.normals[::4][c.leaf]
         assert np.median(np.abs(n[:, 1])) > 0.7  # blades mostly level, facing up or down
-        # every shoot ends in a cluster card of ROSETTE leaves facing up
-        cluster = c.kind == CLUSTER
-        assert cluster.sum() >= 4 and (c.normals[::4][cluster][:, 1] > 0.6).all()
-        assert c.n_leaves == c.leaf.sum() + ROSETTE * cluster.sum()
+        # the main shoot and its spurs end in cluster cards of ROSETTE leaves, every side
+        # shoot is a card of SPRAY_LEAVES (flat_sides): all of them facing up
+        cluster, spray = c.kind == CLUSTER, c.kind == SPRAY
+        assert cluster.sum() >= 2 and spray.sum() >= 4
+        assert (c.normals[::4][cluster | spray][:, 1] > 0.6).all()
+        assert c.n_leaves == c.leaf.sum() + ROSETTE * cluster.sum() + SPRAY_LEAVES * spray.sum()
+        # most cards still show one leaf (so the median card is a leaf), and a side shoot's
+        # card is a tenth of the cards its leaves took one by one
+        assert c.leaf.mean() > 0.55
     # a grammar's length and phyllotaxis reach the models
     small = cloud_models("hazel", (0.02, 0.03), "opposite")
     assert all(c.leaf_lengths().min() >= 0.014 and c.leaf_lengths().max() <= 0.03 for c in small)
@@ -125,10 +132,13 @@ def test_leaf_textures_are_neutral_leaves_with_empty_surroundings(family: str) -
     assert t.shape == (64, 64, 4) and t.dtype == np.uint8
     shape = t[..., 3] == 255
     assert set(np.unique(t[..., 3])) == {0, 255}
-    leaf, cluster = shape[:, :32], shape[32:, 32:]
+    leaf, cluster, spray = shape[:, :32], shape[32:, 32:], shape[:32, 32:]
     assert 0.1 < leaf.mean() < 0.75 and 0.1 < cluster.mean() < 0.9
+    assert 0.1 < spray.mean() < 0.75
+    fine = leaf_texture(family, 128)[:64, 64:, 3] == 255  # type: ignore[arg-type]
+    assert fine[2:40, 31:33].any(axis=1).all()  # a twig up the middle (a few mm: 1 texel here)
     assert not shape[:, 0].any() and not shape[:, 31].any()  # room round the leaf
-    assert not shape[:32, 32:].any()  # the lower right quarter is empty
+    assert not spray[:, 0].any() and not spray[:, 31].any()
     assert leaf[:, 16].sum() > 40  # the stalk and midrib (or the twig) run the card's length
     # the stalk stem cards show: opaque over STEM_S x STEM_T
     assert t[int(STEM_T[0] * 64) : int(STEM_T[1] * 64) + 1, int(STEM_S[0] * 64), 3].min() == 255

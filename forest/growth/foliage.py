@@ -71,7 +71,12 @@ LEAF_ST = (0.0, 0.5, 0.0, 1.0)
 ROSETTE_ST = (0.5, 1.0, 0.5, 1.0)
 ROSETTE = 6
 ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half width
-STEM, LEAF, CLUSTER = 0, 1, 2  # what a card shows (LeafCloud.kind)
+# the lower right quarter: a side shoot of SPRAY_LEAVES leaves seen from above, on a card
+# SPRAY_LONG leaf lengths long and SPRAY_WIDE wide, so its leaves are drawn at their size
+SPRAY_ST = (0.5, 1.0, 0.0, 0.5)
+SPRAY_LEAVES = 10
+SPRAY_LONG, SPRAY_WIDE = 3.2, 2.4
+STEM, LEAF, CLUSTER, SPRAY = 0, 1, 2, 3  # what a card shows (LeafCloud.kind)
 # a spruce sprig card is SPRIG_RATIO times as long as it is wide (its width twice a needle's
 # reach), so the picture draws its needles at their metric size: 1-2.5 cm, not streaks along
 # the card (a card per needle would cost ~30x the triangles)
@@ -105,8 +110,11 @@ class SprayForm:
     angle in degrees by which a blade rolls out of level about its own axis (a cluster leans
     out over its shoot's heading by 35-70 % of it): the sun leaves of a crown's outer shell
     stand at many angles, so a crown seen from the side reads as leafy, not as level blades
-    seen edge-on (0: level blades, clusters leaning about 27 degrees). Leaf counts are per
-    shoot, besides the rosette's."""
+    seen edge-on (0: level blades, clusters leaning about 27 degrees); flat_sides: each side
+    shoot is one card of a shoot's leaves seen from above (SPRAY_ST) and the leaf below it,
+    not a stem card and its leaves one by one (a ninth of the cards for the same leaves, so
+    more sprays fit a tree's triangle budget). Leaf counts are per shoot, besides the
+    rosette's."""
 
     length: tuple[float, float]
     aspect: float
@@ -123,12 +131,13 @@ class SprayForm:
     rosette: bool = False
     tilt: float = 0.0
     spurs: tuple[int, int] = (0, 0)
+    flat_sides: bool = False
 
 
 FORMS: dict[str, SprayForm] = {
-    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (5, 7), (0.8, 1.3), crowd=1.8,
+    "oak": SprayForm((0.08, 0.14), 0.62, 0.06, "spiral", (8, 11), (0.8, 1.3), crowd=1.8,
                      sides=(4, 7), side=(0.25, 0.55), rosette=True, tilt=40.0, spurs=(1, 1),
-                     rise=(-15.0, 45.0)),
+                     rise=(-15.0, 45.0), flat_sides=True),
     "birch": SprayForm((0.05, 0.08), 0.62, 0.32, "spiral", (5, 8), (0.4, 0.8),
                        habit="hanging", rise=(0.0, 25.0), stem=0.003, sides=(2, 4),
                        side=(0.15, 0.3)),
@@ -162,8 +171,8 @@ class LeafCloud:
 
     Each card owns its four vertices (flat normal); the shoot starts at the origin;
     ``family`` names the picture its st coordinates index; ``kind`` (c,) says what each card
-    shows (STEM, LEAF or a cluster of ROSETTE leaves), None where unknown (a model read back
-    from a scene)."""
+    shows (STEM, LEAF, a cluster of ROSETTE leaves or a SPRAY of SPRAY_LEAVES), None where
+    unknown (a model read back from a scene)."""
 
     positions: F64
     normals: F64
@@ -179,10 +188,13 @@ class LeafCloud:
 
     @property
     def n_leaves(self) -> int:
-        """Leaves shown: one per leaf card, ROSETTE per cluster card."""
+        """Leaves shown: one per leaf card, ROSETTE per cluster card, SPRAY_LEAVES per spray."""
         if self.kind is None:
             return self.n_cards
-        return int((self.kind == LEAF).sum() + ROSETTE * (self.kind == CLUSTER).sum())
+        k = self.kind
+        return int(
+            (k == LEAF).sum() + ROSETTE * (k == CLUSTER).sum() + SPRAY_LEAVES * (k == SPRAY).sum()
+        )
 
     @property
     def n_cards(self) -> int:
@@ -199,15 +211,20 @@ class LeafCloud:
         return np.concatenate([q[:, [0, 1, 2]], q[:, [0, 2, 3]]]).astype(np.int32)
 
     def leaf_lengths(self) -> F64:
-        """Base-to-tip length of every leaf card and the longest leaf of every cluster card
-        (half its side), metres."""
+        """Base-to-tip length of every leaf card, the longest leaf of every cluster card (half
+        its side) and the leaves of every spray card (its length over SPRAY_LONG), metres."""
         q = self.quads if self.leaf is None else self.quads[self.leaf]
         one = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
         if self.kind is None:
             return np.asarray(one)
-        q = self.quads[self.kind == CLUSTER]
-        side = np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
-        return np.concatenate([one, 0.5 * ROSETTE_LEAF * side])
+
+        def long(kind: int) -> F64:
+            q = self.quads[self.kind == kind]
+            return np.asarray(
+                np.linalg.norm(self.positions[q[:, 3]] - self.positions[q[:, 0]], axis=1)
+            )
+
+        return np.concatenate([one, 0.5 * ROSETTE_LEAF * long(CLUSTER), long(SPRAY) / SPRAY_LONG])
 
 
 def _unit(v: F64) -> F64:
@@ -361,9 +378,39 @@ def _leafy(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
     hanging = form.habit == "hanging"
     main = _shoot(rng, form, rng.uniform(*form.shoot), 6 if hanging else 3)
     cards = _Cards()
-    for path in [main, *_side_shoots(rng, form, main, 4 if hanging else 1)]:
-        _leaves_on(cards, rng, form, lengths, phyllotaxis, path, hanging)
+    for i, path in enumerate([main, *_side_shoots(rng, form, main, 4 if hanging else 1)]):
+        if i and form.flat_sides:
+            _flat_side(cards, rng, form, lengths, path)
+        else:
+            _leaves_on(cards, rng, form, lengths, phyllotaxis, path, hanging)
     return cards.cloud(family)
+
+
+def _flat_side(
+    cards: _Cards, rng: np.random.Generator, form: SprayForm, lengths: tuple[float, float],
+    path: F64,
+) -> None:  # fmt: skip
+    """A side shoot as one SPRAY card along ``path``'s heading, facing up and leaning out
+    over it (as a cluster does), its leaves the size of ``lengths``; and the leaf in whose
+    axil it grew, at its base."""
+    heading = _unit(path[-1] - path[0])
+    lean = np.tan(np.radians(rng.uniform(0.35, 0.7) * form.tilt)) if form.tilt else 0.5
+    normal = _unit(UP + lean * heading * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
+    a = _unit(heading - (heading @ normal) * normal)
+    leaf = rng.uniform(*lengths)
+    cards.add(path[:1], a[None], np.cross(a, normal)[None], np.array([SPRAY_LONG * leaf]),
+              np.array([SPRAY_WIDE * leaf]), SPRAY_ST, SPRAY)  # fmt: skip
+    # the subtending leaf: out to the side, level, a little drooping
+    out = _unit(_side(heading[None])[0] * rng.choice([-1.0, 1.0]) + 0.6 * heading)
+    out[1] = -rng.uniform(0.0, 0.2)
+    size = rng.uniform(*lengths)
+    cards.add(
+        path[:1],
+        _unit(out)[None],
+        _side(_unit(out)[None]),
+        np.array([size]),
+        np.array([form.aspect * size]),
+    )
 
 
 def _lean(v: F64, angle: F64) -> F64:
@@ -678,6 +725,35 @@ def _rosette(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     return shape, value
 
 
+def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
+    """An ``n`` x ``n`` picture of a side shoot seen from above (row: along, from its base;
+    column: across), on a card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide: its twig up
+    the middle and SPRAY_LEAVES leaves, alternately left and right and more forwards towards
+    its tip, the last three fanned round the tip, the youngest smaller."""
+    form = FORMS[family]
+    c = (np.arange(n) + 0.5) / n
+    tt, x = np.meshgrid(c, c * 2.0 - 1.0, indexing="ij")
+    px, py = x * SPRAY_WIDE / 2, tt * SPRAY_LONG  # in leaf lengths
+    at = np.array([0.2, 0.5, 0.8, 1.1, 1.35, 1.58, 1.8, 2.02, 2.05, 2.12])
+    angle = np.radians([64, 60, 56, 52, 48, 44, 40, 34, -34, 0])
+    side = np.array([1, -1, 1, -1, 1, -1, 1, 1, 1, 1], np.float64)
+    size = np.array([0.86, 0.93, 0.97, 1.0, 0.97, 0.94, 0.9, 0.86, 0.86, 0.92])
+    top = float(at[-1])
+    shape = (np.abs(px) < 0.022) & (py > 0.004 * SPRAY_LONG) & (py < top)
+    value = np.where(shape, 0.5, 0.0)
+    for j in range(SPRAY_LEAVES):
+        d = np.array([side[j] * np.sin(angle[j]), np.cos(angle[j])])
+        rx, ry = px, py - at[j]
+        along = (rx * d[0] + ry * d[1]) / size[j]
+        across = (rx * d[1] - ry * d[0]) / size[j] / (0.5 * form.aspect)
+        inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
+        sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
+        sh &= inside & ~shape  # the first drawn lie on top
+        value = np.where(sh, val * (0.9 + 0.1 * (j % 3) / 2), value)
+        shape |= sh
+    return shape, value
+
+
 def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDArray[np.uint8]:
     """``(size, size, 4)`` RGBA8 (row 0 is t = 0, the stem end), rgb sRGB-encoded: the family's
     pictures, alpha 255 on them and 0 around them. The rgb is neutral detail (midrib, veins,
@@ -687,7 +763,8 @@ def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDAr
     The left half (LEAF_ST) is one leaf, its stalk at t = 0; a stalk (or twig) runs down the
     middle of its base (STEM_S x STEM_T), which stem cards show. The upper right quarter
     (ROSETTE_ST) is a cluster of ROSETTE leaves seen from above (the leaves crowded at a
-    shoot's end, one card for several). Broad leaves: the species' outline (lobed oak,
+    shoot's end, one card for several); the lower right (SPRAY_ST) a side shoot of
+    SPRAY_LEAVES leaves seen from above. Broad leaves: the species' outline (lobed oak,
     triangular birch and poplar on long stalks, round toothed hazel, narrow willow and
     almond) with midrib and side veins; ``pine``: a fan of needle pairs from a sheath;
     ``spruce``/``needles``: a sprig, a twig along the middle with short needles either side
@@ -702,6 +779,7 @@ def leaf_texture(family: Family = "broadleaf", size: int = TEXTURE_SIZE) -> NDAr
     value = np.zeros((size, size))
     shape[:, :half], value[:, :half] = _picture(family, x, tt)
     shape[half:, half:], value[half:, half:] = _rosette(family, size - half)
+    shape[:half, half:], value[:half, half:] = _spray(family, half)
     rng = np.random.default_rng([size, FAMILIES.index(family)])
     value = value * (1.0 + 0.06 * rng.standard_normal((size, size)))
     # neutral with a touch of warmth in the lighter parts (veins and midribs yellow a little)
