@@ -149,7 +149,7 @@ FORMS: dict[str, SprayForm] = {
     "almond": SprayForm((0.08, 0.12), 0.3, 0.12, "spiral", (4, 6), (0.3, 0.5), crowd=1.4,
                         sides=(2, 4), side=(0.1, 0.22), rosette=True),
     "poplar": SprayForm((0.06, 0.11), 0.7, 0.3, "spiral", (5, 8), (0.3, 0.5),
-                        rise=(25.0, 60.0), sides=(2, 3), side=(0.1, 0.2)),
+                        rise=(25.0, 60.0), sides=(2, 3), side=(0.1, 0.2), flat_sides=True),
     "pine": SprayForm((0.045, 0.07), 0.8, 0.0, "spiral", (10, 14), (0.25, 0.45),
                       habit="tuft", rise=(20.0, 55.0), stem=0.006, sides=(1, 3),
                       side=(0.1, 0.2)),
