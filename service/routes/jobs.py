@@ -124,9 +124,10 @@ def delete_job_artifacts(services: ServicesDep, caller: CallerDep, job_id: JobId
     return job_model(done, services)
 
 
-@router.api_route(
+# HEAD: a download manager's size and type first, no body (out of the schema: one operation)
+@router.head("/{job_id}/artifacts/{name}", response_class=FileResponse, include_in_schema=False)
+@router.get(
     "/{job_id}/artifacts/{name}",
-    methods=["GET", "HEAD"],  # HEAD: a download manager's size and type first, no body
     response_class=FileResponse,
     responses={
         200: {

@@ -6,7 +6,6 @@ all dropped at the end). A server that is not running fails the test with how to
 
 from __future__ import annotations
 
-import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,9 +18,7 @@ from service_harness import (
     REDIS,
     REDIS_URL,
     Server,
-    delete_rabbit_queues,
-    delete_redis_keys,
-    pg_database,
+    own_backend,
     require_server,
 )
 
@@ -38,20 +35,9 @@ def backend(request: pytest.FixtureRequest) -> Iterator[dict[str, str]]:
     require_server("PostgreSQL", PG)
     broker = {"pg-rabbitmq": ("RabbitMQ", RABBIT), "pg-redis": ("Redis", REDIS)}[request.param]
     require_server(*broker)
-    tag = uuid.uuid4().hex[:12]
-    prefix = f"forest-test-{tag}."
-    with pg_database(tag) as db_url:
-        env = {"FOREST_DATABASE_URL": db_url, "FOREST_QUEUE_PREFIX": prefix}
-        if request.param == "pg-rabbitmq":
-            try:
-                yield env | {"FOREST_BROKER_URL": RABBIT_URL}
-            finally:
-                delete_rabbit_queues(prefix)
-        else:
-            try:
-                yield env | {"FOREST_BROKER_URL": REDIS_URL}
-            finally:
-                delete_redis_keys(prefix)
+    url = RABBIT_URL if request.param == "pg-rabbitmq" else REDIS_URL
+    with own_backend({"FOREST_BROKER_URL": url}) as env:
+        yield env
 
 
 @pytest.fixture

@@ -15,6 +15,7 @@ import subprocess
 import sys
 import threading
 import time
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -96,6 +97,26 @@ def delete_redis_keys(prefix: str) -> int:
         return len(keys)
     finally:
         client.close()
+
+
+@contextlib.contextmanager
+def own_backend(backend: dict[str, str]) -> Iterator[dict[str, str]]:
+    """``backend`` with a PostgreSQL database and queue names (RabbitMQ) or Redis keys of
+    their own, all dropped at the end; the embedded backend ({}) as it is."""
+    broker = backend.get("FOREST_BROKER_URL")
+    if broker is None:
+        yield backend
+        return
+    tag = uuid.uuid4().hex[:12]
+    prefix = f"forest-test-{tag}."
+    with pg_database(tag) as db_url:
+        try:
+            yield backend | {"FOREST_DATABASE_URL": db_url, "FOREST_QUEUE_PREFIX": prefix}
+        finally:
+            if broker.startswith("amqp"):
+                delete_rabbit_queues(prefix)
+            else:
+                delete_redis_keys(prefix)
 
 
 def redis_unacked(prefix: str) -> int:
