@@ -112,8 +112,8 @@ class SprayForm:
     stand at many angles, so a crown seen from the side reads as leafy, not as level blades
     seen edge-on (0: level blades, clusters leaning about 27 degrees); flat_sides: each side
     shoot is one card of a shoot's leaves seen from above (SPRAY_ST) and the leaf below it,
-    not a stem card and its leaves one by one (a ninth of the cards for the same leaves, so
-    more sprays fit a tree's triangle budget). Leaf counts are per shoot, besides the
+    not a stem card and its leaves one by one (two cards where it took about nine, so more
+    sprays fit a tree's triangle budget). Leaf counts are per shoot, besides the
     rosette's."""
 
     length: tuple[float, float]
