@@ -97,8 +97,8 @@ def test_spray_leaves_follow_the_phyllotaxis_and_face_the_light() -> None:
         assert cluster.sum() >= 2 and spray.sum() >= 4
         assert (c.normals[::4][cluster | spray][:, 1] > 0.6).all()
         assert c.n_leaves == c.leaf.sum() + ROSETTE * cluster.sum() + SPRAY_LEAVES * spray.sum()
-        # most cards still show one leaf (so the median card is a leaf), and a side shoot's
-        # card is a tenth of the cards its leaves took one by one
+        # most cards still show one leaf (so the median card is a leaf): a side shoot takes
+        # two cards (its spray and the leaf below it) where it took about nine
         assert c.leaf.mean() > 0.55
     # a grammar's length and phyllotaxis reach the models
     small = cloud_models("hazel", (0.02, 0.03), "opposite")

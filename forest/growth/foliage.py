@@ -403,14 +403,9 @@ def _flat_side(
     # the subtending leaf: out to the side, level, a little drooping
     out = _unit(_side(heading[None])[0] * rng.choice([-1.0, 1.0]) + 0.6 * heading)
     out[1] = -rng.uniform(0.0, 0.2)
+    out = _unit(out)[None]
     size = rng.uniform(*lengths)
-    cards.add(
-        path[:1],
-        _unit(out)[None],
-        _side(_unit(out)[None]),
-        np.array([size]),
-        np.array([form.aspect * size]),
-    )
+    cards.add(path[:1], out, _side(out), np.array([size]), np.array([form.aspect * size]))
 
 
 def _lean(v: F64, angle: F64) -> F64:
@@ -706,7 +701,6 @@ def _picture(family: Family, x: F64, tt: F64) -> tuple[NDArray[np.bool_], F64]:
 def _rosette(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     """An ``n`` x ``n`` picture of the family's leaves in a cluster seen from above: ROSETTE
     leaves from the centre, each as long as the picture's half width."""
-    form = FORMS[family]
     c = (np.arange(n) + 0.5) / n * 2.0 - 1.0
     px, py = np.meshgrid(c, c)
     shape = np.zeros((n, n), bool)
@@ -715,14 +709,25 @@ def _rosette(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
         # the youngest leaves in the middle of the cluster are smaller
         turn = 2 * np.pi * j / ROSETTE + 0.25 * np.sin(3.0 * j)
         scale = ROSETTE_LEAF - 0.12 * (j % 2)
-        along = (px * np.sin(turn) + py * np.cos(turn)) / scale
-        across = (px * np.cos(turn) - py * np.sin(turn)) / scale / (0.5 * form.aspect)
-        inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
-        sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
-        sh &= inside & ~shape  # the first leaves drawn lie on top
-        value = np.where(sh, val * (0.9 + 0.1 * (j % 3) / 2), value)
-        shape |= sh
+        _draw_leaf(family, px, py, (np.sin(turn), np.cos(turn)), scale, j, shape, value)
     return shape, value
+
+
+def _draw_leaf(
+    family: Family, px: F64, py: F64, heading: tuple[float, float], size: float, j: int,
+    shape: NDArray[np.bool_], value: F64,
+) -> None:  # fmt: skip
+    """Leaf ``j`` of a picture of several, into ``shape`` and ``value``: its stalk at the
+    origin of the pixel coordinates ``(px, py)``, pointing along the unit ``heading``,
+    ``size`` long; the leaves drawn first lie on top, every third a shade lighter."""
+    hx, hy = heading
+    along = (px * hx + py * hy) / size
+    across = (px * hy - py * hx) / size / (0.5 * FORMS[family].aspect)
+    inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
+    sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
+    sh &= inside & ~shape
+    value[sh] = (val * (0.9 + 0.1 * (j % 3) / 2))[sh]
+    shape |= sh
 
 
 def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
@@ -730,7 +735,6 @@ def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     column: across), on a card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide: its twig up
     the middle and SPRAY_LEAVES leaves, alternately left and right and more forwards towards
     its tip, the last three fanned round the tip, the youngest smaller."""
-    form = FORMS[family]
     c = (np.arange(n) + 0.5) / n
     tt, x = np.meshgrid(c, c * 2.0 - 1.0, indexing="ij")
     px, py = x * SPRAY_WIDE / 2, tt * SPRAY_LONG  # in leaf lengths
@@ -742,15 +746,8 @@ def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     shape = (np.abs(px) < 0.022) & (py > 0.004 * SPRAY_LONG) & (py < top)
     value = np.where(shape, 0.5, 0.0)
     for j in range(SPRAY_LEAVES):
-        d = np.array([side[j] * np.sin(angle[j]), np.cos(angle[j])])
-        rx, ry = px, py - at[j]
-        along = (rx * d[0] + ry * d[1]) / size[j]
-        across = (rx * d[1] - ry * d[0]) / size[j] / (0.5 * form.aspect)
-        inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
-        sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
-        sh &= inside & ~shape  # the first drawn lie on top
-        value = np.where(sh, val * (0.9 + 0.1 * (j % 3) / 2), value)
-        shape |= sh
+        heading = (side[j] * np.sin(angle[j]), np.cos(angle[j]))
+        _draw_leaf(family, px, py - at[j], heading, size[j], j, shape, value)
     return shape, value
 
 
