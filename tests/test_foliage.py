@@ -92,10 +92,13 @@ def test_spray_leaves_follow_the_phyllotaxis_and_face_the_light() -> None:
         n = c.normals[::4][c.leaf]
         assert np.median(np.abs(n[:, 1])) > 0.7  # blades mostly level, facing up or down
         # the main shoot and its spurs end in cluster cards of ROSETTE leaves, every side
-        # shoot is a card of SPRAY_LEAVES (flat_sides): all of them facing up
+        # shoot is a card of SPRAY_LEAVES (flat_sides): all of them facing up, the sprays
+        # leaning out over their heading by 24-48 degrees (so a crown seen from the side
+        # shows their leaves, not their edges)
         cluster, spray = c.kind == CLUSTER, c.kind == SPRAY
         assert cluster.sum() >= 2 and spray.sum() >= 4
-        assert (c.normals[::4][cluster | spray][:, 1] > 0.6).all()
+        assert (c.normals[::4][cluster][:, 1] > 0.6).all()
+        assert (c.normals[::4][spray][:, 1] > 0.45).all()
         assert c.n_leaves == c.leaf.sum() + ROSETTE * cluster.sum() + SPRAY_LEAVES * spray.sum()
         # most cards still show one leaf (so the median card is a leaf): a side shoot takes
         # two cards (its spray and the leaf below it) where it took about nine

@@ -59,7 +59,7 @@ SEASONS: tuple[Season, ...] = get_args(Season)
 MODELS = 8  # spray models per family (8 x 8 headings: 64 impostor pictures)
 YAW_STEPS = 8  # headings a spray may take (the renderer's impostor pictures per model)
 LEAF_SEED = 6
-TEXTURE_SIZE = 256
+TEXTURE_SIZE = 512
 # a card's corners in its own (across, along) frame and their st, in the order base-left,
 # base-right, tip-right, tip-left (split into triangles along the 0-2 diagonal)
 RECT = np.array([[-0.5, 0.0], [0.5, 0.0], [0.5, 1.0], [-0.5, 1.0]])
@@ -71,11 +71,11 @@ LEAF_ST = (0.0, 0.5, 0.0, 1.0)
 ROSETTE_ST = (0.5, 1.0, 0.5, 1.0)
 ROSETTE = 6
 ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half width
-# the lower right quarter: a side shoot of SPRAY_LEAVES leaves seen from above, on a card
-# SPRAY_LONG leaf lengths long and SPRAY_WIDE wide, so its leaves are drawn at their size
+# the lower right quarter: a branched side shoot of SPRAY_LEAVES leaves seen from above, on a
+# card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide, so its leaves are drawn at their size
 SPRAY_ST = (0.5, 1.0, 0.0, 0.5)
-SPRAY_LEAVES = 10
-SPRAY_LONG, SPRAY_WIDE = 3.2, 2.4
+SPRAY_LEAVES = 25
+SPRAY_LONG, SPRAY_WIDE = 3.6, 4.2
 STEM, LEAF, CLUSTER, SPRAY = 0, 1, 2, 3  # what a card shows (LeafCloud.kind)
 # a spruce sprig card is SPRIG_RATIO times as long as it is wide (its width twice a needle's
 # reach), so the picture draws its needles at their metric size: 1-2.5 cm, not streaks along
@@ -113,7 +113,8 @@ class SprayForm:
     seen edge-on (0: level blades, clusters leaning about 27 degrees); flat_sides: each side
     shoot is one card of a shoot's leaves seen from above (SPRAY_ST) and the leaf below it,
     not a stem card and its leaves one by one (two cards where it took about nine, so more
-    sprays fit a tree's triangle budget). Leaf counts are per shoot, besides the
+    sprays fit a tree's triangle budget; the card leans out over the shoot's heading by
+    60-120 % of ``tilt``, so a crown seen from the side shows its leaves). Leaf counts are per shoot, besides the
     rosette's."""
 
     length: tuple[float, float]
@@ -394,7 +395,7 @@ def _flat_side(
     over it (as a cluster does), its leaves the size of ``lengths``; and the leaf in whose
     axil it grew, at its base."""
     heading = _unit(path[-1] - path[0])
-    lean = np.tan(np.radians(rng.uniform(0.35, 0.7) * form.tilt)) if form.tilt else 0.5
+    lean = np.tan(np.radians(rng.uniform(0.6, 1.2) * form.tilt)) if form.tilt else 0.5
     normal = _unit(UP + lean * heading * np.array([1.0, 0.0, 1.0]) + rng.normal(0, 0.15, 3))
     a = _unit(heading - (heading @ normal) * normal)
     leaf = rng.uniform(*lengths)
@@ -720,6 +721,15 @@ def _draw_leaf(
     """Leaf ``j`` of a picture of several, into ``shape`` and ``value``: its stalk at the
     origin of the pixel coordinates ``(px, py)``, pointing along the unit ``heading``,
     ``size`` long; the leaves drawn first lie on top, every third a shade lighter."""
+    # only the pixels within the leaf's reach of its stalk can show it (a picture of 25
+    # leaves would otherwise shade every pixel 25 times)
+    reach = size * math.hypot(1.0, 0.5 * FORMS[family].aspect)
+    rows = np.flatnonzero((np.abs(py) <= reach).any(axis=1))
+    cols = np.flatnonzero((np.abs(px) <= reach).any(axis=0))
+    if not len(rows) or not len(cols):
+        return
+    box = np.s_[rows[0] : rows[-1] + 1, cols[0] : cols[-1] + 1]
+    px, py, shape, value = px[box], py[box], shape[box], value[box]
     hx, hy = heading
     along = (px * hx + py * hy) / size
     across = (px * hy - py * hx) / size / (0.5 * FORMS[family].aspect)
@@ -733,21 +743,41 @@ def _draw_leaf(
 def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     """An ``n`` x ``n`` picture of a side shoot seen from above (row: along, from its base;
     column: across), on a card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide: its twig up
-    the middle and SPRAY_LEAVES leaves, alternately left and right and more forwards towards
-    its tip, the last three fanned round the tip, the youngest smaller."""
+    the middle with two twigs of its own (left low, right higher, 50 degrees off it), the
+    SPRAY_LEAVES leaves alternately left and right along all three, more forwards towards
+    each tip, the last three of the main twig fanned round its end, the youngest smaller.
+    Branched, so one card fills about as much of a crown as a shoot with its side shoots."""
     c = (np.arange(n) + 0.5) / n
     tt, x = np.meshgrid(c, c * 2.0 - 1.0, indexing="ij")
     px, py = x * SPRAY_WIDE / 2, tt * SPRAY_LONG  # in leaf lengths
-    at = np.array([0.2, 0.5, 0.8, 1.1, 1.35, 1.58, 1.8, 2.02, 2.05, 2.12])
-    angle = np.radians([64, 60, 56, 52, 48, 44, 40, 34, -34, 0])
-    side = np.array([1, -1, 1, -1, 1, -1, 1, 1, 1, 1], np.float64)
-    size = np.array([0.86, 0.93, 0.97, 1.0, 0.97, 0.94, 0.9, 0.86, 0.86, 0.92])
-    top = float(at[-1])
-    shape = (np.abs(px) < 0.022) & (py > 0.004 * SPRAY_LONG) & (py < top)
+    # (base x, base y, heading from +y in degrees, size) of every leaf: four along the main
+    # twig, then a fan round the end of each twig (the leaves of an oak or poplar shoot crowd
+    # towards its end): the main twig's five, each of its four side twigs' four
+    leaves: list[tuple[float, float, float, float]] = [
+        (0.0, 0.3, -60.0, 0.88), (0.0, 0.62, 58.0, 0.9), (0.0, 1.1, 34.0, 0.9),
+        (0.0, 1.5, -30.0, 0.9),
+    ]  # fmt: skip
+    top = SPRAY_LONG - 1.0
+    four = (-62, -22, 22, 62)
+    ends = [((0.0, 0.0), 0.0, top, (-72, -36, 0, 36, 72))]
+    ends += [((0.0, 0.45), -58.0, 1.15, four), ((0.0, 0.85), 56.0, 1.1, four),
+             ((0.0, 1.35), -48.0, 0.95, four), ((0.0, 1.7), 46.0, 0.85, four)]  # fmt: skip
+    twigs = []
+    for (ax, ay), turn, length, fan in ends:
+        d = np.radians(turn)
+        tip = (ax + np.sin(d) * length, ay + np.cos(d) * length)
+        twigs.append(((ax, ay), tip))
+        for j, off in enumerate(fan):
+            leaves.append((tip[0], tip[1], turn + off + 4.0 * np.sin(3.0 * j), 0.94 - 0.05 * (j % 2)))
+    # twigs a few mm across, and never under a texel (a coarse picture still shows them)
+    twig = max(0.022, 0.6 * SPRAY_WIDE / n)
+    shape = (np.abs(px) < twig) & (py > 0.004 * SPRAY_LONG) & (py < top)
+    for (ax, ay), (bx, by) in twigs:
+        shape |= _segments(px, py, np.array([[ax, ay]]), np.array([[bx, by]]), 0.8 * twig)
     value = np.where(shape, 0.5, 0.0)
-    for j in range(SPRAY_LEAVES):
-        heading = (side[j] * np.sin(angle[j]), np.cos(angle[j]))
-        _draw_leaf(family, px, py - at[j], heading, size[j], j, shape, value)
+    for j, (bx, by, angle, size) in enumerate(leaves):
+        heading = (np.sin(np.radians(angle)), np.cos(np.radians(angle)))
+        _draw_leaf(family, px - bx, py - by, heading, size, j, shape, value)
     return shape, value
 
 
