@@ -114,8 +114,8 @@ class SprayForm:
     shoot is one card of a shoot's leaves seen from above (SPRAY_ST) and the leaf below it,
     not a stem card and its leaves one by one (two cards where it took about nine, so more
     sprays fit a tree's triangle budget; the card leans out over the shoot's heading by
-    60-120 % of ``tilt``, so a crown seen from the side shows its leaves). Leaf counts are per shoot, besides the
-    rosette's."""
+    60-120 % of ``tilt``, so a crown seen from the side shows its leaves). Leaf counts are
+    per shoot, besides the rosette's."""
 
     length: tuple[float, float]
     aspect: float
@@ -758,7 +758,8 @@ def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
         (0.0, 1.5, -30.0, 0.9),
     ]  # fmt: skip
     top = SPRAY_LONG - 1.0
-    four = (-62, -22, 22, 62)
+    four: tuple[int, ...] = (-62, -22, 22, 62)
+    ends: list[tuple[tuple[float, float], float, float, tuple[int, ...]]]
     ends = [((0.0, 0.0), 0.0, top, (-72, -36, 0, 36, 72))]
     ends += [((0.0, 0.45), -58.0, 1.15, four), ((0.0, 0.85), 56.0, 1.1, four),
              ((0.0, 1.35), -48.0, 0.95, four), ((0.0, 1.7), 46.0, 0.85, four)]  # fmt: skip
@@ -768,7 +769,8 @@ def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
         tip = (ax + np.sin(d) * length, ay + np.cos(d) * length)
         twigs.append(((ax, ay), tip))
         for j, off in enumerate(fan):
-            leaves.append((tip[0], tip[1], turn + off + 4.0 * np.sin(3.0 * j), 0.94 - 0.05 * (j % 2)))
+            heading = turn + off + 4.0 * np.sin(3.0 * j)
+            leaves.append((tip[0], tip[1], heading, 0.94 - 0.05 * (j % 2)))
     # twigs a few mm across, and never under a texel (a coarse picture still shows them)
     twig = max(0.022, 0.6 * SPRAY_WIDE / n)
     shape = (np.abs(px) < twig) & (py > 0.004 * SPRAY_LONG) & (py < top)
