@@ -540,6 +540,16 @@ def _sprig(rng: np.random.Generator, form: SprayForm, lengths: tuple[float, floa
         k = np.linspace(0, 1, _sprig_segments(ln, width) + 1)[:, None]
         droop = np.array([0.0, -rng.uniform(0.15, 0.6), 0.0]) * k**1.5 * ln
         clothe(at[i] + k * ln * d + droop)
+    # branchlets that hang from under the shoot, curtains between a spruce's tiers (the comb
+    # habit: they hide the trunk between whorls from a distance)
+    hangs = int(rng.integers(1, 3))
+    s = length * rng.uniform(0.35, 0.85, hangs)
+    at, tangent = _along(main, s)
+    for i in range(hangs):
+        ln = rng.uniform(0.3, 0.6) * length
+        k = np.linspace(0, 1, _sprig_segments(ln, width) + 1)[:, None]
+        out = _side(tangent[i : i + 1])[0] * rng.uniform(-0.25, 0.25) + 0.15 * tangent[i]
+        clothe(at[i] + k * ln * _unit(out + np.array([0.0, -1.0, 0.0])) - 0.01 * UP)
     return cards.cloud(family)
 
 
