@@ -22,6 +22,7 @@ KIND_QUEUES: dict[str, str] = {
     "forest_tile": "default",
     "render_chunk": "render",
     "tree": "default",
+    "tileset": "default",
 }
 QUEUES = ("default", "render", "gpu", "cpu")
 

@@ -47,7 +47,7 @@ class JobState(StrEnum):
         return core_schema.no_info_after_validator_function(cls, literal)
 
 
-JobKind = Literal["forest", "render", "forest_tile", "render_chunk", "tree"]
+JobKind = Literal["forest", "render", "forest_tile", "render_chunk", "tree", "tileset"]
 """``forest_tile``: one tile of a tiled forest job (``tile_size``), made by that job;
 ``render_chunk``: some frames of a render job of more than ``FOREST_RENDER_CHUNK_FRAMES``
 frames, made by that job; ``tree``:
@@ -216,6 +216,11 @@ class TreeRequest(FiniteModel):
     bark: BarkSet | None = None
     """A shipped bark tile set in place of the grammar's own (as the CLI's ``--bark``): the
     scene's bark pictures, and the renderer's. Not with a recipe (its layers keep theirs)."""
+    tiles: JobId | None = None
+    """A bark tile set of your own: the id of a ``POST /v1/tilesets`` job (as the CLI's
+    ``--tiles``). Its tiles are the bark pictures of a ``.usdz`` or ``.glb`` and of renders of
+    the scene, and the tile indices of every format follow its manifest. A forest waits for
+    the tile set's job; a tree needs it completed. Not with ``bark`` or a recipe."""
     skinned: bool | None = None
     """USD only: bake each tree as a skinned mesh (the default representation where it is
     written); unset: skinned for small scenes (up to 64 trees and 20,000 pieces), posed above
@@ -237,6 +242,10 @@ class TreeRequest(FiniteModel):
         self._stand_only()
         if self.recipe is not None and self.bark is not None:
             raise FieldValueError("bark", "a recipe's layers keep their species' bark")
+        if self.tiles is not None and self.recipe is not None:
+            raise FieldValueError("tiles", "a recipe's layers keep their species' bark")
+        if self.tiles is not None and self.bark is not None:
+            raise FieldValueError("tiles", "give bark (a shipped set) or tiles (yours), not both")
         return self
 
     def _recipe_formats(self) -> tuple[str, ...]:
@@ -288,6 +297,8 @@ class ForestRequest(TreeRequest):
             return self
         if self.format not in ("usda", "usdc"):
             raise ValueError("format: a tiled forest (tile_size) is a usda or usdc root layer")
+        if self.tiles is not None:
+            raise ValueError("tiles: a tiled forest's tiles keep their species' bark")
         nx, nz = tile_grid(self.area, self.tile_size)
         if nx * nz > MAX_TILES:
             raise ValueError(f"tile_size: {nx} x {nz} tiles exceed the cap of {MAX_TILES}")
@@ -386,6 +397,26 @@ class RenderJob(RenderRequest):
     forest_job: Annotated[str, Field(min_length=1, max_length=64)] | None  # type: ignore[assignment]
     scene: str
     scene_sha256: str | None = None
+    tiles: str | None = None
+    """The forest's own tile set (its ``tiles``: a tile-set job's id), which the render draws
+    its bark from; None: the shipped set its scene's material names."""
+
+
+TILESET_EXAMPLES = 8
+"""Bark photographs one ``POST /v1/tilesets`` takes."""
+
+
+class TileSetJob(StrictModel):
+    """A ``tileset`` job's parameters (``POST /v1/tilesets``, a multipart form): the names
+    and SHA-256 of its photographs, which the job keeps as input files
+    (``example_<k>.png`` or ``.jpg``), and the form's settings."""
+
+    examples: list[str]
+    sha256: list[str]
+    per_class: int
+    size: int
+    seed: int
+    priority: Priority = 5
 
 
 class JobCost(StrictModel):

@@ -30,6 +30,7 @@ from service.routes import (
     presets,
     recipes,
     renders,
+    tilesets,
     trees,
     web,
     workers,
@@ -95,7 +96,9 @@ def create_app(settings: ServiceSettings | None = None, reaper: bool = True) -> 
     )
     app.state.services = services
     install_handlers(app)
-    for module in (presets, recipes, trees, forests, renders, jobs, events, workers, health):
+    for module in (
+        presets, recipes, trees, forests, renders, tilesets, jobs, events, workers, health,
+    ):  # fmt: skip
         app.include_router(module.router)
     web.install(app)  # /docs, /redoc and the page at /: after the API, whose routes come first
     document_shared_responses(app)

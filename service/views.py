@@ -154,6 +154,29 @@ def check_after(services: Services, ids: list[str], scope: str | None) -> list[s
     return list(dict.fromkeys(ids))
 
 
+def check_tiles(
+    services: Services, job_id: str | None, scope: str | None, wait: bool, field: list[str | int]
+) -> list[str]:
+    """A request's ``tiles``: a tile-set job (``POST /v1/tilesets``) of the caller's that has
+    not failed. The jobs to wait for: the tile set's while it runs (``wait``: a forest or a
+    render waits; a tree, answered at once, needs it completed). 422 at ``field``."""
+    if job_id is None:
+        return []
+    row = services.store.get(job_id, scope)
+    if row is None:
+        raise field_error(field, "no such job")
+    if row.kind != "tileset":
+        raise field_error(field, f"a {row.kind} job, not a tile set (POST /v1/tilesets)")
+    if row.state in (JobState.FAILED, JobState.CANCELED) or row.cancel_requested:
+        state = JobState.CANCELED if row.cancel_requested else row.state
+        raise field_error(field, f"the tile set job is {state}: make the tile set again")
+    if row.state == JobState.COMPLETED:
+        return []
+    if not wait:
+        raise field_error(field, f"the tile set job is {row.state}: a tree needs it completed")
+    return [row.id]
+
+
 def enqueue(
     services: Services,
     kind: str,

@@ -98,6 +98,47 @@ def _oiio_message(text: str) -> str:
     return lines[0] if lines else "unknown error"
 
 
+def _check_example_spec(spec: oiio.ImageSpec, where: str, min_size: int, max_pixels: int) -> None:
+    """What makes an image's header unusable as a texture example: ForestError at ``where``."""
+    width, height, nch = spec.width, spec.height, spec.nchannels
+    names = ", ".join(spec.channelnames)
+    if spec.deep or spec.depth > 1:
+        raise ForestError("deep and volume images are not texture examples", path=where)
+    if spec.alpha_channel >= 0 or nch in (2, 4):
+        raise ForestError(
+            f"has an alpha channel ({names}); give grey or RGB images without alpha", path=where
+        )
+    if nch not in (1, 3):
+        raise ForestError(
+            f"has {nch} channels ({names}); give grey (1) or RGB (3) images", path=where
+        )
+    if width * height <= 1:
+        raise ForestError(f"is a single pixel ({width}x{height}), not a texture", path=where)
+    if width < min_size or height < min_size:
+        raise ForestError(
+            f"is {width}x{height} pixels, smaller than one {min_size}x{min_size} tile", path=where
+        )
+    if width * height > max_pixels:
+        raise ForestError(
+            f"is {width}x{height} pixels, more than the {max_pixels} accepted", path=where
+        )
+
+
+def check_example_header(path: Path, where: str, min_size: int, max_pixels: int) -> None:
+    """Only the header of an uploaded example (the service, before a job is made): readable
+    by OpenImageIO and usable by :func:`read_example`; ForestError at ``where`` (a request
+    field, never the temporary file's path) naming what is wrong."""
+    inp = oiio.ImageInput.open(str(path))
+    if inp is None:
+        # OpenImageIO's message names the file: not the server's path
+        why = _oiio_message(oiio.geterror()).replace(str(path), "the image")
+        raise ForestError(f"not a readable image ({why})", path=where)
+    try:
+        _check_example_spec(inp.spec(), where, min_size, max_pixels)
+    finally:
+        inp.close()
+
+
 def read_example(path: Path, min_size: int = 2) -> ExampleImage:
     """Read a texture example, checking everything that would make it unusable.
 
@@ -123,30 +164,7 @@ def read_example(path: Path, min_size: int = 2) -> ExampleImage:
     try:
         spec = inp.spec()
         width, height, nch = spec.width, spec.height, spec.nchannels
-        names = ", ".join(spec.channelnames)
-        if spec.deep or spec.depth > 1:
-            raise ForestError("deep and volume images are not texture examples", path=where)
-        if spec.alpha_channel >= 0 or nch in (2, 4):
-            raise ForestError(
-                f"has an alpha channel ({names}); give grey or RGB images without alpha",
-                path=where,
-            )
-        if nch not in (1, 3):
-            raise ForestError(
-                f"has {nch} channels ({names}); give grey (1) or RGB (3) images", path=where
-            )
-        if width * height <= 1:
-            raise ForestError(f"is a single pixel ({width}x{height}), not a texture", path=where)
-        if width < min_size or height < min_size:
-            raise ForestError(
-                f"is {width}x{height} pixels, smaller than one {min_size}x{min_size} tile",
-                path=where,
-            )
-        if width * height > MAX_EXAMPLE_PIXELS:
-            raise ForestError(
-                f"is {width}x{height} pixels, more than the {MAX_EXAMPLE_PIXELS} accepted",
-                path=where,
-            )
+        _check_example_spec(spec, where, min_size, MAX_EXAMPLE_PIXELS)
         with _quiet_stderr():
             pixels = inp.read_image(0, 0, 0, nch, "uint8")
         # a truncated file may come back as None, or as pixels with an error left behind

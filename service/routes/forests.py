@@ -16,7 +16,7 @@ from service.inputs import check_cost, resolve_grammar, resolve_recipe
 from service.quotas import forest_job_cost, job_cost
 from service.routes.renders import check_caps, check_renderable
 from service.security import CallerDep, Tenant
-from service.views import ERRORS, accepted, check_after, enqueue
+from service.views import ERRORS, accepted, check_after, check_tiles, enqueue
 
 router = APIRouter(prefix="/v1/forests", tags=["forests"])
 
@@ -31,7 +31,10 @@ def create_forest(
 ) -> JSONResponse:
     """A forest job; with ``render``, also its render job, which waits for it."""
     s = services.settings
-    after = check_after(services, req.after, who.scope) or None
+    after = check_after(services, req.after, who.scope)
+    after = list(
+        dict.fromkeys(after + check_tiles(services, req.tiles, who.scope, True, ["tiles"]))
+    )
     if req.render is not None:
         check_renderable(req.model_dump(mode="json"), "render")
         check_caps(s, req.render.width, req.render.height, req.render.frames, ["render"])
@@ -53,11 +56,13 @@ def create_forest(
         cost = forest_job_cost(req, cg.expected_pieces, tile_count(req) if req.tile_size else 0)
     params = req.model_dump(mode="json")
     row = enqueue(
-        services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"], after=after
-    )
+        services, "forest", params, idempotency_key, tenant, cost=cost, field=["trees"],
+        after=after or None,
+    )  # fmt: skip
     if req.render is not None and not row.then:  # (a repeated request has its render)
         render = req.render.model_dump(mode="json")
-        render |= {"forest_job": row.id, "after": [], "scene": None}  # schemas.jobs.RenderJob
+        # schemas.jobs.RenderJob; it draws the forest's own tile set
+        render |= {"forest_job": row.id, "after": [], "scene": None, "tiles": req.tiles}
         enqueue(
             services,
             "render",

@@ -65,7 +65,9 @@ def create_render(
         if scene.endswith(".glb"):
             raise field_error(["forest_job"], GLB)
         pieces = (row.result or {}).get("pieces", 0)
-    params = req.model_dump(mode="json") | {"scene": scene}  # schemas.jobs.RenderJob
+    # it draws the bark of the forest's own tile set (its indices follow that set)
+    tiles = (row.params or {}).get("tiles")
+    params = req.model_dump(mode="json") | {"scene": scene, "tiles": tiles}  # RenderJob
     # the estimate: the forest's pieces drawn once per frame
     cost = job_cost(int(pieces), req.frames)
     return submit(

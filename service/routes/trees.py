@@ -27,8 +27,8 @@ from service.deps import Services, ServicesDep
 from service.inputs import check_cost, resolve_grammar, resolve_recipe
 from service.quotas import job_cost
 from service.routes.jobs import ARTIFACT_TYPES
-from service.security import Tenant
-from service.views import accepted, enqueue
+from service.security import CallerDep, Tenant
+from service.views import accepted, check_tiles, enqueue
 
 log = logging.getLogger(__name__)
 router = APIRouter(prefix="/v1/trees", tags=["trees"])
@@ -78,9 +78,12 @@ def wait_preference(prefer: str | None, server_wait_s: float) -> float:
     return wait_s
 
 
-def _submit(req: TreeRequest, services: Services, tenant: str) -> tuple[JobRow, str]:
+def _submit(
+    req: TreeRequest, services: Services, tenant: str, scope: str | None
+) -> tuple[JobRow, str]:
     """Check the request (422 before any work) and queue its job; the job and the file name."""
     s = services.settings
+    check_tiles(services, req.tiles, scope, False, ["tiles"])
     if req.recipe is not None:  # a small mixed stand, answered as one file
         plan = resolve_recipe(req, s, s.max_forest_trees, s.max_tree_pieces, flat=True)
         cost = job_cost(plan.pieces, req.frames, 0, plan.scene_bytes)
@@ -119,9 +122,10 @@ async def create_tree(
     request: Request,
     services: ServicesDep,
     tenant: Tenant,
+    who: CallerDep,
     prefer: PreferHeader = None,
 ) -> Response:
-    row, name = await run_in_threadpool(_submit, req, services, tenant)
+    row, name = await run_in_threadpool(_submit, req, services, tenant, who.scope)
     wait_s = wait_preference(prefer, services.settings.tree_wait_s)
     done = await _wait(services, row, wait_s, request)
     if done is None:

@@ -215,17 +215,24 @@ def test_non_finite_form_numbers_are_422(server: Server) -> None:
             schema = form["schema"]
             if "$ref" in schema:
                 schema = spec["components"]["schemas"][schema["$ref"].rsplit("/", 1)[1]]
+            # a small file in each of the form's file fields, so only the number is wrong
+            files = {
+                name: ("f.bin", b"#usda 1.0\n")
+                for name, prop in schema["properties"].items()
+                if "application/octet-stream"
+                in (prop.get("contentMediaType"), prop.get("items", {}).get("contentMediaType"))
+            }
             for name, prop in schema["properties"].items():
                 if prop.get("type") in ("number", "integer"):
-                    fields.append((method, path, name))
-    assert ("post", "/v1/renders/upload", "tess_max") in fields, fields
-    scene = {"scene": ("s.usda", b"#usda 1.0\n")}
-    for method, path, name in fields:
+                    fields.append((method, path, name, files))
+    assert ("post", "/v1/renders/upload", "tess_max") in [f[:3] for f in fields], fields
+    assert ("post", "/v1/tilesets", "per_class") in [f[:3] for f in fields], fields
+    for method, path, name, files in fields:
         for token in ["nan", "NaN", "inf", "-Infinity", "1e400"]:
             r = httpx.request(
                 method.upper(),
                 f"{server.url}{path}",
-                files=scene,
+                files=files,
                 data={name: token},
                 headers=KEY,
                 timeout=30,

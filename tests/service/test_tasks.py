@@ -221,3 +221,6 @@ def test_cancel_kills_the_child_within_seconds(store: JobStore) -> None:
 def test_scrub_paths() -> None:
     msg = "no such file @/srv/forest/artifacts/ab/upload.usdc@ (at /tmp/x/y.usda: line 3)"
     assert scrub_paths(msg) == "no such file @upload.usdc@ (at y.usda: line 3)"
+    # a scratch folder's name holds an @ (process and host): the whole path goes
+    msg = "/srv/data/artifacts/.b8fe.15189@vm~4026.rky2/tiles/bark_array.tif: 4 slices"
+    assert scrub_paths(msg) == "bark_array.tif: 4 slices"

@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from worker.jobs.context import JobContext, Outcome
+from worker.jobs.tileset import request_tiles
 
 if TYPE_CHECKING:
     from schemas.jobs import TreeRequest
@@ -28,11 +29,14 @@ def run_forest(ctx: JobContext) -> Outcome:
     def note(stage: str, done: int, total: int) -> None:
         ctx.report(stage, 0.7 * done / max(total, 1))
 
-    forest = generate_forest(grammar, req.seed, options, progress=note)
-    ctx.report("write", 0.7)
     name = f"scene.{req.format}"
+    manifest, tiles = request_tiles(ctx, req.tiles, name)
+    forest = generate_forest(grammar, req.seed, options, progress=note, manifest=manifest)
+    ctx.report("write", 0.7)
     # the scene is one artifact: pictures only where it carries them (.usdz, .glb)
-    out = write_forest(forest, ctx.scratch / name, skinned=req.skinned, textures=single_file(name))
+    out = write_forest(
+        forest, ctx.scratch / name, skinned=req.skinned, textures=single_file(name), tiles=tiles
+    )
     result = {
         "trees": req.trees,
         "pieces": forest.n_instances,

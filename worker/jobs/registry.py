@@ -10,6 +10,7 @@ from worker.jobs.context import TaskKind
 from worker.jobs.forest import run_forest
 from worker.jobs.render import run_render
 from worker.jobs.tile import run_tile
+from worker.jobs.tileset import run_tileset
 from worker.jobs.tree import run_tree
 
 KINDS: dict[str, TaskKind] = {
@@ -18,4 +19,5 @@ KINDS: dict[str, TaskKind] = {
     "forest_tile": run_tile,
     "render_chunk": run_render_chunk,
     "tree": run_tree,
+    "tileset": run_tileset,
 }

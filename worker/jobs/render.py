@@ -51,7 +51,9 @@ def public_metrics(metrics: RenderMetrics, job: RenderJob, scratch: Path) -> Ren
     return metrics.model_copy(
         update={
             "scene": job.scene,
-            "textures": job_textures(metrics.textures, scratch),
+            "textures": f"the bark tile set of job {job.tiles}"
+            if job.tiles is not None
+            else job_textures(metrics.textures, scratch),
             "warnings": [scrub_paths(w) for w in metrics.warnings],
         }
     )
@@ -79,6 +81,7 @@ def render_request(ctx: JobContext, job: RenderJob, job_id: str, **extra: Any) -
     forest job's, or the file uploaded with it, checked first), outputs in the scratch
     folder; ``extra`` fields of :class:`RenderRequest` (a chunk's frame range)."""
     from worker.jobs.scene_guard import check_scene_file, package_tiles
+    from worker.jobs.tileset import fetch_tileset
     from worker.render.camera import CameraSpec
     from worker.render.render_file import RenderRequest
 
@@ -92,6 +95,8 @@ def render_request(ctx: JobContext, job: RenderJob, job_id: str, **extra: Any) -
     if uploaded:
         checked = check_scene_file(scene, ctx.upload_caps)
         tiles = package_tiles(scene, checked, ctx.scratch / "package-tiles")
+    if job.tiles is not None:  # a tile set of the caller's (POST /v1/tilesets)
+        tiles = fetch_tileset(ctx, job.tiles)
     return RenderRequest(
         scene=scene,
         output=ctx.scratch / "preview.png",

@@ -49,7 +49,10 @@ Event = tuple[str, float, str, str]
 """A child's event: ``("stage", time, name, "")`` or ``("log", time, level, message)``."""
 _CRASH_SIGNALS = {signal.SIGSEGV, signal.SIGBUS, signal.SIGABRT, signal.SIGILL, signal.SIGFPE}
 # an absolute path in a message: /a/b/c -> c (job errors never show server paths)
-_ABS_PATH = re.compile(r"(?:(?<=[\s@'\"(=:])|^)/(?:[^\s@'\"(),:]+/)*([^\s@'\"(),:/]*)")
+# a path's part: no quotes, brackets, commas, colons or spaces; an @ only inside it (a
+# scratch folder is named ``<job>.<pid>@<host>...``), not one closing a USD @asset path@
+_PART = r"(?:[^\s@'\"(),:/]|@(?=[^\s@'\"(),:/]))"
+_ABS_PATH = re.compile(rf"(?:(?<=[\s@'\"(=:])|^)/(?:{_PART}+/)*({_PART}*)")
 
 
 def scrub_paths(text: str) -> str:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING
 
 from worker.jobs.context import JobContext, Outcome
+from worker.jobs.tileset import request_tiles
 
 if TYPE_CHECKING:
     from schemas.jobs import TreeRequest
@@ -28,12 +29,16 @@ def run_tree(ctx: JobContext) -> Outcome:
     def note(stage: str, done: int, total: int) -> None:
         ctx.report(stage, 0.7 * done / max(total, 1))
 
-    forest = generate_forest(grammar, req.seed, options_from_request(req), progress=note)
-    ctx.report("write", 0.7)
     name = f"tree.{req.format}"
+    manifest, tiles = request_tiles(ctx, req.tiles, name)
+    options = options_from_request(req)
+    forest = generate_forest(grammar, req.seed, options, progress=note, manifest=manifest)
+    ctx.report("write", 0.7)
     # one file answers: pictures only where the file carries them (.usdz, .glb); a .usda/.usdc
     # keeps flat colours rather than name a folder the client never gets
-    out = write_forest(forest, ctx.scratch / name, skinned=req.skinned, textures=single_file(name))
+    out = write_forest(
+        forest, ctx.scratch / name, skinned=req.skinned, textures=single_file(name), tiles=tiles
+    )
     result = {
         "pieces": forest.n_instances,
         "bones": len(forest.bones),
