@@ -448,7 +448,9 @@ def _leaves_on(
         if form.tilt:  # lean each blade out towards the spray's heading (+z), off level
             t = np.radians(rng.uniform(0.3, 1.0, n) * form.tilt)
             along, across = _lean(along, t), _lean(_unit(across), t)
-    _stem_cards(cards, path, form.stem)
+    # a hanging shoot's curve takes many segments for its leaves; its thin stem (mm across)
+    # shows the same curve from every other point, half the cards
+    _stem_cards(cards, path[::2] if hanging and len(path) % 2 else path, form.stem)
     # a stalk begins at the shoot's surface
     cards.add(at + 0.5 * form.stem * radial, along, across, size, form.aspect * size)
     if form.rosette:  # the cluster at the shoot's end, facing up and a little forwards
