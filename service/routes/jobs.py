@@ -124,8 +124,13 @@ def delete_job_artifacts(services: ServicesDep, caller: CallerDep, job_id: JobId
     return job_model(done, services)
 
 
-# HEAD: a download manager's size and type first, no body (out of the schema: one operation)
-@router.head("/{job_id}/artifacts/{name}", response_class=FileResponse, include_in_schema=False)
+# HEAD: a download manager's size and type first, no body (its own operation in the schema)
+@router.head(
+    "/{job_id}/artifacts/{name}",
+    response_class=FileResponse,
+    summary="An artifact's headers (size, type, name, ETag) without its bytes",
+    responses={200: {"description": "The artifact's headers; no body"}, **ERRORS},
+)
 @router.get(
     "/{job_id}/artifacts/{name}",
     response_class=FileResponse,
