@@ -9,6 +9,8 @@
 #   - worker-gpu: built; its EGL context is made only with SMOKE_GPU=1 (a host with an NVIDIA
 #     GPU and the container toolkit), which should name the NVIDIA renderer.
 # Environment: SMOKE_TAG (image tag, default smoke), SMOKE_GPU (1: run the GPU check),
+# SMOKE_BUILD_ARGS (more `docker build` options, e.g. `--build-arg PYTHON_IMAGE=...` naming a
+# mirror's or a local base image where Docker Hub cannot be reached),
 # SMOKE_SKIP_GPU_BUILD (1: do not build worker-gpu, a large download), SMOKE_KEEP (1: leave
 # the containers and volume for a look).
 set -euo pipefail
@@ -35,8 +37,9 @@ trap cleanup EXIT
 
 build() {  # build TARGET
   log "building target $1 -> forest-$1:$TAG"
+  # shellcheck disable=SC2086 # SMOKE_BUILD_ARGS is a list of options
   DOCKER_BUILDKIT=1 docker build -f "$ROOT/deploy/Dockerfile" --target "$1" \
-    -t "forest-$1:$TAG" "$ROOT"
+    ${SMOKE_BUILD_ARGS:-} -t "forest-$1:$TAG" "$ROOT"
 }
 
 # until SECONDS CMD...: run CMD every 2 s until it succeeds or SECONDS pass
@@ -80,8 +83,9 @@ log "worker-cpu: EGL on llvmpipe"
 renderer=$(gl_renderer "forest-worker-cpu:$TAG")
 log "GL_RENDERER: $renderer"
 [[ $renderer == *llvmpipe* ]] || fail "worker-cpu renders on '$renderer', not llvmpipe"
-docker run --rm "forest-worker-cpu:$TAG" forest worker --list | grep -q render \
-  || fail "forest worker --list names no render job"
+# (read whole, then matched: `| grep -q` would close the pipe early, and pipefail fail it)
+kinds=$(docker run --rm "forest-worker-cpu:$TAG" forest worker --list)
+[[ $kinds == *render* ]] || fail "forest worker --list names no render job: $kinds"
 
 log "api + worker-cpu on the embedded job store (volume $VOLUME)"
 docker volume create "$VOLUME" >/dev/null
@@ -101,6 +105,40 @@ log "worker: $(docker exec "$RUN_ID-worker" python -m worker.probe)"
 workers=$(api_get /v1/workers "$KEY")
 [[ $workers == *"$RUN_ID-worker"* ]] || fail "GET /v1/workers does not list the worker: $workers"
 log "api: GET /v1/workers lists the worker"
+
+# a forest and its render through the API, run by the worker container: both complete, and
+# the render's preview is a PNG (a script in the API's image: the host needs no Python)
+log "api: a forest job and its render on the worker"
+docker exec "$RUN_ID-api" python -c '
+import json, sys, time, urllib.request
+key, url = sys.argv[1], "http://127.0.0.1:8000"
+def call(path, body=None):
+    req = urllib.request.Request(url + path, headers={"X-API-Key": key})
+    if body is not None:
+        req.data = json.dumps(body).encode()
+        req.add_header("Content-Type", "application/json")
+    with urllib.request.urlopen(req, timeout=30) as r:
+        return r.read()
+body = {"preset": "alternating", "trees": 2, "seed": 1, "render": {"width": 64, "height": 48}}
+forest = json.loads(call("/v1/forests", body))
+jobs = [forest["id"], *forest["then"]]
+deadline = time.monotonic() + 300
+for job_id in jobs:
+    while True:
+        job = json.loads(call(f"/v1/jobs/{job_id}"))
+        state, kind, error = job["state"], job["kind"], job.get("error")
+        if state in ("completed", "failed", "canceled"):
+            break
+        if time.monotonic() > deadline:
+            sys.exit(f"job {job_id} still {state} after 300 s")
+        time.sleep(1)
+    if state != "completed":
+        sys.exit(f"{kind} job {state}: {error}")
+preview = next(a["url"] for a in job["artifacts"] if a["name"] == "preview.png")
+png = call(preview)
+assert png[:8] == b"\x89PNG\r\n\x1a\n", png[:16]
+print(f"forest {jobs[0]} and render {jobs[1]} completed; preview {len(png)} bytes")
+' "$KEY" >&2 || { docker logs "$RUN_ID-worker" 2>&1 | tail -40 >&2; fail "the forest and its render"; }
 
 # stopped (its row marked so) or, were the stop not clean, its row older than the timeout:
 # the probe, run again under the same hostname as a restarted container would, must fail

@@ -58,13 +58,16 @@ def create_context(require: int = REQUIRED_VERSION) -> moderngl.Context:
             path="gl",
         ) from None
     create: Any = moderngl.create_context  # its stub types ``backend`` wrongly
+    # glcontext opens "libGL.so" and "libEGL.so" unless told: the -dev packages' links, which
+    # a runtime image (a worker container) lacks; the sonames come with the libraries
+    libs = {"libgl": "libGL.so.1", "libegl": "libEGL.so.1"}
     try:
-        ctx = create(standalone=True, backend="egl", require=require)
+        ctx = create(standalone=True, backend="egl", require=require, **libs)
     except Exception as exc:
         # a driver below ``require`` refuses the context outright (eglCreateContext fails):
         # ask for any context to say what the driver does have
         try:
-            probe = create(standalone=True, backend="egl")
+            probe = create(standalone=True, backend="egl", **libs)
         except Exception:
             raise _explain(exc) from None
         try:
