@@ -42,6 +42,7 @@ def test_worker_lists_kinds_and_rejects_unknown_queues() -> None:
         "forest_tile\tqueue default",
         "render_chunk\tqueue render (pool gpu: gpu, pool cpu: cpu)",
         "tree\tqueue default",
+        "tileset\tqueue default",
     ]
     bad = runner.invoke(main, ["worker", "-Q", "default,tpu"])
     assert bad.exit_code == 2
