@@ -154,12 +154,11 @@ def check_after(services: Services, ids: list[str], scope: str | None) -> list[s
     return list(dict.fromkeys(ids))
 
 
-def check_tiles(
-    services: Services, job_id: str | None, scope: str | None, wait: bool, field: list[str | int]
-) -> list[str]:
+def check_tiles(services: Services, job_id: str | None, scope: str | None, wait: bool) -> list[str]:
     """A request's ``tiles``: a tile-set job (``POST /v1/tilesets``) of the caller's that has
-    not failed. The jobs to wait for: the tile set's while it runs (``wait``: a forest or a
-    render waits; a tree, answered at once, needs it completed). 422 at ``field``."""
+    not failed. The jobs to wait for: the tile set's while it runs (``wait``: a forest waits;
+    a tree, answered at once, needs it completed). 422 at ``tiles``."""
+    field: list[str | int] = ["tiles"]
     if job_id is None:
         return []
     row = services.store.get(job_id, scope)

@@ -74,8 +74,18 @@ ROSETTE_LEAF = 0.96  # the longest leaf of a cluster over the picture's half wid
 # the lower right quarter: a branched side shoot of SPRAY_LEAVES leaves seen from above, on a
 # card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide, so its leaves are drawn at their size
 SPRAY_ST = (0.5, 1.0, 0.0, 0.5)
-SPRAY_LEAVES = 25
 SPRAY_LONG, SPRAY_WIDE = 3.6, 4.2
+# its layout in leaf lengths (x across, y along): leaves along the main twig (base x, base y,
+# heading from +y in degrees, size), then twigs (base, heading in degrees, length) each ending
+# in a fan of leaves (their headings off the twig's): the leaves of an oak or poplar shoot
+# crowd towards its end. The first twig is the main one, up the middle.
+_SPRAY_MAIN_LEAVES = ((0.0, 0.3, -60.0, 0.88), (0.0, 0.62, 58.0, 0.9), (0.0, 1.1, 34.0, 0.9),
+                      (0.0, 1.5, -30.0, 0.9))  # fmt: skip
+_FOUR = (-62, -22, 22, 62)
+_SPRAY_TWIGS = (((0.0, 0.0), 0.0, SPRAY_LONG - 1.0, (-72, -36, 0, 36, 72)),
+                ((0.0, 0.45), -58.0, 1.15, _FOUR), ((0.0, 0.85), 56.0, 1.1, _FOUR),
+                ((0.0, 1.35), -48.0, 0.95, _FOUR), ((0.0, 1.7), 46.0, 0.85, _FOUR))  # fmt: skip
+SPRAY_LEAVES = len(_SPRAY_MAIN_LEAVES) + sum(len(fan) for *_, fan in _SPRAY_TWIGS)
 STEM, LEAF, CLUSTER, SPRAY = 0, 1, 2, 3  # what a card shows (LeafCloud.kind)
 # a spruce sprig card is SPRIG_RATIO times as long as it is wide (its width twice a needle's
 # reach), so the picture draws its needles at their metric size: 1-2.5 cm, not streaks along
@@ -735,7 +745,8 @@ def _draw_leaf(
     ``size`` long; the leaves drawn first lie on top, every third a shade lighter."""
     # only the pixels within the leaf's reach of its stalk can show it (a picture of 25
     # leaves would otherwise shade every pixel 25 times)
-    reach = size * math.hypot(1.0, 0.5 * FORMS[family].aspect)
+    half_width = 0.5 * FORMS[family].aspect  # of the blade, over its length
+    reach = size * math.hypot(1.0, half_width)
     rows = np.flatnonzero((np.abs(py) <= reach).any(axis=1))
     cols = np.flatnonzero((np.abs(px) <= reach).any(axis=0))
     if not len(rows) or not len(cols):
@@ -744,7 +755,7 @@ def _draw_leaf(
     px, py, shape, value = px[box], py[box], shape[box], value[box]
     hx, hy = heading
     along = (px * hx + py * hy) / size
-    across = (px * hy - py * hx) / size / (0.5 * FORMS[family].aspect)
+    across = (px * hy - py * hx) / size / half_width
     inside = (along > 0) & (along < 1) & (np.abs(across) < 1)
     sh, val = _picture(family, np.clip(across, -1, 1), np.clip(along, 0, 1))
     sh &= inside & ~shape
@@ -755,39 +766,28 @@ def _draw_leaf(
 def _spray(family: Family, n: int) -> tuple[NDArray[np.bool_], F64]:
     """An ``n`` x ``n`` picture of a side shoot seen from above (row: along, from its base;
     column: across), on a card SPRAY_LONG leaf lengths long and SPRAY_WIDE wide: its twig up
-    the middle with two twigs of its own (left low, right higher, 50 degrees off it), the
-    SPRAY_LEAVES leaves alternately left and right along all three, more forwards towards
-    each tip, the last three of the main twig fanned round its end, the youngest smaller.
-    Branched, so one card fills about as much of a crown as a shoot with its side shoots."""
+    the middle with four side twigs, alternately left and right, 46-58 degrees off it; a few
+    leaves along the main twig and a fan round the end of every twig (_SPRAY_MAIN_LEAVES,
+    _SPRAY_TWIGS), SPRAY_LEAVES in all. Branched, so one card fills about as much of a crown
+    as a shoot with its side shoots."""
     c = (np.arange(n) + 0.5) / n
     tt, x = np.meshgrid(c, c * 2.0 - 1.0, indexing="ij")
     px, py = x * SPRAY_WIDE / 2, tt * SPRAY_LONG  # in leaf lengths
-    # (base x, base y, heading from +y in degrees, size) of every leaf: four along the main
-    # twig, then a fan round the end of each twig (the leaves of an oak or poplar shoot crowd
-    # towards its end): the main twig's five, each of its four side twigs' four
-    leaves: list[tuple[float, float, float, float]] = [
-        (0.0, 0.3, -60.0, 0.88), (0.0, 0.62, 58.0, 0.9), (0.0, 1.1, 34.0, 0.9),
-        (0.0, 1.5, -30.0, 0.9),
-    ]  # fmt: skip
-    top = SPRAY_LONG - 1.0
-    four: tuple[int, ...] = (-62, -22, 22, 62)
-    ends: list[tuple[tuple[float, float], float, float, tuple[int, ...]]]
-    ends = [((0.0, 0.0), 0.0, top, (-72, -36, 0, 36, 72))]
-    ends += [((0.0, 0.45), -58.0, 1.15, four), ((0.0, 0.85), 56.0, 1.1, four),
-             ((0.0, 1.35), -48.0, 0.95, four), ((0.0, 1.7), 46.0, 0.85, four)]  # fmt: skip
-    twigs = []
-    for (ax, ay), turn, length, fan in ends:
+    leaves = list(_SPRAY_MAIN_LEAVES)
+    bases, tips = [], []
+    for (ax, ay), turn, length, fan in _SPRAY_TWIGS:
         d = np.radians(turn)
         tip = (ax + np.sin(d) * length, ay + np.cos(d) * length)
-        twigs.append(((ax, ay), tip))
+        bases.append((ax, ay))
+        tips.append(tip)
         for j, off in enumerate(fan):
             heading = turn + off + 4.0 * np.sin(3.0 * j)
             leaves.append((tip[0], tip[1], heading, 0.94 - 0.05 * (j % 2)))
     # twigs a few mm across, and never under a texel (a coarse picture still shows them)
     twig = max(0.022, 0.6 * SPRAY_WIDE / n)
+    top = tips[0][1]
     shape = (np.abs(px) < twig) & (py > 0.004 * SPRAY_LONG) & (py < top)
-    for (ax, ay), (bx, by) in twigs:
-        shape |= _segments(px, py, np.array([[ax, ay]]), np.array([[bx, by]]), 0.8 * twig)
+    shape |= _segments(px, py, np.array(bases), np.array(tips), 0.8 * twig)
     value = np.where(shape, 0.5, 0.0)
     for j, (bx, by, angle, size) in enumerate(leaves):
         heading = (np.sin(np.radians(angle)), np.cos(np.radians(angle)))

@@ -32,9 +32,7 @@ def create_forest(
     """A forest job; with ``render``, also its render job, which waits for it."""
     s = services.settings
     after = check_after(services, req.after, who.scope)
-    after = list(
-        dict.fromkeys(after + check_tiles(services, req.tiles, who.scope, True, ["tiles"]))
-    )
+    after = list(dict.fromkeys(after + check_tiles(services, req.tiles, who.scope, True)))
     if req.render is not None:
         check_renderable(req.model_dump(mode="json"), "render")
         check_caps(s, req.render.width, req.render.height, req.render.frames, ["render"])

@@ -23,16 +23,17 @@ from service.views import UPLOAD_ERRORS, submit
 router = APIRouter(prefix="/v1/tilesets", tags=["tilesets"])
 
 SUFFIX = {"png": ".png", "jpeg": ".jpg"}
-MAX_EXAMPLE_BYTES = 16 << 20
-MAX_EXAMPLE_PIXELS = 4096 * 4096
+# an uploaded photograph's caps (the CLI reads larger examples: MAX_EXAMPLE_PIXELS)
+MAX_UPLOAD_BYTES = 16 << 20
+MAX_UPLOAD_PIXELS = 4096 * 4096
 
 
 def checked_example(data: bytes, k: int, size: int) -> str:
     """The file suffix of upload ``k`` once its bytes and header pass; 422 naming
     ``examples[k]`` otherwise. Only the header is decoded here (the job reads the pixels)."""
     where: list[str | int] = ["examples", k]
-    if len(data) > MAX_EXAMPLE_BYTES:
-        raise field_error(where, f"{len(data):,} bytes: at most {MAX_EXAMPLE_BYTES:,} a photograph")
+    if len(data) > MAX_UPLOAD_BYTES:
+        raise field_error(where, f"{len(data):,} bytes: at most {MAX_UPLOAD_BYTES:,} a photograph")
     kind = sniff_bytes(data[:HEAD_BYTES])
     if kind not in SUFFIX:
         raise field_error(where, f"{describe(kind)}, not a PNG or JPEG photograph")
@@ -40,7 +41,7 @@ def checked_example(data: bytes, k: int, size: int) -> str:
         path = Path(tmp) / f"example{SUFFIX[kind]}"
         path.write_bytes(data)
         try:
-            check_example_header(path, f"examples.{k}", size, MAX_EXAMPLE_PIXELS)
+            check_example_header(path, f"examples.{k}", size, MAX_UPLOAD_PIXELS)
         except ForestError as exc:
             raise field_error(where, exc.message) from None
     return SUFFIX[kind]

@@ -83,7 +83,7 @@ def _submit(
 ) -> tuple[JobRow, str]:
     """Check the request (422 before any work) and queue its job; the job and the file name."""
     s = services.settings
-    check_tiles(services, req.tiles, scope, False, ["tiles"])
+    check_tiles(services, req.tiles, scope, False)
     if req.recipe is not None:  # a small mixed stand, answered as one file
         plan = resolve_recipe(req, s, s.max_forest_trees, s.max_tree_pieces, flat=True)
         cost = job_cost(plan.pieces, req.frames, 0, plan.scene_bytes)

@@ -51,8 +51,9 @@ def run_tileset(ctx: JobContext) -> Outcome:
 
 def fetch_tileset(ctx: JobContext, job_id: str) -> Path:
     """The tile set of tile-set job ``job_id`` copied into this job's scratch folder
-    (``tiles/``, so a scene beside it names it by that relative path): its manifest and the
-    files the manifest names. The service checked the job is the caller's tenant's and
+    (``tiles/``, so a scene beside it names it by that relative path): its manifest and what
+    a reader of the set opens, its texture array and per-slice pictures (the edge and corner
+    patterns only make new tiles). The service checked the job is the caller's tenant's and
     completed before this job ran."""
     from forest.bark.tiles import manifest_for
     from schemas.tileset import MANIFEST_FILE
@@ -67,15 +68,10 @@ def fetch_tileset(ctx: JobContext, job_id: str) -> Path:
         shutil.copyfile(src, folder / name)
 
     copy(MANIFEST_FILE)
-    m = manifest_for(folder)
-    names = [*(m.files.slices if m.files else []), *(p.file for p in m.edge_patterns)]
-    if m.files is not None and m.files.array:
-        names.append(m.files.array)
-    for corner in (m.corner, m.lower_corner):
-        if corner is not None:
-            names.append(corner.file)
-    for name in dict.fromkeys(names):
-        copy(name)
+    files = manifest_for(folder).files  # a set the tileset job made always names them
+    if files is not None:
+        for name in [files.array, *files.slices] if files.array else files.slices:
+            copy(name)
     return folder
 
 
