@@ -8,6 +8,10 @@ service sends tasks by name and never imports worker code.
 
 from __future__ import annotations
 
+import logging
+import sqlite3
+from contextlib import closing
+from pathlib import Path
 from typing import Any
 
 from celery import Celery
@@ -34,7 +38,20 @@ def queue_for(kind: str, pool: str | None = None) -> str:
     return KIND_QUEUES[kind]
 
 
+log = logging.getLogger(__name__)
 SQLA_POLL_S = 0.1
+BROKER_LOCK_S = 30
+
+
+def _sqlite_broker_wal(path: str) -> None:
+    """Put the embedded broker's file in WAL mode (kept in the file): the workers' polls
+    (a read every 0.1 s each) then never block a send, nor a send a poll."""
+    try:
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        with closing(sqlite3.connect(path, timeout=BROKER_LOCK_S)) as conn:
+            conn.execute("PRAGMA journal_mode=WAL")
+    except (OSError, sqlite3.Error) as exc:  # kombu says it again, in its words, when used
+        log.warning("embedded broker %s not put in WAL mode: %s", Path(path).name, exc)
 
 
 def queue(name: str, args: dict[str, Any]) -> Queue:
@@ -54,6 +71,11 @@ def make_celery(settings: FarmSettings) -> Celery:
         from kombu.transport import sqlalchemy as kombu_sqla
 
         kombu_sqla.Transport.polling_interval = SQLA_POLL_S
+        if settings.broker.startswith("sqla+sqlite:///"):
+            _sqlite_broker_wal(settings.broker.removeprefix("sqla+sqlite:///"))
+            # sqlite3 gives up on a locked file after 5 s: under load a send then failed and
+            # was answered 503; wait as long as the job store does
+            app.conf.broker_transport_options = {"connect_args": {"timeout": BROKER_LOCK_S}}
     if settings.is_redis:
         # Redis redelivers an unacknowledged message only after the visibility timeout (a
         # killed worker's message waits in the ``unacked`` hash until then), so the reaper,

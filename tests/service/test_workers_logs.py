@@ -62,7 +62,9 @@ def test_workers_need_an_admin_key(farm: Server) -> None:
 
 
 def test_killed_worker_is_lost_after_the_timeout(farm: Server) -> None:
-    job_id = farm.post("/v1/forests", BODY).json()["id"]
+    r = farm.post("/v1/forests", BODY)
+    assert r.status_code == 202, r.text
+    job_id = r.json()["id"]
     farm.wait(job_id, states=("active",), timeout=60)
     until(lambda: farm.get(f"/v1/jobs/{job_id}").json()["stage"] == "test-pause")
 
