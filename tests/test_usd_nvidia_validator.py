@@ -81,16 +81,15 @@ ARKIT_SHADERS = {
 def scenes(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     """Every form: usda, usdc, usdz (each the small-forest default, skinned), a posed .usdc
     (--no-skinned), and --tiles with the package's default tile set beside the scene, as
-    .usdc and packed in a .usdz."""
+    .usdc and packed in a .usdz. One tree in the wind: the validator takes ~17 s a tree."""
     folder = tmp_path_factory.mktemp("nvidia")
-    forest = generate_forest(load_preset("almond"), 11, ForestOptions(trees=2, frames=4))
+    forest = generate_forest(load_preset("almond"), 11, ForestOptions(trees=1, frames=2))
     shutil.copytree(default_dir(), folder / "tiles")
     forms: dict[str, tuple[str, dict[str, object]]] = {
         "usda": ("f.usda", {}),
         "usdc": ("f.usdc", {}),
         "usdz": ("f.usdz", {}),
         "posed": ("posed.usdc", {"skinned": False}),
-        "skinned": ("skinned.usdc", {"skinned": True}),
         "tiles": ("tiles.usdc", {"tiles": "tiles"}),
         "tiles-usdz": ("tiles.usdz", {"tiles": "tiles"}),
     }
@@ -126,7 +125,7 @@ def nvidia_validate(scene: Path, out: Path) -> dict[str, Counter[str]]:
 
 
 @pytest.mark.parametrize(
-    "form", ["usda", "usdc", "usdz", "posed", "skinned", "tiles", "tiles-usdz"]
+    "form", ["usda", "usdc", "usdz", "posed", "tiles", "tiles-usdz"]
 )
 def test_nvidia_validator_no_failures_or_errors(
     scenes: dict[str, Path], tmp_path: Path, form: str
@@ -167,12 +166,12 @@ def test_usdz_follows_arkit_rules(scenes: dict[str, Path]) -> None:
         names = z.namelist()
     assert names[0] == "tiles.usdc"  # the root layer: crate
     # the tiles as one atlas (no UDIM inside a package), the leaf picture and the impostors'
-    pictures = ["bark.png", "leaf-almond.png", *impostor_pictures(2, packed=True)]
+    pictures = ["bark.png", "leaf-almond.png", *impostor_pictures(1, packed=True)]
     assert sorted(names[1:]) == sorted(f"textures/{name}" for name in pictures)
 
     types = Counter(p.GetTypeName() for p in stage.Traverse())
     assert set(types) <= ARKIT_PRIM_TYPES, types
-    assert types["PointInstancer"] == 0 and types["SkelRoot"] == 2
+    assert types["PointInstancer"] == 0 and types["SkelRoot"] == 1
 
     shaders = set()
     for prim in stage.Traverse():

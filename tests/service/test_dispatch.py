@@ -5,8 +5,11 @@ only."""
 
 from __future__ import annotations
 
+import sqlite3
+import threading
 import time
 import uuid
+from contextlib import closing
 from pathlib import Path
 
 import pytest
@@ -43,11 +46,46 @@ def test_redis_broker_options(tmp_path: Path, url: str) -> None:
     assert unprefixed.conf.broker_transport_options == {"visibility_timeout": 3600.0}
 
 
-@pytest.mark.parametrize("url", [None, "amqp://guest:guest@127.0.0.1:5672//"])
-def test_other_brokers_get_no_redis_options(tmp_path: Path, url: str | None) -> None:
-    s = FarmSettings(data_dir=tmp_path, broker_url=url, queue_prefix="blue.")
+LOCK_HELD_S = 6
+
+
+def test_amqp_gets_no_transport_options(tmp_path: Path) -> None:
+    s = FarmSettings(data_dir=tmp_path, broker_url="amqp://guest:guest@127.0.0.1:5672//")
     assert not s.is_redis
     assert not make_celery(s).conf.broker_transport_options
+
+
+def test_embedded_broker_waits_for_a_lock_in_wal_mode(tmp_path: Path) -> None:
+    """The embedded broker's file in WAL mode (polls never block a send) and kombu's engine
+    waiting as long as the job store for a lock (sqlite3's 5 s made a send under load fail)."""
+    s = FarmSettings(data_dir=tmp_path, queue_prefix="blue.")
+    app = make_celery(s)
+    assert app.conf.broker_transport_options == {"connect_args": {"timeout": 30}}
+    with closing(sqlite3.connect(tmp_path / "broker.sqlite")) as conn:
+        assert conn.execute("PRAGMA journal_mode").fetchone() == ("wal",)
+    with app.connection_for_write() as conn:
+        queue = app.conf.task_queues[0]
+        with conn.Producer() as producer:  # the tables made, as a first send makes them
+            producer.publish(
+                {"n": 0}, exchange=queue.exchange, routing_key=queue.routing_key, declare=[queue]
+            )
+        held = threading.Event()
+
+        def hold_the_write_lock() -> None:  # another writer, for longer than sqlite3's 5 s
+            with closing(sqlite3.connect(tmp_path / "broker.sqlite")) as other:
+                other.execute("BEGIN IMMEDIATE")
+                held.set()
+                time.sleep(LOCK_HELD_S)
+                other.rollback()
+
+        writer = threading.Thread(target=hold_the_write_lock)
+        writer.start()
+        held.wait(10)
+        start = time.monotonic()
+        with conn.Producer() as producer:
+            producer.publish({"n": 1}, exchange=queue.exchange, routing_key=queue.routing_key)
+        writer.join()
+        assert time.monotonic() - start >= LOCK_HELD_S - 0.5  # it waited, and was sent
 
 
 def test_redis_visibility_timeout_must_outlast_the_reaper(tmp_path: Path) -> None:
