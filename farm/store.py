@@ -11,7 +11,8 @@ import contextlib
 import hashlib
 import json
 import uuid
-from collections.abc import Iterable, Iterator, Sequence
+import zlib
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Any, NamedTuple
@@ -28,6 +29,7 @@ FINISHED = (JobState.COMPLETED, JobState.FAILED, JobState.CANCELED)
 UNFINISHED = (JobState.QUEUED, JobState.ACTIVE)
 IN_BATCH = 500  # ids per IN list: far below every driver's bound-parameter limit
 WINDOW_LOCK = 7318450022  # the fair window's advisory lock (beside the migrations' 7318450021)
+QUOTA_LOCK_SPACE = 731845  # tenants' quota locks: (this, crc32 of the tenant), two int4 keys
 TILE_KIND = "forest_tile"
 CHUNK_KIND = "render_chunk"
 """A chunk of a render job's frames (:mod:`farm.chunks`): like tiles, a child row (``parent``)
@@ -96,12 +98,16 @@ class JobStore:
         priority: int = 5,
         estimate: dict[str, Any] | None = None,
         after: list[str] | None = None,
+        admit: Callable[[tuple[int, int]], Exception | None] | None = None,
     ) -> tuple[JobRow, bool]:
         """Insert a queued job of ``tenant``, held until the fair window sends it
         (:func:`farm.fair.pump`); with an idempotency key the tenant already used
         for the same request, answer that job instead (``created`` False). ``estimate``
         (:class:`schemas.jobs.JobCost`) is what the tenant's quotas sum while it is unfinished.
-        ``after``: jobs it waits for (:mod:`farm.graph`); each lists it in its ``then``."""
+        ``after``: jobs it waits for (:mod:`farm.graph`); each lists it in its ``then``.
+        ``admit``: given the tenant's load (:meth:`tenant_load`), the exception that refuses
+        the job, or None; asked and answered under the tenant's lock, so that requests at
+        once cannot each see room and together overshoot the quota."""
         digest = request_hash(kind, params)
         stored = scoped_key(tenant, key) if key is not None else None
         if key is not None and stored is not None:
@@ -141,6 +147,11 @@ class JobStore:
             row.stage = waiting_for(after)
         try:
             with self.session() as s, s.begin():
+                if admit is not None:
+                    self._lock_tenant(s, tenant)
+                    refused = admit(self._load(s, tenant))
+                    if refused is not None:
+                        raise refused
                 s.add(row)
                 for parent in s.scalars(
                     select(JobRow).where(JobRow.id.in_(after or [])).with_for_update()
@@ -163,15 +174,29 @@ class JobStore:
         """The estimated cost (piece-frames) and tiles of the tenant's queued and running jobs
         (a tiled forest's tiles count through their forest job)."""
         with self.session() as s:
-            cost, tiles = s.execute(
-                select(
-                    func.coalesce(func.sum(JobRow.cost), 0),
-                    func.coalesce(func.sum(JobRow.tiles), 0),
-                ).where(
-                    JobRow.tenant == tenant, JobRow.state.in_(UNFINISHED), JobRow.parent.is_(None)
-                )
-            ).one()
+            return self._load(s, tenant)
+
+    @staticmethod
+    def _load(s: Session, tenant: str) -> tuple[int, int]:
+        cost, tiles = s.execute(
+            select(
+                func.coalesce(func.sum(JobRow.cost), 0),
+                func.coalesce(func.sum(JobRow.tiles), 0),
+            ).where(JobRow.tenant == tenant, JobRow.state.in_(UNFINISHED), JobRow.parent.is_(None))
+        ).one()
         return int(cost), int(tiles)
+
+    def _lock_tenant(self, s: Session, tenant: str) -> None:
+        """Hold the tenant's lock to the end of the transaction: an advisory lock keyed by the
+        tenant on PostgreSQL (other tenants go on), the write lock on SQLite."""
+        if self.engine.dialect.name == "postgresql":
+            key = zlib.crc32(tenant.encode()) - 2**31  # int4
+            s.execute(
+                text("SELECT pg_advisory_xact_lock(:space, :key)"),
+                {"space": QUOTA_LOCK_SPACE, "key": key},
+            )
+        elif self.engine.dialect.name == "sqlite":
+            s.execute(text("BEGIN IMMEDIATE"))
 
     def get(self, job_id: str, tenant: str | None = None) -> JobRow | None:
         """The job; with ``tenant``, only if it is that tenant's (another's is None)."""

@@ -195,12 +195,10 @@ def enqueue(
     if refused_hook is not None:  # before any work: the farm calls only hosts it allows
         raise field_error(["webhook"], refused_hook)
     known = key is not None and services.store.by_key(scoped_key(tenant, key)) is not None
-    if not known:  # a repeat of an accepted request answers its job, quota or not
-        refused = over_quota(
-            services.settings, cost, services.store.tenant_load(tenant), field or []
-        )
-        if refused is not None:
-            raise refused
+
+    def admit(load: tuple[int, int]) -> Exception | None:
+        return over_quota(services.settings, cost, load, field or [])
+
     try:
         row, created = services.store.create(
             kind,
@@ -211,6 +209,8 @@ def enqueue(
             priority=int(params.get("priority", 5)),
             estimate=cost.model_dump(),
             after=after,
+            # a repeat of an accepted request answers its job, quota or not
+            admit=None if known else admit,
         )
     except IdempotencyConflict as exc:
         raise HTTPException(409, str(exc)) from None
