@@ -560,6 +560,7 @@ async function refreshJobs() {
 // ---- live jobs: GET /v1/jobs/{id}/events ----------------------------------------------------
 const FINISHED = ["completed", "failed", "canceled"];
 const MAX_STREAMS = 4; // a browser opens at most 6 connections to a server over HTTP/1.1
+const RECONNECT_MS = 1000; // between a job's event streams when one closes before its end
 const followed = new Map(); // job id -> AbortController of its event stream
 
 /** The job as it is now, its row rebuilt (after a state change: attempts, error, artifacts). */
@@ -609,6 +610,9 @@ function follow(jobId) {
           else if (e.event === "state") await updateJob(jobId);
           else if (e.event === "end") ended = true;
         }
+        // closed without its end (the server's cap, a restart): wait a little before the
+        // next connection, so that a server closing at once is not asked again in a loop
+        if (!ended) await new Promise((resolve) => setTimeout(resolve, RECONNECT_MS));
       }
     } catch (err) {
       if (ctl.signal.aborted) return;
