@@ -17,7 +17,7 @@ from farm.artifacts import ArtifactStore
 from farm.dispatch import Dispatcher
 from farm.fair import pump_quietly
 from farm.settings import FarmSettings
-from farm.store import JobStore
+from farm.store import CHUNK_KIND, JobStore
 from farm.webhooks import Deliveries
 from schemas.jobs import JobState
 
@@ -64,8 +64,27 @@ def tidy_once(store: JobStore, artifacts: ArtifactStore, artifact_ttl_s: float =
     swept = artifacts.sweep_scratch(store.unfinished)
     for path in swept:
         log.info("removed the scratch folder %s (its process is gone)", path.name)
+    drop_stray_frames(store, artifacts)
     expired = expire_artifacts(store, artifacts, artifact_ttl_s) if artifact_ttl_s else 0
     return len(swept) + expired
+
+
+def drop_stray_frames(store: JobStore, artifacts: ArtifactStore) -> int:
+    """Delete the frames that completed chunks wrote into a render job that then failed or
+    was canceled (listed by no job: nobody could download or delete them); a completed
+    render's join already took its chunks' frames. How many frames went."""
+    dropped = 0
+    for chunk_id, render_id, completed, result in store.ended_children(CHUNK_KIND):
+        if not completed:
+            for name in (result or {}).get("files", []):
+                frame = artifacts.path(render_id, name)
+                if frame is not None:
+                    frame.unlink(missing_ok=True)
+                    dropped += 1
+        store.artifacts_deleted(chunk_id)
+    if dropped:
+        log.info("deleted %d frame(s) of chunked renders that did not complete", dropped)
+    return dropped
 
 
 def delete_artifacts(store: JobStore, artifacts: ArtifactStore, job_id: str) -> None:

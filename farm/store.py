@@ -322,6 +322,25 @@ class JobStore:
         row = self.get(job_id)
         return row if row is not None and row.state in FINISHED else None
 
+    def ended_children(self, kind: str, limit: int = 200) -> list[tuple[str, str, bool, Any]]:
+        """Completed children of ``kind`` whose parent has ended and whose files are not
+        recorded as deleted: (child id, parent id, whether the parent completed, the child's
+        result). Each is looked at once (:meth:`artifacts_deleted` marks it)."""
+        parent = aliased(JobRow)
+        with self.session() as s:
+            rows = s.execute(
+                select(JobRow.id, JobRow.parent, parent.state, JobRow.result)
+                .join(parent, parent.id == JobRow.parent)
+                .where(
+                    JobRow.kind == kind,
+                    JobRow.state == JobState.COMPLETED,
+                    JobRow.artifacts_deleted_at.is_(None),
+                    parent.state.in_(FINISHED),
+                )
+                .limit(limit)
+            ).all()
+        return [(i, str(p), st == JobState.COMPLETED, r) for i, p, st, r in rows]
+
     def expired(self, ttl_s: float, limit: int = 200) -> list[str]:
         """Finished jobs whose artifacts outlived ``ttl_s`` and are not deleted yet, oldest
         first."""

@@ -2,7 +2,8 @@
 a 48-frame render splits into six ``render_chunk`` jobs of 8 frames (FOREST_RENDER_CHUNK_FRAMES),
 run on both workers; the render job assembles the same preview, clip and per-frame metrics
 that one worker's render writes (pixel for pixel, llvmpipe); a chunk whose worker is killed
-runs again alone, every other chunk once."""
+runs again alone, every other chunk once; a canceled render's completed chunks' frames are
+deleted by housekeeping."""
 
 from __future__ import annotations
 
@@ -35,7 +36,9 @@ CHUNKS = 6
 @pytest.fixture(scope="module")
 def server(backend: dict[str, str], tmp_path_factory: pytest.TempPathFactory) -> Iterator[Server]:
     # the first attempt of each render's chunk from frame 8 pauses: a window to kill it
-    yield from served(tmp_path_factory.mktemp("chunks"), backend, {"pause_chunk_s": 6})
+    # housekeeping each second: the frames of a canceled render's completed chunks go
+    env = backend | {"FOREST_HOUSEKEEPING_S": "1"}
+    yield from served(tmp_path_factory.mktemp("chunks"), env, {"pause_chunk_s": 6})
 
 
 @pytest.fixture(scope="module")
@@ -136,6 +139,10 @@ def test_cancel_cancels_the_chunks(server: Server, forest: dict[str, Any]) -> No
     while server.get(f"/v1/jobs/{second}").json().get("stage") != "test-pause":
         assert time.monotonic() < deadline
         time.sleep(0.05)
+    first = server.wait(chunk_job_id(job_id, 0), timeout=120)  # its frames written
+    assert first["state"] == "completed", first
+    folder = server.data / "artifacts" / job_id
+    assert sorted(p.name for p in folder.glob("frame_*.png")) == first["result"]["files"]
     r = httpx.delete(f"{server.url}/v1/jobs/{job_id}", headers=server.headers, timeout=30)
     assert r.status_code == 200, r.text
     assert server.wait(job_id, timeout=60)["state"] == "canceled"
@@ -145,6 +152,10 @@ def test_cancel_cancels_the_chunks(server: Server, forest: dict[str, Any]) -> No
         states.add(server.wait(chunk_job_id(job_id, n))["state"] if got.status_code == 200
                    else "gone")  # fmt: skip
     assert "canceled" in states and states <= {"canceled", "completed", "gone"}, states
+    # no job lists the completed chunks' frames now: housekeeping deletes them
+    while list(folder.glob("frame_*.png")):
+        assert time.monotonic() < deadline + 60, sorted(folder.iterdir())
+        time.sleep(0.2)
 
 
 def test_small_render_is_one_job(server: Server, forest: dict[str, Any]) -> None:
