@@ -6,6 +6,7 @@ all dropped at the end). A server that is not running fails the test with how to
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -19,8 +20,12 @@ from service_harness import (
     REDIS_URL,
     Server,
     own_backend,
+    pg_database,
     require_server,
 )
+
+from farm.db import migrate
+from farm.store import JobStore
 
 BACKENDS = ["embedded", "pg-rabbitmq", "pg-redis"]
 
@@ -52,3 +57,19 @@ def make_server(tmp_path: Path) -> Iterator[Any]:
     yield make
     for s in servers:
         s.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def sql_store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
+    """The job store alone (no server), on SQLite and on a PostgreSQL database of its own."""
+    if request.param == "sqlite":
+        url = f"sqlite:///{tmp_path / 'jobs.sqlite'}"
+        migrate(url)
+        yield JobStore(url)
+        return
+    require_server("PostgreSQL", PG)
+    with pg_database(uuid.uuid4().hex[:12]) as url:
+        migrate(url)
+        store = JobStore(url)
+        yield store
+        store.engine.dispose()

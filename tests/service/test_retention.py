@@ -7,39 +7,23 @@ HTTP part through a real ``forest serve``."""
 from __future__ import annotations
 
 import time
-import uuid
 from collections.abc import Iterator
 from datetime import timedelta
 from pathlib import Path
 
 import httpx
 import pytest
-from service_harness import PG, Server, pg_database, require_server
+from service_harness import Server
 from sqlalchemy import update
 
 from farm.artifacts import ArtifactStore
-from farm.db import JobRow, migrate, utcnow
+from farm.db import JobRow, utcnow
 from farm.reaper import tidy_once
 from farm.store import JobStore
 
 A = {"X-API-Key": "key-a"}
 B = {"X-API-Key": "key-b"}
 KEYS = {"FOREST_API_KEYS": "key-a=alpha,key-b=beta"}
-
-
-@pytest.fixture(params=["sqlite", "postgresql"])
-def store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
-    if request.param == "sqlite":
-        url = f"sqlite:///{tmp_path / 'jobs.sqlite'}"
-        migrate(url)
-        yield JobStore(url)
-        return
-    require_server("PostgreSQL", PG)
-    with pg_database(uuid.uuid4().hex[:12]) as url:
-        migrate(url)
-        store = JobStore(url)
-        yield store
-        store.engine.dispose()
 
 
 def finished(store: JobStore, artifacts: ArtifactStore, seed: int, ago_s: float) -> str:
@@ -60,27 +44,27 @@ def finished(store: JobStore, artifacts: ArtifactStore, seed: int, ago_s: float)
     return row.id
 
 
-def test_reaper_deletes_artifacts_past_their_ttl(store: JobStore, tmp_path: Path) -> None:
+def test_reaper_deletes_artifacts_past_their_ttl(sql_store: JobStore, tmp_path: Path) -> None:
     artifacts = ArtifactStore(tmp_path / "artifacts")
-    old = finished(store, artifacts, 1, ago_s=7200)
-    fresh = finished(store, artifacts, 2, ago_s=60)
-    running, _ = store.create("forest", {"seed": 3}, max_attempts=3)
-    assert store.claim(running.id, "w", 60) is not None
+    old = finished(sql_store, artifacts, 1, ago_s=7200)
+    fresh = finished(sql_store, artifacts, 2, ago_s=60)
+    running, _ = sql_store.create("forest", {"seed": 3}, max_attempts=3)
+    assert sql_store.claim(running.id, "w", 60) is not None
     artifacts.folder(running.id).mkdir(parents=True)  # e.g. an upload's input
-    assert tidy_once(store, artifacts, artifact_ttl_s=0) == 0  # no TTL: kept for ever
+    assert tidy_once(sql_store, artifacts, artifact_ttl_s=0) == 0  # no TTL: kept for ever
     assert artifacts.folder(old).is_dir()
 
-    assert tidy_once(store, artifacts, artifact_ttl_s=3600) == 1
+    assert tidy_once(sql_store, artifacts, artifact_ttl_s=3600) == 1
     assert not artifacts.folder(old).exists()
-    gone = store.get(old)
+    gone = sql_store.get(old)
     assert gone is not None and gone.state == "completed"
     assert gone.artifacts == [] and gone.artifacts_deleted_at is not None
     for kept in (fresh, running.id):
         assert artifacts.folder(kept).is_dir()
-        row = store.get(kept)
+        row = sql_store.get(kept)
         assert row is not None and row.artifacts_deleted_at is None
-    assert tidy_once(store, artifacts, artifact_ttl_s=3600) == 0  # done once
-    assert store.expired(3600) == []
+    assert tidy_once(sql_store, artifacts, artifact_ttl_s=3600) == 0  # done once
+    assert sql_store.expired(3600) == []
 
 
 def started(data: Path, env: dict[str, str], workers: int) -> Iterator[Server]:

@@ -4,13 +4,10 @@ idempotency keys (the end-to-end tests run the same code on PostgreSQL)."""
 from __future__ import annotations
 
 import time
-import uuid
-from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
-from service_harness import PG, pg_database, require_server
 
 from farm import tiles
 from farm.db import migrate
@@ -111,22 +108,7 @@ def test_idempotency_key(store: JobStore) -> None:
     assert total == 1 and rows[0].id == a.id
 
 
-@pytest.fixture(params=["sqlite", "postgresql"])
-def any_store(request: pytest.FixtureRequest, tmp_path: Path) -> Iterator[JobStore]:
-    if request.param == "sqlite":
-        url = f"sqlite:///{tmp_path / 'jobs.sqlite'}"
-        migrate(url)
-        yield JobStore(url)
-        return
-    require_server("PostgreSQL", PG)
-    with pg_database(uuid.uuid4().hex[:12]) as url:
-        migrate(url)
-        store = JobStore(url)
-        yield store
-        store.engine.dispose()
-
-
-def test_requests_at_once_cannot_overshoot_a_quota(any_store: JobStore) -> None:
+def test_requests_at_once_cannot_overshoot_a_quota(sql_store: JobStore) -> None:
     """The quota is asked and the job inserted under the tenant's lock: of four requests at
     once with room for one, one is admitted (each looks a while, as a busy API would, before
     it answers; without the lock all four saw room)."""
@@ -138,7 +120,7 @@ def test_requests_at_once_cannot_overshoot_a_quota(any_store: JobStore) -> None:
 
     def submit(i: int) -> str:
         try:
-            any_store.create(
+            sql_store.create(
                 "forest", {"seed": i}, 3, tenant="alice", estimate={"units": 60}, admit=admit
             )
         except RuntimeError:
@@ -148,7 +130,7 @@ def test_requests_at_once_cannot_overshoot_a_quota(any_store: JobStore) -> None:
     with ThreadPoolExecutor(4) as pool:
         got = sorted(pool.map(submit, range(4)))
     assert got == ["admitted", "refused", "refused", "refused"]
-    assert any_store.tenant_load("alice") == (60, 0)
+    assert sql_store.tenant_load("alice") == (60, 0)
     # another tenant has its own room
-    any_store.create("forest", {"seed": 9}, 3, tenant="bob", estimate={"units": 60}, admit=admit)
-    assert any_store.tenant_load("bob") == (60, 0)
+    sql_store.create("forest", {"seed": 9}, 3, tenant="bob", estimate={"units": 60}, admit=admit)
+    assert sql_store.tenant_load("bob") == (60, 0)
