@@ -124,9 +124,7 @@ def nvidia_validate(scene: Path, out: Path) -> dict[str, Counter[str]]:
     return found
 
 
-@pytest.mark.parametrize(
-    "form", ["usda", "usdc", "usdz", "posed", "tiles", "tiles-usdz"]
-)
+@pytest.mark.parametrize("form", ["usda", "usdc", "usdz", "posed", "tiles", "tiles-usdz"])
 def test_nvidia_validator_no_failures_or_errors(
     scenes: dict[str, Path], tmp_path: Path, form: str
 ) -> None:
