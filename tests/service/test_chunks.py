@@ -142,7 +142,8 @@ def test_cancel_cancels_the_chunks(server: Server, forest: dict[str, Any]) -> No
     first = server.wait(chunk_job_id(job_id, 0), timeout=120)  # its frames written
     assert first["state"] == "completed", first
     folder = server.data / "artifacts" / job_id
-    assert sorted(p.name for p in folder.glob("frame_*.png")) == first["result"]["files"]
+    # its frames (and those of any other chunk done by now) are in the render's folder
+    assert set(first["result"]["files"]) <= {p.name for p in folder.glob("frame_*.png")}
     r = httpx.delete(f"{server.url}/v1/jobs/{job_id}", headers=server.headers, timeout=30)
     assert r.status_code == 200, r.text
     assert server.wait(job_id, timeout=60)["state"] == "canceled"
