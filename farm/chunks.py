@@ -136,8 +136,17 @@ def join(
     if not ok:
         return "lost"
     for _, r in results:  # the chunks' frames are in the clip now
-        for name in (r or {}).get("files", []):
-            frame = artifacts.path(job_id, name)
-            if frame is not None:
-                frame.unlink(missing_ok=True)
+        drop_frames(artifacts, job_id, r)
     return JobState.COMPLETED
+
+
+def drop_frames(artifacts: ArtifactStore, render_id: str, result: dict[str, Any] | None) -> int:
+    """Delete the frames a chunk (its ``result``) wrote into render job ``render_id``'s
+    folder; how many there were."""
+    dropped = 0
+    for name in (result or {}).get("files", []):
+        frame = artifacts.path(render_id, name)
+        if frame is not None:
+            frame.unlink(missing_ok=True)
+            dropped += 1
+    return dropped

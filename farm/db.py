@@ -160,13 +160,14 @@ class JobLogRow(Base):
 
 
 _engines: dict[str, Engine] = {}
+SQLITE_LOCK_S = 30  # how long a SQLite file (job store, embedded broker) waits for a lock
 _lock = Lock()
 
 
 def _sqlite_pragmas(dbapi_conn: Any, _record: Any) -> None:
     cur = dbapi_conn.cursor()
     cur.execute("PRAGMA journal_mode=WAL")  # readers never block the one writer
-    cur.execute("PRAGMA busy_timeout=30000")
+    cur.execute(f"PRAGMA busy_timeout={SQLITE_LOCK_S * 1000}")
     cur.execute("PRAGMA synchronous=NORMAL")
     cur.close()
 
@@ -177,7 +178,9 @@ def engine_for(url: str) -> Engine:
         eng = _engines.get(url)
         if eng is None:
             if url.startswith("sqlite"):
-                eng = create_engine(url, connect_args={"timeout": 30, "check_same_thread": False})
+                eng = create_engine(
+                    url, connect_args={"timeout": SQLITE_LOCK_S, "check_same_thread": False}
+                )
                 sa_event.listen(eng, "connect", _sqlite_pragmas)
             else:
                 eng = create_engine(url, pool_pre_ping=True)

@@ -17,6 +17,7 @@ from typing import Any
 from celery import Celery
 from kombu import Exchange, Queue
 
+from farm.db import SQLITE_LOCK_S
 from farm.settings import FarmSettings
 
 TASK_NAME = "forest.run_job"
@@ -40,7 +41,6 @@ def queue_for(kind: str, pool: str | None = None) -> str:
 
 log = logging.getLogger(__name__)
 SQLA_POLL_S = 0.1
-BROKER_LOCK_S = 30
 
 
 def _sqlite_broker_wal(path: str) -> None:
@@ -48,7 +48,7 @@ def _sqlite_broker_wal(path: str) -> None:
     (a read every 0.1 s each) then never block a send, nor a send a poll."""
     try:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        with closing(sqlite3.connect(path, timeout=BROKER_LOCK_S)) as conn:
+        with closing(sqlite3.connect(path, timeout=SQLITE_LOCK_S)) as conn:
             conn.execute("PRAGMA journal_mode=WAL")
     except (OSError, sqlite3.Error) as exc:  # kombu says it again, in its words, when used
         log.warning("embedded broker %s not put in WAL mode: %s", Path(path).name, exc)
@@ -75,7 +75,7 @@ def make_celery(settings: FarmSettings) -> Celery:
             _sqlite_broker_wal(settings.broker.removeprefix("sqla+sqlite:///"))
             # sqlite3 gives up on a locked file after 5 s: under load a send then failed and
             # was answered 503; wait as long as the job store does
-            app.conf.broker_transport_options = {"connect_args": {"timeout": BROKER_LOCK_S}}
+            app.conf.broker_transport_options = {"connect_args": {"timeout": SQLITE_LOCK_S}}
     if settings.is_redis:
         # Redis redelivers an unacknowledged message only after the visibility timeout (a
         # killed worker's message waits in the ``unacked`` hash until then), so the reaper,

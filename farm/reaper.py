@@ -14,6 +14,7 @@ import time
 
 from farm import joblog
 from farm.artifacts import ArtifactStore
+from farm.chunks import drop_frames
 from farm.dispatch import Dispatcher
 from farm.fair import pump_quietly
 from farm.settings import FarmSettings
@@ -76,11 +77,7 @@ def drop_stray_frames(store: JobStore, artifacts: ArtifactStore) -> int:
     dropped = 0
     for chunk_id, render_id, completed, result in store.ended_children(CHUNK_KIND):
         if not completed:
-            for name in (result or {}).get("files", []):
-                frame = artifacts.path(render_id, name)
-                if frame is not None:
-                    frame.unlink(missing_ok=True)
-                    dropped += 1
+            dropped += drop_frames(artifacts, render_id, result)
         store.artifacts_deleted(chunk_id)
     if dropped:
         log.info("deleted %d frame(s) of chunked renders that did not complete", dropped)
